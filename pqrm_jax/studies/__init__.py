@@ -1,0 +1,25 @@
+"""Studies run by ``pqrm-jax study NAME``.
+
+Each study is a module in this package that defines ``NAME`` (the CLI name, e.g.
+``"padgett-mc"``), ``HELP`` (one line) and ``main(argv: list[str]) -> int``. The CLI discovers
+them; adding a study never edits a shared file.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from types import ModuleType
+
+
+def discover() -> dict[str, ModuleType]:
+    """Map study name → module for every study module in this package."""
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{__name__}.{info.name}")
+        name = getattr(mod, "NAME", None)
+        if name:
+            found[name] = mod
+    return found
