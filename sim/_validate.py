@@ -34,7 +34,7 @@ def as_float(x: Any) -> jax.Array:
 
 def check_shape(name: str, x: Any, ndim: int, last: int | None = None) -> None:
     """Raise ``ValueError`` unless ``x`` has ``ndim`` dimensions and last axis ``last``."""
-    shape = jnp.shape(x)
+    shape = np.shape(x)
     if len(shape) != ndim or (last is not None and shape[-1] != last):
         want = {1: f"({last},)" if last is not None else "(N,)",
                 2: f"(N, {last})" if last is not None else "(N, M)"}.get(ndim, f"{ndim}-d")

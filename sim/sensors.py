@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from sim._validate import as_float, check_finite, check_nonneg, check_shape
 
@@ -87,8 +88,8 @@ def _check_inputs(pose, landmarks, params: SensorParams) -> None:
         raise ValueError(f"params must be a SensorParams, got {type(params).__name__}")
     for name in SensorParams._fields:
         value = getattr(params, name)
-        if jnp.ndim(value) != 0:
-            raise ValueError(f"SensorParams.{name} must be a scalar, got shape {jnp.shape(value)}")
+        if np.ndim(value) != 0:
+            raise ValueError(f"SensorParams.{name} must be a scalar, got shape {np.shape(value)}")
         check_nonneg(f"SensorParams.{name}", value)
 
 

@@ -120,11 +120,11 @@ def _traverse(key, n, step_min, step_max, start, size, turn_sigma):
         p, th = carry
         s, dth = inp
         th = th + dth
-        q = p + s * jnp.stack([jnp.cos(th), jnp.sin(th)])
-        # Mirror at the walls (keeps the step length), then clip as a last resort.
-        q = jnp.where(q < 0, -q, q)
-        q = jnp.where(q > size, 2 * size - q, q)
-        q = jnp.clip(q, 0.0, size)
+        d = s * jnp.stack([jnp.cos(th), jnp.sin(th)])
+        # Bounce off the walls: flip a displacement component that would leave the box (keeps
+        # the step length while the box is wider than two steps), then clip as a last resort.
+        q = p + d
+        q = jnp.clip(jnp.where((q < 0) | (q > size), p - d, q), 0.0, size)
         d = q - p
         th = jnp.arctan2(d[1], d[0])
         return (q, th), jnp.concatenate([q, th[None]])
@@ -148,7 +148,8 @@ def traverse(
 
     The path starts at ``start`` (default: uniform in the box) with a random heading; each step
     turns by a Gaussian angle of std ``turn_sigma`` and is mirrored at the walls of the box
-    ``[0, size[0]] x [0, size[1]]``. Each pose's heading is the direction of the step that
+    ``[0, size[0]] x [0, size[1]]`` (step lengths are exact while the box is wider than
+    ``2 * step_max``). Each pose's heading is the direction of the step that
     reached it (like M §VIII.C: panoramic images every 1-2 m of travel).
 
     >>> path = traverse(jax.random.key(0), 20, start=(10.0, 10.0))

@@ -37,8 +37,8 @@ def _float() -> jnp.dtype:
 
 
 def _check_size(size: Size) -> None:
-    if jnp.shape(size) != (2,):
-        raise ValueError(f"size must be a pair (width, height), got shape {jnp.shape(size)}")
+    if np.shape(size) != (2,):
+        raise ValueError(f"size must be a pair (width, height), got shape {np.shape(size)}")
     check_positive("size", size)
 
 
