@@ -131,19 +131,26 @@ def reset(
     >>> s.pose.tolist(), float(s.t)
     ([1.0, 2.0, 0.0], 0.0)
     """
-    params = _check_params(params)
+    _check_params(params)
     if pose is None:
-        k_p, k_h = jax.random.split(key)
-        dtype = jnp.result_type(float)
-        xy = jax.random.uniform(k_p, (2,), dtype=dtype) * jnp.asarray(size, dtype)
-        th = jax.random.uniform(k_h, (), dtype=dtype, minval=-jnp.pi, maxval=jnp.pi)
-        pose = jnp.concatenate([xy, th[None]])
-    else:
-        pose = as_float(pose)
-        check_shape("pose", pose, 1, 3)
-        check_finite("pose", pose)
-        pose = pose.at[2].set(wrap_angle(pose[2]))
-    return RoverState(pose, jnp.zeros((), pose.dtype))
+        return _random_reset(key, jnp.asarray(size, jnp.result_type(float)))
+    pose = as_float(pose)
+    check_shape("pose", pose, 1, 3)
+    check_finite("pose", pose)
+    return _given_reset(pose)
+
+
+@jax.jit
+def _random_reset(key, size):
+    k_p, k_h = jax.random.split(key)
+    xy = jax.random.uniform(k_p, (2,), dtype=size.dtype) * size
+    th = jax.random.uniform(k_h, (), dtype=size.dtype, minval=-jnp.pi, maxval=jnp.pi)
+    return RoverState(jnp.concatenate([xy, th[None]]), jnp.zeros((), size.dtype))
+
+
+@jax.jit
+def _given_reset(pose):
+    return RoverState(pose.at[2].set(wrap_angle(pose[2])), jnp.zeros((), pose.dtype))
 
 
 def step(

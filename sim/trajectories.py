@@ -74,10 +74,14 @@ def perimeter_loop(
     check_positive("radius", radius)
     n = math.ceil(2 * math.pi / dtheta - 1e-9)
     sign = -1.0 if clockwise else 1.0
-    phi = start_angle + sign * dtheta * jnp.arange(n, dtype=_float())
-    c = jnp.asarray(center, _float())
-    xy = c + radius * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)
-    heading = wrap_angle(phi + sign * 0.5 * jnp.pi)
+    return _circle(jnp.asarray(center, _float()), radius, start_angle, sign * dtheta, n)
+
+
+@partial(jax.jit, static_argnames="n")
+def _circle(center, radius, start_angle, dtheta, n):
+    phi = start_angle + dtheta * jnp.arange(n, dtype=center.dtype)
+    xy = center + radius * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)
+    heading = wrap_angle(phi + jnp.sign(dtheta) * 0.5 * jnp.pi)
     return jnp.concatenate([xy, heading[:, None]], axis=-1)
 
 
@@ -97,21 +101,29 @@ def random_imaging_points(
     """
     n = check_count("n", n)
     check_positive("size", size)
+    random_heading = isinstance(heading, str)
+    if random_heading and heading != "random":
+        raise ValueError(f'heading must be "random" or a number, got {heading!r}')
+    return _imaging(key, n, size, 0.0 if random_heading else heading, random_heading)
+
+
+@partial(jax.jit, static_argnames=("n", "random_heading"))
+def _imaging(key, n, size, heading, random_heading):
     k_p, k_h = jax.random.split(key)
     xy = jax.random.uniform(k_p, (n, 2), dtype=_float()) * jnp.asarray(size, _float())
-    if isinstance(heading, str):
-        if heading != "random":
-            raise ValueError(f'heading must be "random" or a number, got {heading!r}')
+    if random_heading:
         th = jax.random.uniform(k_h, (n,), dtype=_float(), minval=-jnp.pi, maxval=jnp.pi)
     else:
         th = jnp.full((n,), wrap_angle(jnp.asarray(heading, _float())))
     return jnp.concatenate([xy, th[:, None]], axis=-1)
 
 
-@partial(jax.jit, static_argnames="n")
-def _traverse(key, n, step_min, step_max, start, size, turn_sigma):
+@partial(jax.jit, static_argnames=("n", "random_start"))
+def _traverse(key, n, step_min, step_max, start, size, turn_sigma, random_start):
     k_s, k_h, k_l, k_t = jax.random.split(key, 4)
     size = jnp.asarray(size, _float())
+    if random_start:
+        start = jax.random.uniform(k_s, (2,), dtype=_float()) * size
     th0 = jax.random.uniform(k_h, (), dtype=_float(), minval=-jnp.pi, maxval=jnp.pi)
     lengths = jax.random.uniform(k_l, (n - 1,), dtype=_float(), minval=step_min, maxval=step_max)
     turns = turn_sigma * jax.random.normal(k_t, (n - 1,), dtype=_float())
@@ -162,13 +174,15 @@ def traverse(
     check_positive("step_min", step_min)
     check_nonneg("turn_sigma", turn_sigma)
     check_nonneg("step_max - step_min", jnp.asarray(step_max) - jnp.asarray(step_min))
-    if start is None:
-        key, k0 = jax.random.split(key)
-        start = jax.random.uniform(k0, (2,), dtype=_float()) * jnp.asarray(size, _float())
-    start = as_float(start)
-    check_shape("start", start, 1, 2)
-    check_finite("start", start)
-    return _traverse(key, n, step_min, step_max, start.astype(_float()), size, turn_sigma)
+    random_start = start is None
+    if random_start:
+        start = jnp.zeros((2,), _float())  # drawn from the key inside _traverse
+    else:
+        start = as_float(start)
+        check_shape("start", start, 1, 2)
+        check_finite("start", start)
+    return _traverse(key, n, step_min, step_max, start.astype(_float()), size, turn_sigma,
+                     random_start)
 
 
 class ControllerGains(NamedTuple):
@@ -200,6 +214,9 @@ def _controller(pose, waypoint, gains, params):
     return clip_control(jnp.stack([v, gains.k_omega * err]), params)
 
 
+_controller_jit = jax.jit(_controller)
+
+
 def waypoint_controller(
     pose: jax.Array,
     waypoint: jax.Array,
@@ -222,7 +239,7 @@ def waypoint_controller(
     check_finite("waypoint", waypoint)
     params = _check_params(params)
     gains = ControllerGains() if gains is None else gains
-    return _controller(pose, waypoint.astype(pose.dtype), gains, params)
+    return _controller_jit(pose, waypoint.astype(pose.dtype), gains, params)
 
 
 @partial(jax.jit, static_argnames="n_steps")

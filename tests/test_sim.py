@@ -139,19 +139,19 @@ def test_worlds_shapes_bounds_and_determinism():
     np.testing.assert_array_equal(lm, sim.uniform_landmarks(KEY, 50, size))
     assert not np.allclose(lm, sim.uniform_landmarks(jax.random.key(1), 50, size))
 
-    cl = sim.clustered_landmarks(KEY, 60, 3, size, spread=1.0)
-    assert cl.shape == (60, 2) and np.all((np.asarray(cl) >= 0) & (np.asarray(cl) <= size))
-    np.testing.assert_array_equal(cl, sim.clustered_landmarks(KEY, 60, 3, size, spread=1.0))
+    cl = sim.clustered_landmarks(KEY, 50, 3, size, spread=1.0)
+    assert cl.shape == (50, 2) and np.all((np.asarray(cl) >= 0) & (np.asarray(cl) <= size))
+    np.testing.assert_array_equal(cl, sim.clustered_landmarks(KEY, 50, 3, size, spread=1.0))
     # With a small spread the points are far more tightly packed than uniform ones.
     def mean_nn(p):
         d = np.linalg.norm(np.asarray(p)[:, None] - np.asarray(p)[None], axis=-1)
         return np.sort(d, axis=1)[:, 1].mean()
 
-    assert mean_nn(cl) < 0.3 * mean_nn(sim.uniform_landmarks(KEY, 60, size))
+    assert mean_nn(cl) < 0.3 * mean_nn(lm)
 
-    hw = np.asarray(sim.hallway_landmarks(KEY, 21, length=30.0, width=3.0, jitter=0.0,
+    hw = np.asarray(sim.hallway_landmarks(KEY, 200, length=30.0, width=3.0, jitter=0.0,
                                           origin=(5.0, 1.0)))
-    assert hw.shape == (21, 2)
+    assert hw.shape == (200, 2)
     np.testing.assert_allclose(hw[0::2, 1], 2.5)
     np.testing.assert_allclose(hw[1::2, 1], -0.5)
     assert np.all((hw[:, 0] >= 5) & (hw[:, 0] <= 35))
@@ -165,9 +165,10 @@ def test_worlds_shapes_bounds_and_determinism():
     on_wall = np.isclose(np.abs(((cg + 1.0) % 10.0) - 1.0), 1.0, atol=1e-5)
     assert np.all(on_wall.any(axis=1))
 
-    worlds = jax.vmap(lambda k: sim.uniform_landmarks(k, 10))(jax.random.split(KEY, 5))
-    assert worlds.shape == (5, 10, 2)
-    np.testing.assert_array_equal(worlds[2], sim.uniform_landmarks(jax.random.split(KEY, 5)[2], 10))
+    keys = jax.random.split(KEY, 5)
+    worlds = jax.vmap(lambda k: sim.uniform_landmarks(k, 50, size))(keys)
+    assert worlds.shape == (5, 50, 2)
+    np.testing.assert_array_equal(worlds[2], sim.uniform_landmarks(keys[2], 50, size))
 
 
 # ---------------------------------------------------------------- sensors
@@ -222,43 +223,48 @@ def test_visibility_and_camera_match_brute_force():
     assert n_hidden > 0 and n_fov > 0  # the random worlds exercise occlusion and the fov
 
 
+def padded(points, n=25):
+    """Pad with far-away landmarks to the shape used elsewhere (saves a recompile)."""
+    return jnp.concatenate([jnp.asarray(points), jnp.full((n - len(points), 2), 1e4)])
+
+
 def test_occlusion_fov_and_range_hand_cases():
-    lm = jnp.array([[5.0, 0.0], [10.0, 0.5], [10.0, 3.0], [-3.0, 0.0], [70.0, 0.0]])
+    lm = padded([[5.0, 0.0], [10.0, 0.5], [10.0, 3.0], [-3.0, 0.0], [70.0, 0.0]])
     p = sim.SensorParams(max_range=60.0, fov=2 * np.pi, landmark_radius=1.0)
-    assert sim.observe(KEY, jnp.zeros(3), lm, p).visible.tolist() == [
-        True, False, True, True, False]
+    vis = sim.observe(KEY, jnp.zeros(3), lm, p).visible.tolist()
+    assert vis[:5] == [True, False, True, True, False] and not any(vis[5:])
     p_fov = p._replace(fov=np.pi, landmark_radius=0.0)
-    assert sim.visibility(jnp.zeros(3), lm, p_fov).tolist() == [True, True, True, False, False]
+    assert sim.visibility(jnp.zeros(3), lm, p_fov).tolist()[:5] == [True, True, True, False, False]
     # Facing the other way (theta = pi) the landmark behind becomes the only visible one.
-    assert sim.visibility(jnp.array([0.0, 0.0, np.pi]), lm, p_fov).tolist() == [
+    assert sim.visibility(jnp.array([0.0, 0.0, np.pi]), lm, p_fov).tolist()[:5] == [
         False, False, False, True, False]
     cam = sim.camera(jnp.zeros(3), lm, p)
-    assert cam.range_rank.tolist() == [1, -1, 2, 0, -1]
+    assert cam.range_rank.tolist()[:5] == [1, -1, 2, 0, -1]
 
 
 def test_noise_statistics_and_determinism():
-    lm = sim.uniform_landmarks(KEY, 3000)
+    lm = padded(np.random.default_rng(3).uniform(0, 100, (25, 2)))
     pose = jnp.array([50.0, 50.0, 0.7])
     params = sim.SensorParams(max_range=200.0, sigma=2.0)
-    obs = sim.observe(jax.random.key(11), pose, lm, params)
-    err = np.asarray(obs.rel - obs.true_rel)
-    assert np.all(np.abs(err.mean(0)) < 4 * 2.0 / math.sqrt(3000))
+    keys = jax.random.split(jax.random.key(11), 120)
+    obs = [sim.observe(k, pose, lm, params) for k in keys]  # 3000 samples, no new compile
+    err = np.concatenate([np.asarray(o.rel - o.true_rel) for o in obs])
+    assert np.all(np.abs(err.mean(0)) < 4 * 2.0 / math.sqrt(len(err)))
     np.testing.assert_allclose(err.std(0), 2.0, rtol=0.05)
     assert abs(np.corrcoef(err.T)[0, 1]) < 0.06
-    same = sim.observe(jax.random.key(11), pose, lm, params)
-    np.testing.assert_array_equal(same.rel, obs.rel)
-    other = sim.observe(jax.random.key(12), pose, lm, params)
-    assert not np.allclose(other.rel, obs.rel)
-    np.testing.assert_array_equal(other.true_rel, obs.true_rel)
+    same = sim.observe(keys[0], pose, lm, params)
+    np.testing.assert_array_equal(same.rel, obs[0].rel)
+    assert not np.allclose(obs[1].rel, obs[0].rel)
+    np.testing.assert_array_equal(obs[1].true_rel, obs[0].true_rel)
 
 
 def test_sensors_vmap_and_jit_over_runs():
-    lm = sim.uniform_landmarks(KEY, 20)
+    lm = sim.uniform_landmarks(KEY, 25)
     poses = sim.perimeter_loop()
     keys = jax.random.split(KEY, poses.shape[0])
     params = sim.SensorParams(max_range=60.0, sigma=1.0, landmark_radius=0.5)
     batch = jax.vmap(sim.observe, (0, 0, None, None))(keys, poses, lm, params)
-    assert batch.rel.shape == (23, 20, 2) and batch.visible.shape == (23, 20)
+    assert batch.rel.shape == (23, 25, 2) and batch.visible.shape == (23, 25)
     one = sim.observe(keys[4], poses[4], lm, params)
     np.testing.assert_allclose(batch.rel[4], one.rel, atol=1e-5)
     np.testing.assert_array_equal(batch.visible[4], one.visible)
