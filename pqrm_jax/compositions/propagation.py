@@ -18,6 +18,9 @@ with ``T = calc.tables.prob_compose`` (``(Q, Q, Q)``, ``T[a, b, c] = P(AB:D = c 
 BC:D = b)``). For every ordered target ``ij:d`` there is one candidate path per intermediate
 landmark ``k ∉ {i, j, d}``; :func:`propagate` evaluates all ``L·(L−1)·(L−2)·(L−3)`` candidate
 pairs in one jit-compiled array program (two einsums per middle landmark ``j``).
+Only this canonical operand pattern is used (no unary LEFT/RIGHT/INVERSE re-orderings), so a
+target ``ij:d`` is reachable only through an available triplet with the prefix ``ij``; PQRM maps
+store every ordering of a measured triplet (P§2.3), which makes this no restriction there.
 
 Fusion rule (:func:`fuse`)
 --------------------------

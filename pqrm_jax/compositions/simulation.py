@@ -16,7 +16,7 @@
 >>> import jax
 >>> from pqrm_jax import calculi
 >>> calc = calculi.get("single_cross")
->>> T, counts = sample_compose_tensor(calc, jax.random.key(0), 20_000)
+>>> T, counts = sample_compose_tensor(calc, jax.random.key(0), 20_000, chunk=20_000)
 >>> T.shape, bool(abs(T.sum(-1)[counts > 0] - 1).max() < 1e-5)
 ((4, 4, 4), True)
 """
