@@ -236,3 +236,24 @@ def test_propagation_helps_on_simulated_map(sampled):
     assert prop["error"] < marg["error"] - 0.1 and prop["error"] < base["error"] - 0.1
     assert prop["entropy"] < base["entropy"] - 0.1
     assert prop["nll"] < min(base["nll"], marg["nll"])
+
+
+def test_pqrm_adapter(sampled):
+    from pqrm_jax import pqrm
+    from pqrm_jax.compositions.propagation import from_pqrm, to_pqrm_rows
+
+    calc, t, _ = sampled
+    pq = pqrm.mapper((calc.name,), num_landmarks=6, num_samples=64)
+    st = pq.init()
+    pos = jax.random.uniform(jax.random.key(0), (6, 2)) * 100
+    for ids in ([0, 1, 2, 3], [2, 3, 4, 5]):
+        vis = np.isin(np.arange(6), ids)
+        st = pq.update(st, jax.random.key(ids[0]), pos, vis, 2.0)
+    probs, obs = from_pqrm(st, 6, calc.name)
+    assert obs.sum() == 2 * 24  # two quartets, 4 triplets × 6 orderings each, none shared
+    np.testing.assert_allclose(to_pqrm_rows(probs, 6), np.asarray(st.probs[calc.name]))
+    r = propagate(probs, obs, t, renormalize=True)
+    assert np.asarray(r.filled).sum() > 0
+    truth = simulation.true_states(calc, pos)
+    f = np.asarray(r.filled)
+    assert (np.asarray(r.probs)[f].argmax(-1) == truth[f]).mean() > 0.5

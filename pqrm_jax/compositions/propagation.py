@@ -62,7 +62,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["PropagationResult", "compose", "fuse", "propagate", "propagate_loop",
+__all__ = ["PropagationResult", "compose", "fuse", "propagate", "propagate_loop", "from_pqrm",
+           "to_pqrm_rows",
            "check_tensor", "check_map", "DEFAULT_EPS", "DEFAULT_PATH_WEIGHT"]
 
 DEFAULT_EPS = 0.05
@@ -398,3 +399,37 @@ def propagate_loop(probs, observed, tensor, *, mode: str = "fill", eps: float = 
                 out[i, j, d] = e / e.sum()
                 cnt[i, j, d] = int(ok.sum())
     return out, cnt
+
+
+# ------------------------------------------------------------------------ PQRM adapter
+def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
+    """``(probs, observed)`` arrays of this module from a :class:`pqrm_jax.pqrm.MapState`.
+
+    Rows of ``state.probs[representation]`` follow ``pqrm.ordered_triplets(num_landmarks)``;
+    ``observed`` is ``state.mapped``. Mapped rows are renormalised by :func:`propagate`'s
+    checks only if you pass ``renormalize=True``.
+    """
+    from ..pqrm import ordered_triplets
+
+    trip = ordered_triplets(num_landmarks)
+    if representation not in state.probs:
+        raise ValueError(f"map has no representation {representation!r}; it has "
+                         f"{sorted(state.probs)}")
+    rows = np.asarray(state.probs[representation], np.float32)
+    if rows.shape[0] != len(trip):
+        raise ValueError(f"map has {rows.shape[0]} rows, {num_landmarks} landmarks need "
+                         f"{len(trip)}")
+    n, q = num_landmarks, rows.shape[-1]
+    probs = np.zeros((n, n, n, q), np.float32)
+    observed = np.zeros((n, n, n), bool)
+    probs[trip[:, 0], trip[:, 1], trip[:, 2]] = rows
+    observed[trip[:, 0], trip[:, 1], trip[:, 2]] = np.asarray(state.mapped)
+    return probs, observed
+
+
+def to_pqrm_rows(probs, num_landmarks: int) -> np.ndarray:
+    """``(T, Q)`` rows in ``pqrm.ordered_triplets`` order from an ``(L, L, L, Q)`` array."""
+    from ..pqrm import ordered_triplets
+
+    trip = ordered_triplets(num_landmarks)
+    return np.asarray(probs)[trip[:, 0], trip[:, 1], trip[:, 2]]
