@@ -7,6 +7,7 @@ boundary, ``vmap``-able over runs:
 * :mod:`sim.rover` -- unicycle rover: ``reset`` / ``step`` / ``rollout`` (``lax.scan``).
 * :mod:`sim.sensors` -- relative-position sensor (range, field of view, occlusion, Gaussian
   noise) and camera measurement (bearings + range ordering).
+* :mod:`sim.lidar` -- lidar ray casting into an occupancy grid.
 * :mod:`sim.trajectories` -- perimeter loop, random imaging points, traverses, waypoint
   controller.
 
@@ -20,7 +21,8 @@ Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
                                                     sim.SensorParams(max_range=60.0, sigma=1.0))
 """
 
-from sim import rover, sensors, trajectories, world
+from sim import lidar, rover, sensors, trajectories, world
+from sim.lidar import LidarParams, LidarScan, lidar_scan, rasterize_discs
 from sim.rover import RoverParams, RoverState, clip_control, reset, rollout, step
 from sim.sensors import (
     CameraObservation,
@@ -48,11 +50,12 @@ from sim.world import (
 )
 
 __all__ = [
-    "world", "rover", "sensors", "trajectories",
+    "world", "rover", "sensors", "trajectories", "lidar",
     "uniform_landmarks", "clustered_landmarks", "hallway_landmarks", "corridor_grid_landmarks",
     "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control",
     "SensorParams", "Observation", "CameraObservation", "observe", "camera",
     "relative_positions", "visibility",
+    "LidarParams", "LidarScan", "lidar_scan", "rasterize_discs",
     "perimeter_loop", "random_imaging_points", "traverse",
     "ControllerGains", "FollowResult", "waypoint_controller", "follow_waypoints",
 ]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import sim
-from sim import rover, sensors, trajectories, world
+from sim import lidar, rover, sensors, trajectories, world
 
 KEY = jax.random.key(0)
 
@@ -91,9 +91,9 @@ def test_rollout_matches_steps_and_closes_circle():
     np.testing.assert_allclose(wrapped_diff(final.pose, manual.pose), 0, atol=1e-4)
     assert float(final.t) == pytest.approx(2.0, rel=1e-5)
     # Constant (v, omega) for one full turn returns to the start (exact integration).
-    n = 40
+    n = 20
     w = 2 * math.pi / (n * 0.1)
-    p2 = sim.RoverParams(dt=0.1, max_speed=2.0, max_turn_rate=2.0)
+    p2 = sim.RoverParams(dt=0.1, max_speed=2.0, max_turn_rate=4.0)
     final, poses = sim.rollout(s, jnp.tile(jnp.array([1.5, w]), (n, 1)), p2)
     np.testing.assert_allclose(wrapped_diff(final.pose, s.pose), 0, atol=1e-4)
     radius = np.linalg.norm(poses[:-1, :2] - poses[:-1, :2].mean(0), axis=1)
@@ -113,9 +113,9 @@ def test_vmap_over_runs():
     params = sim.RoverParams()
     keys = jax.random.split(KEY, 8)
     states = jax.vmap(lambda k: sim.reset(k, params))(keys)
-    controls = jax.random.uniform(KEY, (8, 15, 2), minval=-1, maxval=1)
+    controls = jax.random.uniform(KEY, (8, 20, 2), minval=-1, maxval=1)
     finals, poses = jax.vmap(sim.rollout, (0, 0, None))(states, controls, params)
-    assert poses.shape == (8, 16, 3)
+    assert poses.shape == (8, 21, 3)
     for i in (0, 5):
         s_i = sim.RoverState(states.pose[i], states.t[i])
         f_i, p_i = sim.rollout(s_i, controls[i], params)
@@ -272,6 +272,57 @@ def test_sensors_vmap_and_jit_over_runs():
     np.testing.assert_array_equal(cams.range_rank[7], sim.camera(poses[7], lm, params).range_rank)
     # Padgett's setup: a 60 m range does not see every landmark from the perimeter.
     assert not bool(batch.visible.all())
+    # vmap over noise levels (P §2.3.1 sweeps 21 values of sigma).
+    sig = jnp.linspace(0.0, 100.0, 5)
+    sweep = jax.vmap(sim.observe, (None, None, None, sim.SensorParams(None, None, None, 0)))(
+        KEY, poses[0], lm, params._replace(sigma=sig))
+    std = np.asarray(jnp.std(sweep.rel - sweep.true_rel, axis=(1, 2)))
+    assert std[0] == 0.0 and np.all(np.diff(std) > 0)
+
+
+# ---------------------------------------------------------------- lidar
+
+
+def exit_distance(p, ang, lo, hi):
+    """Distance from p (inside the box [lo, hi]^2) along direction ang to the box boundary."""
+    d = np.array([math.cos(ang), math.sin(ang)])
+    ts = [((hi if d[k] > 0 else lo) - p[k]) / d[k] for k in range(2) if abs(d[k]) > 1e-12]
+    return min(ts)
+
+
+def test_lidar_scan_in_a_walled_room():
+    grid = np.zeros((20, 20), bool)
+    grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = True  # free interior [1, 19]^2
+    pose = np.array([10.3, 7.2, 0.4])
+    params = sim.LidarParams(n_beams=36, max_range=40.0)
+    scan = sim.lidar_scan(KEY, jnp.asarray(pose), jnp.asarray(grid), 1.0, (0.0, 0.0), params)
+    assert bool(scan.hit.all())
+    step = 1.0 / 4
+    for a, r in zip(np.asarray(scan.angles), np.asarray(scan.ranges), strict=True):
+        exact = exit_distance(pose[:2], pose[2] + a, 1.0, 19.0)
+        assert exact - 1e-4 <= r <= exact + step + 1e-4
+    np.testing.assert_allclose(np.diff(np.asarray(scan.angles)), 2 * np.pi / 36, atol=1e-5)
+    # Short range: nothing hit, ranges report max_range; partial fov centred on the heading.
+    short = sim.lidar_scan(KEY, jnp.asarray(pose), jnp.asarray(grid), 1.0, (0.0, 0.0),
+                           params._replace(max_range=2.0, fov=np.pi / 2, n_beams=5))
+    assert not bool(short.hit.any())
+    np.testing.assert_allclose(short.ranges, 2.0)
+    np.testing.assert_allclose(short.angles, np.linspace(-np.pi / 4, np.pi / 4, 5), atol=1e-6)
+    noisy = sim.lidar_scan(KEY, jnp.asarray(pose), jnp.asarray(grid), 1.0, (0.0, 0.0),
+                           params._replace(sigma=0.5))
+    assert 0.2 < float(jnp.std(noisy.ranges - scan.ranges)) < 0.9
+    # Landmark discs rasterised into a grid are seen by the lidar.
+    g = sim.rasterize_discs(jnp.array([[15.0, 7.2]]), 1.0, (20, 20), 1.0)
+    hit = sim.lidar_scan(KEY, jnp.asarray([10.3, 7.2, 0.0]), g, 1.0, (0.0, 0.0),
+                         params._replace(n_beams=1, fov=0.0))
+    assert bool(hit.hit[0]) and abs(float(hit.ranges[0]) - 3.7) <= 0.5
+    centres = (np.stack(np.meshgrid(np.arange(20), np.arange(20)), -1) + 0.5)
+    ref = np.linalg.norm(centres - np.array([15.0, 7.2]), axis=-1) <= 1.0
+    np.testing.assert_array_equal(g, ref)
+    with pytest.raises(ValueError, match="grid"):
+        sim.lidar_scan(KEY, jnp.zeros(3), jnp.zeros(5, bool), 1.0)
+    with pytest.raises(ValueError, match="resolution"):
+        sim.lidar_scan(KEY, jnp.zeros(3), jnp.zeros((5, 5), bool), -1.0)
 
 
 # ---------------------------------------------------------------- trajectories
@@ -401,6 +452,6 @@ def test_float64_sensor_when_x64_enabled():
 
 
 def test_docstring_examples():
-    for mod in (world, rover, sensors, trajectories):
+    for mod in (world, rover, sensors, trajectories, lidar):
         result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert result.failed == 0, mod.__name__
