@@ -13,8 +13,9 @@ Decisions where the paper is open (documented handling):
   disconnected patches, the patch holding most of its mass keeps the label; the others are
   re-filled by growing the neighbouring regions (multi-source dilation, each cell taking the
   neighbouring label whose belief scores highest there), which keeps every region connected.
-* A belief that wins no cell cannot get its own region: the grid is too coarse to separate it
-  (or two beliefs coincide). ``unseparated="error"`` (default) raises a ``ValueError``
+* A belief that wins no cell — or only cells holding less than ``min_saliency`` (1 %) of its
+  mass — cannot get its own region: the grid is too coarse to separate it (or two beliefs
+  coincide). ``unseparated="error"`` (default) raises a ``ValueError``
   naming those beliefs; ``unseparated="attach"`` assigns each of them to the region holding
   most of its mass, so the map starts with R0 < K regions.
 """
@@ -92,6 +93,7 @@ def initial_cells(
     key: jax.Array | None = None,
     n_mc: int = 20000,
     unseparated: str = "error",
+    min_saliency: float = 0.01,
 ) -> Problem:
     """Build ``C_init`` (one contiguous region per belief) and the SERGE problem.
 
@@ -130,14 +132,26 @@ def initial_cells(
             keep[ids[np.argmax(comp_mass[ids])]] = True
         label = np.where(valid & keep[np.maximum(comp, 0)], label, -1)
 
-    winners = np.unique(label[label >= 0])
+    # a belief is separated when it wins cells holding at least ``min_saliency`` of its mass
+    # (a density argmax can hand a belief cells that carry none of its mass: e.g. two beliefs
+    # inside one coarse cell)
+    pre_fill = label
+    while True:
+        winners = np.unique(pre_fill[pre_fill >= 0])
+        filled = _fill(pre_fill, score, grid.shape)
+        own = np.array([pm[i, filled == i].sum() for i in range(k)])
+        weak = winners[own[winners] < min_saliency]
+        if len(weak) == 0 or len(weak) == len(winners):
+            break
+        pre_fill = np.where(np.isin(pre_fill, weak), -1, pre_fill)
+    label = filled
     losers = np.setdiff1d(np.arange(k), winners)
     if len(losers) and unseparated == "error":
         raise ValueError(
             f"initial_cells: beliefs {losers.tolist()} have the highest saliency in no grid cell "
-            f"(grid {grid.shape} too coarse to separate them, or they coincide with other "
-            "beliefs); use a finer grid or unseparated='attach'")
-    label = _fill(label, score, grid.shape)
+            f"holding ≥ {min_saliency:g} of their mass (grid {grid.shape} too coarse to "
+            "separate them, or they coincide with other beliefs); use a finer grid or "
+            "unseparated='attach'")
 
     # regions numbered in belief order
     remap = np.full(k, -1, dtype=np.int64)
