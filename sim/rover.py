@@ -177,9 +177,9 @@ def rollout(
     ``poses[0] = state.pose``.
 
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
-    >>> final, poses = rollout(s, jnp.tile(jnp.array([1.0, 0.0]), (5, 1)), RoverParams(dt=1.0))
+    >>> final, poses = rollout(s, jnp.tile(jnp.array([1.0, 0.0]), (20, 1)), RoverParams(dt=0.25))
     >>> poses.shape, final.pose.tolist()
-    ((6, 3), [5.0, 0.0, 0.0])
+    ((21, 3), [5.0, 0.0, 0.0])
     """
     state = _as_state(state)
     params = _check_params(params)

@@ -164,10 +164,10 @@ def traverse(
     ``2 * step_max``). Each pose's heading is the direction of the step that
     reached it (like M §VIII.C: panoramic images every 1-2 m of travel).
 
-    >>> path = traverse(jax.random.key(0), 20, start=(10.0, 10.0))
+    >>> path = traverse(jax.random.key(0), 200, start=(10.0, 10.0))
     >>> d = jnp.linalg.norm(jnp.diff(path[:, :2], axis=0), axis=1)
     >>> path.shape, bool((d >= 1 - 1e-4).all() & (d <= 2 + 1e-4).all())
-    ((20, 3), True)
+    ((200, 3), True)
     """
     n = check_count("n", n, minimum=1)
     check_positive("size", size)
@@ -280,9 +280,10 @@ def follow_waypoints(
 
     >>> from sim.rover import reset
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
-    >>> res = follow_waypoints(s, jnp.array([[5.0, 0.0], [5.0, 5.0]]), RoverParams(), 300)
+    >>> square = jnp.array([[5.0, 0.0], [5.0, 5.0], [0.0, 5.0], [0.0, 0.0]])
+    >>> res = follow_waypoints(s, square, RoverParams(), n_steps=600)
     >>> int(res.n_reached)
-    2
+    4
     """
     state = _as_state(state)
     params = _check_params(params)

@@ -118,7 +118,7 @@ def hallway_landmarks(
     on the right wall, at x positions uniform along the hallway, each displaced by isotropic
     Gaussian noise of std ``jitter``.
 
-    >>> lm = hallway_landmarks(jax.random.key(0), 10, length=20.0, width=2.0, jitter=0.0)
+    >>> lm = hallway_landmarks(jax.random.key(0), 200, length=20.0, width=2.0, jitter=0.0)
     >>> sorted(set(lm[:, 1].tolist()))
     [-1.0, 1.0]
     """
