@@ -1,9 +1,22 @@
 """PQRM — probabilistic qualitative relational mapping (P ch. 2, SPEC §3).
 
 * :mod:`.measurement` — ``p(R^n = q | Z^n)`` by sampling (eq. 2.9), one pass for every
-  representation that is a merge of the sampled calculus.
+  representation that is a merge of the sampled calculus (the EDC for Padgett's six).
+* :mod:`.map` — the online map over all ordered triplets: ``mapper(...).init/update``
+  (eq. 2.10, Alg. 1).
+* :mod:`.metrics` — mean map entropy (eq. 2.11), ML / top-n error rates, P(ML state),
+  neighbour distance, confusion matrix, error locations in the normalised AB frame.
+* :mod:`.reference` — an independent plain NumPy estimator (test oracle, benchmark baseline).
+
+>>> import jax, jax.numpy as jnp
+>>> from pqrm_jax import pqrm
+>>> means = jnp.array([[[0., 0.], [0., 10.], [-4., 5.]]])
+>>> pqrm.state_probabilities(jax.random.key(0), "lr", means, 0.0, 10).tolist()
+[[1.0, 0.0]]
 """
 
+from . import metrics, reference
+from .map import Mapper, MapState, mapper, ordered_triplets, update_observed
 from .measurement import (
     aggregation_matrix,
     fine_counts,
@@ -12,5 +25,8 @@ from .measurement import (
     state_probabilities,
 )
 
-__all__ = ["aggregation_matrix", "fine_counts", "multi_state_probabilities", "state_counts",
-           "state_probabilities"]
+__all__ = [
+    "MapState", "Mapper", "aggregation_matrix", "fine_counts", "mapper", "metrics",
+    "multi_state_probabilities", "ordered_triplets", "reference", "state_counts",
+    "state_probabilities", "update_observed",
+]

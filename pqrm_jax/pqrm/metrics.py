@@ -1,0 +1,114 @@
+"""Map-quality metrics of P §2.3.1 and §2.3.2 (pure, jit/vmap-able).
+
+All functions take a (T, Q) map ``probs``, the true states ``truth`` (T,) and a ``mask`` (T,)
+of the triplets to evaluate (mapped triplets with a defined truth); they return means over the
+masked triplets (NaN-free: an empty mask gives 0 and ``count`` says so).
+
+* mean map entropy, eq. 2.11 (nats; ``0·log 0 = 0``);
+* error rate of the maximum-likelihood (ML) state (ties: the lowest state index);
+* top-n error rate (P Fig. 2.16): the truth is not among the n most likely states (stable
+  order, so n = 1 is the ML error rate);
+* mean probability of the ML state (P Fig. 2.11b);
+* neighbour distance of the ML state to the truth (P Fig. 2.5/2.6), from a (Q, Q) distance
+  matrix (``calc.neighbor_distance``);
+* confusion matrix ``[truth, estimate]``;
+* error locations: C in the normalised AB frame (A=(0,0), B=(0,1)), P Fig. 2.8.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..calculi import Calculus
+
+__all__ = [
+    "entropy", "mean_map_entropy", "ml_states", "error_rate", "topn_error_rates",
+    "ml_probability", "neighbor_distance", "confusion_matrix", "normalized_positions",
+    "true_states", "random_neighbor_distance", "masked_mean",
+]
+
+
+def masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
+    """Mean of ``x`` over ``mask`` (0 for an empty mask)."""
+    mask = jnp.asarray(mask, bool)
+    n = jnp.sum(mask)
+    return jnp.sum(jnp.where(mask, x, 0.0)) / jnp.maximum(n, 1)
+
+
+def entropy(probs: jax.Array) -> jax.Array:
+    """Entropy in nats of each row, ``−Σ p log p`` with ``0 log 0 = 0``."""
+    p = jnp.asarray(probs)
+    return -jnp.sum(jnp.where(p > 0, p * jnp.log(jnp.where(p > 0, p, 1.0)), 0.0), axis=-1)
+
+
+def mean_map_entropy(probs: jax.Array, mask: jax.Array) -> jax.Array:
+    """``H_mean = Σ_n H^n / N`` over the masked triplets (P eq. 2.11)."""
+    return masked_mean(entropy(probs), mask)
+
+
+def ml_states(probs: jax.Array) -> jax.Array:
+    """Index of the maximum-likelihood state per row (lowest index on ties)."""
+    return jnp.argmax(probs, axis=-1).astype(jnp.int32)
+
+
+def error_rate(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
+    """Fraction of masked triplets whose ML state is not the truth."""
+    return masked_mean((ml_states(probs) != truth).astype(jnp.float32), mask)
+
+
+def topn_error_rates(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
+    """(Q,) error rates for n = 1..Q: truth not among the n most likely states (Fig. 2.16)."""
+    order = jnp.argsort(-probs, axis=-1, stable=True)  # (T, Q) most likely first
+    rank = jnp.argmax(order == truth[:, None], axis=-1)  # position of the truth
+    q = probs.shape[-1]
+    wrong = rank[:, None] >= jnp.arange(1, q + 1)[None, :]  # (T, Q)
+    m = jnp.asarray(mask, bool)
+    return jnp.sum(jnp.where(m[:, None], wrong, False), axis=0) / jnp.maximum(jnp.sum(m), 1)
+
+
+def ml_probability(probs: jax.Array, mask: jax.Array) -> jax.Array:
+    """Mean probability of the ML state over the masked triplets (P Fig. 2.11b)."""
+    return masked_mean(jnp.max(probs, axis=-1), mask)
+
+
+def neighbor_distance(probs: jax.Array, truth: jax.Array, mask: jax.Array,
+                      distance: jax.Array) -> jax.Array:
+    """Mean conceptual-neighbour distance ``distance[ML, truth]`` (P §2.3.1, Fig. 2.6)."""
+    d = jnp.asarray(distance)[ml_states(probs), jnp.clip(truth, 0, None)]
+    return masked_mean(d.astype(jnp.float32), mask)
+
+
+def random_neighbor_distance(distance) -> float:
+    """Neighbour distance of a uniformly random estimate averaged over uniform truths."""
+    return float(np.mean(np.asarray(distance, dtype=float)))
+
+
+def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
+    """(Q, Q) int32 counts ``[truth, ML estimate]`` over the masked triplets (P Fig. 2.9)."""
+    q = probs.shape[-1]
+    idx = jnp.clip(truth, 0, q - 1) * q + ml_states(probs)
+    w = jnp.asarray(mask, jnp.int32)
+    return jnp.zeros(q * q, jnp.int32).at[idx].add(w).reshape(q, q)
+
+
+def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
+    """(T,) true state of ``AB:C`` for each triplet (i, j, k) of world landmarks (M, 2)."""
+    tri = jnp.asarray(triplets)
+    return calc._classify(landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]])
+
+
+def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:
+    """C in the canonical AB frame (α, β) (T, 2) and |AB| (T,) for each triplet (P Fig. 2.8).
+
+    Right of AB is α > 0 (SPEC §2); A = B gives NaN coordinates.
+    """
+    tri = jnp.asarray(triplets)
+    a, b, c = landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]]
+    d, e = b - a, c - a
+    n = jnp.sum(d * d, axis=-1)
+    u = e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0]
+    v = jnp.sum(e * d, axis=-1)
+    nn = jnp.where(n > 0, n, jnp.nan)
+    return jnp.stack([u / nn, v / nn], axis=-1), jnp.sqrt(n)

@@ -1,0 +1,404 @@
+"""Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11; Fig. 2.16 in simulation).
+
+Per run: landmarks uniform in 100 m × 100 m; the robot drives one loop of a circle around the
+perimeter (``sim.trajectories.perimeter_loop``: centre (50, 50), radius 50 m), measuring every
+16° with a 60 m omnidirectional range sensor whose relative positions carry isotropic Gaussian
+noise σ_R; the PQRM (eq. 2.9/2.10) maps all ordered triplets for the six representations of
+SPEC §2.2 from one sampling pass per update. Noise levels: 21 values σ_R = 0…100 m
+(σ_N = σ_R/σ_E, σ_E = 100/√12 m), plus σ_R = 1 m (Figs 2.8a/2.9a) and σ_N = 0.05, 0.7, 1.5
+(the Fig. 2.16 regimes). Metrics per run and representation: mean map entropy, ML error rate,
+top-n error rates, P(ML state), neighbour distance; confusion matrices and error locations for
+the EDC.
+
+Open choices of the seed, recorded in ``config.json``: the number of landmarks (default 10, so
+"no more than 10 are seen at once" holds) and samples per update (default 256).
+
+Engineering: the run axis is sharded over ``jax.devices()`` (a 1-D ``NamedSharding`` mesh);
+runs are processed in chunks (progress bar, bounded memory); each finished noise level is
+appended to ``levels.jsonl`` (+ ``level_XX.npz``) so a killed study resumes at the first
+unfinished level; run keys are ``fold_in(fold_in(seed, level), run)``, so results do not
+depend on chunking, device count or resumption. ``report.md`` and the figures are written at
+the end (``--report-only`` rewrites them from the stored results).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+NAME = "padgett-mc"
+HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
+
+SIGMA_E = 100.0 / math.sqrt(12.0)
+REPS = ("edc", "edc_lune", "triple_cross", "double_cross", "single_cross", "lr")
+PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
+TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
+
+
+@dataclasses.dataclass
+class Config:
+    runs: int = 1000
+    levels: int = 21
+    max_sigma_r: float = 100.0
+    num_landmarks: int = 10
+    num_samples: int = 256
+    world_size: float = 100.0
+    loop_radius: float = 50.0
+    dtheta_deg: float = 16.0
+    max_range: float = 60.0
+    representations: tuple[str, ...] = REPS
+    seed: int = 0
+    chunk_runs: int = 250
+    max_error_points: int = 4000
+
+    def sigma_levels(self) -> list[dict]:
+        """Main levels (linspace) then the extra figure levels, each a dict with a tag."""
+        out = [{"tag": "main", "sigma_r": float(s)}
+               for s in np.linspace(0.0, self.max_sigma_r, self.levels)]
+        out += [{"tag": "fig2.8", "sigma_r": float(PAPER_FIG28_SIGMA_R[0])}]
+        out += [{"tag": "topn", "sigma_r": float(sn * SIGMA_E)} for sn in TOPN_SIGMA_N]
+        return out
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["representations"] = list(self.representations)
+        d.pop("chunk_runs")  # does not change results
+        d["sigma_e"] = SIGMA_E
+        d["levels_sigma_r"] = [lv["sigma_r"] for lv in self.sigma_levels()]
+        d["notes"] = {
+            "num_landmarks": "not stated in P §2.3.1 ('no more than 10 landmarks are observed "
+                             "at a single time'); chosen so that bound always holds",
+            "num_samples": "samples per triplet per update (s in P's O(nsQ^2)); not stated",
+            "loop": "circle of radius loop_radius about the world centre, a pose every "
+                    "dtheta_deg (23 poses), omnidirectional sensor, no occlusion",
+            "sampling": "one standard-normal bank per update shared by the triplets "
+                        "(common random numbers); fresh bank every update",
+        }
+        return d
+
+
+# --------------------------------------------------------------------------------------
+# the per-run computation
+# --------------------------------------------------------------------------------------
+
+
+def _distance_matrices(reps) -> dict[str, np.ndarray | None]:
+    from pqrm_jax import calculi
+
+    out = {}
+    for name in reps:
+        try:
+            out[name] = np.asarray(calculi.get(name).neighbor_distance, np.int32)
+        except Exception as exc:  # tables not available: metric reported as NaN
+            print(f"warning: no neighbour-distance table for {name} ({exc}); "
+                  "neighbour distance will be NaN", file=sys.stderr)
+            out[name] = None
+    return out
+
+
+def _make_run_fn(cfg: Config, dists: dict):
+    """``run(key, sigma_r) -> dict`` of per-run results (jit/vmap-able)."""
+    import sim.sensors
+    import sim.trajectories
+    import sim.world
+    from pqrm_jax import calculi, pqrm
+    from pqrm_jax.pqrm import metrics
+
+    pq = pqrm.mapper(cfg.representations, cfg.num_landmarks, cfg.num_samples)
+    cals = pq.calculi
+    tri = pq.triplets
+    half = cfg.world_size / 2
+    poses = sim.trajectories.perimeter_loop((half, half), cfg.loop_radius,
+                                            math.radians(cfg.dtheta_deg))
+    edc = calculi.get("edc")
+
+    def run(key, sigma_r):
+        k_world, k_steps = jax.random.split(key)
+        lm = sim.world.uniform_landmarks(k_world, cfg.num_landmarks,
+                                         (cfg.world_size, cfg.world_size))
+        params = sim.sensors.SensorParams(max_range=cfg.max_range, fov=2 * jnp.pi,
+                                          landmark_radius=0.0, sigma=sigma_r)
+        keys = jax.random.split(k_steps, poses.shape[0])
+
+        def step(state, inp):
+            pose, k = inp
+            k_obs, k_map = jax.random.split(k)
+            obs = sim.sensors.observe(k_obs, pose, lm, params)
+            return pq.update(state, k_map, obs.rel, obs.visible, sigma_r), None
+
+        state, _ = jax.lax.scan(step, pq.init(), (poses, keys))
+        out = {"n_mapped": jnp.sum(state.mapped), "n_updates": jnp.sum(state.num_updates),
+               "n_rejected": jnp.sum(state.num_rejected)}
+        for c in cals:
+            truth = metrics.true_states(c, lm, tri)
+            mask = state.mapped & (truth >= 0)
+            p = state.probs[c.name]
+            r = {
+                "entropy": metrics.mean_map_entropy(p, mask),
+                "error": metrics.error_rate(p, truth, mask),
+                "p_ml": metrics.ml_probability(p, mask),
+                "topn": metrics.topn_error_rates(p, truth, mask),
+                "confusion": metrics.confusion_matrix(p, truth, mask),
+                "conflicts": jnp.sum(state.num_conflicts[c.name]),
+                "n_eval": jnp.sum(mask),
+            }
+            d = dists.get(c.name)
+            r["neighbor"] = (metrics.neighbor_distance(p, truth, mask, d) if d is not None
+                             else jnp.float32(jnp.nan))
+            out[c.name] = r
+        # EDC error locations (P Fig. 2.8): normalised C, |AB|, truth, estimate, error mask
+        truth = metrics.true_states(edc, lm, tri)
+        p = state.probs["edc"]
+        est = metrics.ml_states(p)
+        xy, dab = metrics.normalized_positions(lm, tri)
+        out["err"] = {"xy": xy, "dab": dab, "truth": truth, "est": est,
+                      "mask": state.mapped & (truth >= 0) & (est != truth),
+                      "mapped": state.mapped & (truth >= 0)}
+        return out
+
+    return run
+
+
+def _mesh_sharding():
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    devs = np.array(jax.devices())
+    mesh = Mesh(devs, ("runs",))
+    return NamedSharding(mesh, PartitionSpec("runs")), len(devs)
+
+
+_BATCHED: dict = {}
+
+
+def _batched(run_fn, sharding):
+    key = (id(run_fn), sharding)
+    if key not in _BATCHED:
+        _BATCHED.clear()
+        _BATCHED[key] = (run_fn, jax.jit(jax.vmap(run_fn, in_axes=(0, None)),
+                                         out_shardings=sharding))
+    return _BATCHED[key][1]
+
+
+def run_level(cfg: Config, run_fn, level_index: int, sigma_r: float, progress=None) -> dict:
+    """All runs of one noise level, sharded over devices, in chunks; returns numpy results."""
+    sharding, ndev = _mesh_sharding()
+    chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
+    base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
+    batched = _batched(run_fn, sharding)
+    parts = []
+    for start in range(0, cfg.runs, chunk):
+        idx = np.arange(start, start + chunk)
+        idx = np.minimum(idx, cfg.runs - 1)  # pad the last chunk by repeating a run
+        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(idx, jnp.uint32))
+        keys = jax.device_put(keys, sharding)
+        res = jax.device_get(batched(keys, jnp.float32(sigma_r)))
+        n_real = min(chunk, cfg.runs - start)
+        parts.append(jax.tree_util.tree_map(lambda x, n=n_real: np.asarray(x)[:n], res))
+        if progress is not None:
+            progress.update(n_real)
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tuple[dict, dict]:
+    """(JSON summary line, npz arrays) of one finished level."""
+    line = {"level": level_index, "tag": level["tag"], "sigma_r": level["sigma_r"],
+            "sigma_n": level["sigma_r"] / SIGMA_E, "runs": cfg.runs,
+            "mean_mapped": float(res["n_mapped"].mean()),
+            "mean_updates_per_triplet": float(res["n_updates"].sum()
+                                              / max(res["n_mapped"].sum(), 1)),
+            "rejected": int(res["n_rejected"].sum()), "reps": {}}
+    arrays = {}
+    for name in cfg.representations:
+        r = res[name]
+        q = r["topn"].shape[-1]
+        n_eval = r["n_eval"].astype(float)
+        w = n_eval / max(n_eval.sum(), 1.0)
+        line["reps"][name] = {
+            "num_states": int(q),
+            "entropy_mean": float(r["entropy"].mean()),
+            "entropy_std": float(r["entropy"].std()),
+            "norm_entropy_mean": float(r["entropy"].mean() / math.log(q)),
+            "error_mean": float(r["error"].mean()),
+            "error_std": float(r["error"].std()),
+            "p_ml_mean": float(r["p_ml"].mean()),
+            "neighbor_mean": float(np.mean(r["neighbor"])),
+            "neighbor_std": float(np.std(r["neighbor"])),
+            "topn_mean": [float(x) for x in r["topn"].mean(axis=0)],
+            "topn_pooled": [float(x) for x in (r["topn"] * w[:, None]).sum(axis=0)],
+            "conflicts": int(r["conflicts"].sum()),
+            "conflicts_per_update": float(r["conflicts"].sum()
+                                          / max(res["n_updates"].sum(), 1)),
+        }
+        for key in ("entropy", "error", "p_ml", "neighbor"):
+            arrays[f"{name}/{key}"] = r[key]
+        arrays[f"{name}/confusion"] = r["confusion"].sum(axis=0)
+    err = res["err"]
+    m = err["mask"].reshape(-1)
+    sel = np.flatnonzero(m)
+    if sel.size > cfg.max_error_points:
+        sel = np.random.default_rng(level_index).choice(sel, cfg.max_error_points,
+                                                        replace=False)
+    for k in ("xy", "dab", "truth", "est"):
+        arrays[f"err/{k}"] = err[k].reshape(-1, *err[k].shape[2:])[sel]
+    mapped = err["mapped"].reshape(-1)
+    arrays["err/num_errors"] = np.asarray(int(m.sum()))
+    arrays["err/num_mapped"] = np.asarray(int(mapped.sum()))
+    # boundary distances of all mapped triplets (for the "errors on boundaries" claim)
+    xy_all = err["xy"].reshape(-1, 2)[mapped]
+    arrays["err/all_boundary_dist_hist"] = np.histogram(
+        boundary_distance(xy_all), bins=BD_BINS)[0]
+    arrays["err/all_truth_hist"] = np.bincount(err["truth"].reshape(-1)[mapped], minlength=20)
+    arrays["err/err_truth_hist"] = np.bincount(err["truth"].reshape(-1)[m], minlength=20)
+    arrays["err/err_est_hist"] = np.bincount(err["est"].reshape(-1)[m], minlength=20)
+    arrays["err/err_boundary_dist_hist"] = np.histogram(
+        boundary_distance(err["xy"].reshape(-1, 2)[m]), bins=BD_BINS)[0]
+    return line, arrays
+
+
+BD_BINS = np.array([0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf])
+
+
+def boundary_distance(xy: np.ndarray) -> np.ndarray:
+    """Distance (in |AB| units) of C = (α, β) to the nearest EDC boundary (SPEC §2.1)."""
+    a, b = xy[:, 0], xy[:, 1]
+    da = np.hypot(a, b)  # to A
+    db = np.hypot(a, b - 1.0)  # to B
+    cands = [np.abs(a), np.abs(b), np.abs(b - 0.5), np.abs(b - 1.0), np.abs(da - 1.0),
+             np.abs(db - 1.0)]
+    return np.min(np.stack(cands), axis=0)
+
+
+# --------------------------------------------------------------------------------------
+# storage / resume
+# --------------------------------------------------------------------------------------
+
+
+def _load_done(out: Path) -> list[dict]:
+    path = out / "levels.jsonl"
+    if not path.exists():
+        return []
+    lines = []
+    for raw in path.read_text().splitlines():
+        raw = raw.strip()
+        if not raw:
+            continue
+        try:
+            line = json.loads(raw)
+        except json.JSONDecodeError:  # a torn last line from a kill: ignore, recompute
+            break
+        if (out / f"level_{line['level']:02d}.npz").exists():
+            lines.append(line)
+    return lines
+
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
+    """Run (or resume) the study into ``out``; returns the level summaries."""
+    from tqdm.auto import tqdm
+
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path = out / "config.json"
+    want = cfg.to_json()
+    if cfg_path.exists():
+        have = json.loads(cfg_path.read_text())
+        if have != json.loads(json.dumps(want)):
+            raise SystemExit(f"{out} holds a study with a different config; use another --out "
+                             f"or --fresh")
+    else:
+        cfg_path.write_text(json.dumps(want, indent=2))
+    done = _load_done(out)
+    # rewrite levels.jsonl without a torn tail
+    with open(out / "levels.jsonl", "w") as f:
+        for line in done:
+            f.write(json.dumps(line) + "\n")
+    done_ids = {d["level"] for d in done}
+    levels = cfg.sigma_levels()
+    todo = [i for i in range(len(levels)) if i not in done_ids]
+    dists = _distance_matrices(cfg.representations)
+    run_fn = _make_run_fn(cfg, dists)
+    total = len(todo) * cfg.runs
+    bar = tqdm(total=total, desc="padgett-mc runs", unit="run", disable=quiet,
+               file=sys.stderr)
+    t0 = time.perf_counter()
+    for i in todo:
+        bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
+        res = run_level(cfg, run_fn, i, levels[i]["sigma_r"], bar)
+        line, arrays = summarise_level(cfg, levels[i], res, i)
+        np.savez_compressed(out / f"level_{i:02d}.npz", **arrays)
+        with open(out / "levels.jsonl", "a") as f:
+            f.write(json.dumps(line) + "\n")
+        done.append(line)
+    bar.close()
+    elapsed = time.perf_counter() - t0
+    timing = {"elapsed_s_this_invocation": elapsed, "levels_computed": len(todo),
+              "runs_per_level": cfg.runs, "devices": len(jax.devices())}
+    (out / "timing.json").write_text(json.dumps(timing, indent=2))
+    return sorted(done, key=lambda d: d["level"])
+
+
+def load_results(out: Path) -> tuple[dict, list[dict], dict[int, dict]]:
+    cfg = json.loads((out / "config.json").read_text())
+    lines = sorted(_load_done(out), key=lambda d: d["level"])
+    arrays = {}
+    for line in lines:
+        with np.load(out / f"level_{line['level']:02d}.npz") as z:
+            arrays[line["level"]] = {k: z[k] for k in z.files}
+    return cfg, lines, arrays
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--runs", type=int, help="Monte Carlo runs per noise level (paper: 1000)")
+    p.add_argument("--levels", type=int, help="main noise levels σ_R = 0..100 m (paper: 21)")
+    p.add_argument("--samples", type=int, help="samples per triplet per update (default 256)")
+    p.add_argument("--landmarks", type=int, help="landmarks per world (default 10)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--chunk-runs", type=int, help="runs per compiled call (memory/progress)")
+    p.add_argument("--out", default="out/padgett-mc", help="output directory")
+    p.add_argument("--reduced", action="store_true",
+                   help="quick preset: 100 runs per level (a few minutes on 2 cores)")
+    p.add_argument("--fresh", action="store_true", help="discard results already in --out")
+    p.add_argument("--report-only", action="store_true",
+                   help="only rewrite report.md and figures from the stored results")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    if not args.report_only:
+        cfg = Config()
+        if args.reduced:
+            cfg.runs = 100
+        for attr, val in (("runs", args.runs), ("levels", args.levels),
+                          ("num_samples", args.samples), ("num_landmarks", args.landmarks),
+                          ("chunk_runs", args.chunk_runs)):
+            if val is not None:
+                if val < 1 or (attr == "num_landmarks" and val < 3):
+                    p.error(f"--{attr.replace('_', '-')} must be positive (landmarks ≥ 3)")
+                setattr(cfg, attr, val)
+        cfg.seed = args.seed
+        if args.fresh and out.exists():
+            for f in list(out.glob("level_*.npz")) + [out / "levels.jsonl", out / "config.json"]:
+                if f.exists():
+                    f.unlink()
+        run_study(cfg, out, quiet=args.quiet)
+    from ._padgett_report import write_report
+
+    path = write_report(out)
+    print(f"report: {path}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))
+
+
+__all__ = ["Config", "run_study", "run_level", "summarise_level", "load_results", "main",
+           "boundary_distance"]
