@@ -32,6 +32,19 @@ from .cells import Problem
 from .potential import SAL_FLOOR, check_params, log_psi1, log_saliency
 
 
+def _hash_uniform(seed, counter, n):
+    """n uniforms in [0, 1) from a uint32 seed and counter (a cheap integer hash; much faster
+    than threefry when batched over thousands of trials)."""
+    x = seed ^ (counter * jnp.uint32(0x9E3779B9)) ^ (jnp.arange(n, dtype=jnp.uint32)
+                                                     * jnp.uint32(0x85EBCA6B))
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    x = x ^ (x >> 16)
+    return (x >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+
+
 def _setup(mass, adj, belief_region, lab0, active):
     r0 = mass.shape[1]
     ar = jnp.arange(r0)
@@ -70,9 +83,8 @@ def _trial(mass, adj, belief_region, lab0, active, mu, sigma, key):
 
     def body(s):
         lab, mt, a, lb, logs, alive, tried, count, key, it = s
-        key, sub = jax.random.split(key)
         cand = alive & ~tried
-        n = jnp.argmax(jnp.where(cand, jax.random.gumbel(sub, (r0,)), -jnp.inf))
+        n = jnp.argmax(jnp.where(cand, _hash_uniform(key, it.astype(jnp.uint32), r0), -1.0))
         e_n = ar == n
         mn = mt[n]                                                    # (K,) masses of C_n
         newlog = jnp.log(jnp.maximum(mn[None, :] + mt, SAL_FLOOR))    # (R0 candidates, K)
@@ -100,7 +112,8 @@ def _trial(mass, adj, belief_region, lab0, active, mu, sigma, key):
                 it + 1)
 
     tried = jnp.zeros(r0, bool)
-    s = jax.lax.while_loop(cond, body, (lab, mt, a, lb, logs, alive, tried, count, key, 0))
+    seed = jax.random.bits(key, (), jnp.uint32)
+    s = jax.lax.while_loop(cond, body, (lab, mt, a, lb, logs, alive, tried, count, seed, 0))
     lab, mt, a, lb, logs, alive, tried, count, key, it = s
     lp3 = jnp.sum(jnp.where(bmask, logs, 0.0))
     l1 = lp1(count)
