@@ -126,12 +126,15 @@ class Poly:
         return {i for m in self.terms for i, e in enumerate(m) if e}
 
     def normalized(self) -> tuple[Poly, int]:
-        """(p / |leading coefficient|, sign of the leading coefficient); zero stays zero."""
+        """(p / leading coefficient, sign of the leading coefficient); zero stays zero.
+
+        ``sign(p(x)) == s * sign(q(x))`` for ``q, s = p.normalized()``.
+        """
         if not self.terms:
             return self, 0
         lead = self.terms[max(self.terms)]
         s = 1 if lead > 0 else -1
-        return Poly(self.nvars, {m: c / abs(lead) for m, c in self.terms.items()}, self.names), s
+        return Poly(self.nvars, {m: c / lead for m, c in self.terms.items()}, self.names), s
 
     def evaluate(self, x: Sequence[Number]) -> Fraction:
         """Exact value at rational (or float, converted exactly) coordinates."""

@@ -1,0 +1,279 @@
+"""Build exact operator tables for a calculus (SPEC §2.3, M§III, M§V).
+
+Pipeline for a calculus defined by constraints (atoms = realisable sign patterns):
+
+1. **witness pre-pass** — realised relations of random configurations (open calculi) or of
+   integer-grid configurations (boundary-inclusive calculi, where collinear, perpendicular and
+   coincident cases occur); every hit is re-verified in rational arithmetic;
+2. **branch-and-bound** — all remaining problems in one batched JAX program
+   (:mod:`.feasibility`) over the box |x| ≤ ``box`` with |BC| ≥ |AB|/``box`` (M§III.B bounds
+   the search the same way); witnesses re-verified exactly;
+3. **certification** — problems the B&B leaves undecided go to z3 (:mod:`.certify`), an exact
+   decision procedure over the whole plane; each is listed in ``undecided`` with its verdict.
+
+Merged calculi take exact unions of their parent's tables.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import jax
+import numpy as np
+
+from ..calculi.calculus import Calculus
+from . import certify, exact
+from . import problems as pb
+from .feasibility import FEASIBLE, INFEASIBLE, UNDECIDED, solve
+
+UNARY = ("left", "right", "inverse")
+_UNARY_KEY = {"left": "bca", "right": "cab", "inverse": "bac"}
+
+
+def _coords(frame: dict, x) -> list[list[float]]:
+    pts = []
+    for name in "ABCD":
+        P = frame[name]
+        pts.append([float(P[0].evaluate(list(x))), float(P[1].evaluate(list(x)))])
+    return pts
+
+
+class _Decider:
+    """Decides lists of problems: witnesses given → B&B → z3; keeps records."""
+
+    def __init__(self, box, progress, pool, max_iters, log):
+        self.box, self.progress, self.pool, self.max_iters = box, progress, pool, max_iters
+        self.undecided: list[dict] = []
+        self.stats = {"problems": 0, "trivial": 0, "prepass": 0, "bnb_feasible": 0,
+                      "bnb_infeasible": 0, "bnb_undecided": 0, "z3_sat": 0, "z3_unsat": 0,
+                      "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0}
+        self.log = log
+
+    def run(self, name: str, problems: list[pb.Problem], known: dict[int, list]) -> tuple:
+        """→ (feasible bool array, witness coordinates per index)."""
+        n = len(problems)
+        feas = np.zeros(n, bool)
+        wit: dict[int, list] = {}
+        self.stats["problems"] += n
+        for i, w in known.items():
+            feas[i] = True
+            wit[i] = w
+        self.stats["prepass"] += len(known)
+        todo = [i for i in range(n) if i not in known and not problems[i].trivially_infeasible]
+        self.stats["trivial"] += sum(problems[i].trivially_infeasible for i in range(n))
+        if todo:
+            t0 = time.perf_counter()
+            sol = solve(pb.to_batch([problems[i] for i in todo], self.box), pool=self.pool,
+                        max_iters=self.max_iters, progress=self.progress, desc=name)
+            self.stats["bnb_seconds"] += time.perf_counter() - t0
+            leftover = []
+            for i, st, x in zip(todo, sol.status, sol.witness, strict=True):
+                pr = problems[i]
+                if st == FEASIBLE and pb.verify(pr, x):
+                    feas[i] = True
+                    wit[i] = _coords(pb.frame(pr.tag[1]), x)
+                    self.stats["bnb_feasible"] += 1
+                elif st == INFEASIBLE:
+                    self.stats["bnb_infeasible"] += 1
+                else:
+                    leftover.append(i)
+            self.stats["bnb_undecided"] += len(leftover)
+            t0 = time.perf_counter()
+            for i in leftover:
+                pr = problems[i]
+                verdict, x = certify.decide(pr.constraints)
+                rec = {"problem": name, "tag": _tag(pr.tag), "bnb": "undecided",
+                       "resolved": f"z3-{verdict}"}
+                if verdict == certify.SAT:
+                    feas[i] = True
+                    wit[i] = _coords(pb.frame(pr.tag[1]), x)
+                    rec["exact_witness"] = pb.verify(pr, x)
+                    self.stats["z3_sat"] += 1
+                elif verdict == certify.UNSAT:
+                    self.stats["z3_unsat"] += 1
+                else:
+                    self.stats["open"] += 1
+                    rec["resolved"] = "open"
+                self.undecided.append(rec)
+            self.stats["z3_seconds"] += time.perf_counter() - t0
+        return feas, wit
+
+
+def _tag(tag) -> list:
+    return [t if isinstance(t, str) else list(t) for t in tag]
+
+
+def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
+    """Verified witnesses from sampled (open) or integer-grid (boundary) configurations."""
+    if calc.boundary_inclusive:
+        cfg = exact.grid_configs(3)
+    else:
+        cfg = exact.sample_configs(jax.random.PRNGKey(seed), n_samples)
+    rel = exact.realised(calc, atoms, cfg)
+    unary: dict[tuple, list] = {}
+    comp: dict[tuple, list] = {}
+    for op in UNARY:
+        key = np.stack([rel["abc"], rel[_UNARY_KEY[op]]], 1)
+        ok = (key >= 0).all(1)
+        _, first = np.unique(key[ok], axis=0, return_index=True)
+        for idx in np.flatnonzero(ok)[first]:
+            unary[(op, int(key[idx, 0]), int(key[idx, 1]))] = cfg[idx]
+    key = np.stack([rel["abc"], rel["bcd"], rel["abd"]], 1)
+    ok = (key >= 0).all(1)
+    _, first = np.unique(key[ok], axis=0, return_index=True)
+    for idx in np.flatnonzero(ok)[first]:
+        comp[tuple(int(v) for v in key[idx])] = cfg[idx]
+    return unary, comp
+
+
+def _verified(calc, atoms, cfg, pairs) -> bool:
+    """Exactly re-verify that configuration cfg realises the given (relation, atom) pairs."""
+    A, B, C, D = (tuple(p) for p in cfg)
+    pts = {"A": A, "B": B, "C": C, "D": D}
+    for (x, y, z), atom in pairs:
+        s = exact.exact_signs(calc, pts[x], pts[y], pts[z])
+        if s != atoms[atom]:
+            return False
+    return True
+
+
+def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed: int = 0,
+               n_samples: int = 1 << 20, pool: int = 32, max_iters: int = 120,
+               adjacency_radius: float = 1e-2, log=print) -> dict:
+    """Exact tables of a calculus defined by constraints (not a merge)."""
+    t_start = time.perf_counter()
+    atoms, astate = pb.atoms(calc)
+    na, Q = len(atoms), calc.num_states
+    dec = _Decider(box, progress, pool, max_iters, log)
+    pre_unary, pre_comp = _prepass(calc, atoms, seed, n_samples)
+
+    # atoms that exist at all
+    single = [pb.Problem(pb.simplify(pb.relation(calc, a, *(pb.frame(a)[x] for x in "ABC"))),
+                         ("atom", a)) for a in atoms]
+    seen = {k[1] for k in pre_unary}
+    known = {}
+    for i in range(na):
+        if i in seen:
+            cfg = next(v for k, v in pre_unary.items() if k[1] == i)
+            known[i] = [list(map(float, p)) for p in cfg[:3]]
+    exists, _ = dec.run("atoms", single, known)
+    live = [i for i in range(na) if exists[i]]
+
+    unary = {op: np.zeros((Q, Q), bool) for op in UNARY}
+    unary_wit: dict[str, list] = {}
+    rel_names = {"left": ("B", "C", "A"), "right": ("C", "A", "B"), "inverse": ("B", "A", "C")}
+    for op in UNARY:
+        probs, keys, known = [], [], {}
+        for i in live:
+            for j in live:
+                keys.append((i, j))
+                probs.append(pb.unary_problem(calc, op, atoms[i], atoms[j]))
+                cfg = pre_unary.get((op, i, j))
+                if cfg is not None and _verified(calc, atoms, cfg,
+                                                 [(("A", "B", "C"), i), (rel_names[op], j)]):
+                    known[len(probs) - 1] = [list(map(float, p)) for p in cfg[:3]]
+        feas, wit = dec.run(op, probs, known)
+        for n, (i, j) in enumerate(keys):
+            if feas[n]:
+                si, sj = astate[i], astate[j]
+                unary[op][si, sj] = True
+                unary_wit.setdefault(f"{op}|{calc.states[si]}|{calc.states[sj]}", wit[n][:3])
+
+    compose = np.zeros((Q, Q, Q), bool)
+    comp_wit: dict[str, list] = {}
+    probs, keys, known = [], [], {}
+    for i in live:
+        for j in live:
+            for k in live:
+                keys.append((i, j, k))
+                probs.append(pb.compose_problem(calc, atoms[i], atoms[j], atoms[k], box))
+                cfg = pre_comp.get((i, j, k))
+                if cfg is not None and _verified(
+                        calc, atoms, cfg,
+                        [(("A", "B", "C"), i), (("B", "C", "D"), j), (("A", "B", "D"), k)]):
+                    known[len(probs) - 1] = [list(map(float, p)) for p in cfg]
+    feas, wit = dec.run("compose", probs, known)
+    for n, (i, j, k) in enumerate(keys):
+        if feas[n]:
+            s = (astate[i], astate[j], astate[k])
+            compose[s] = True
+            comp_wit.setdefault("|".join(calc.states[x] for x in s), wit[n])
+
+    adjacency = np.zeros((Q, Q), bool)
+    nondeg = [i for i in live if isinstance(atoms[i], tuple)]
+    probs, keys = [], []
+    for a in nondeg:
+        for b in nondeg:
+            if a < b and astate[a] != astate[b]:
+                keys.append((a, b))
+                probs.append(pb.adjacency_problem(calc, atoms[a], atoms[b], adjacency_radius))
+    feas, _ = dec.run("adjacency", probs, {})
+    for n, (a, b) in enumerate(keys):
+        if feas[n]:
+            adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True
+    if calc.degenerate is not None:
+        adjacency[calc.dou, calc.tri] = adjacency[calc.tri, calc.dou] = True
+
+    dec.stats["seconds"] = time.perf_counter() - t_start
+    return {
+        "left": unary["left"], "right": unary["right"], "inverse": unary["inverse"],
+        "compose": compose, "adjacency": adjacency, "unary_witnesses": unary_wit,
+        "witnesses": comp_wit, "undecided": dec.undecided, "stats": dec.stats,
+        "settings": {"box": box, "ratio_bound": box, "pool": pool, "max_iters": max_iters,
+                     "adjacency_radius": adjacency_radius, "prepass_samples": n_samples,
+                     "seed": seed},
+    }
+
+
+def merge_tables(calc: Calculus, parent: dict) -> dict:
+    """Exact tables of a merge: unions over the fine states (witnesses carried over)."""
+    M = calc.parent_map
+    Q = calc.num_states
+    fine = calc.parent.states
+    onehot = np.zeros((len(M), Q), bool)
+    onehot[np.arange(len(M)), M] = True
+    out = {}
+    for op in UNARY:
+        out[op] = (onehot.T.astype(int) @ parent[op].astype(int) @ onehot.astype(int)) > 0
+    comp = np.einsum("ia,jb,kc,ijk->abc", onehot, onehot, onehot, parent["compose"].astype(int))
+    out["compose"] = comp > 0
+    adj = (onehot.T.astype(int) @ parent["adjacency"].astype(int) @ onehot.astype(int)) > 0
+    np.fill_diagonal(adj, False)
+    out["adjacency"] = adj
+
+    def relabel(d, n):
+        res = {}
+        for key, w in d.items():
+            parts = key.split("|")
+            labs = parts[-n:]
+            new = "|".join(parts[:-n] + [calc.states[M[fine.index(x)]] for x in labs])
+            res.setdefault(new, w)
+        return res
+
+    out["unary_witnesses"] = relabel(parent["unary_witnesses"], 2)
+    out["witnesses"] = relabel(parent["witnesses"], 3)
+    out["undecided"] = [dict(u, inherited_from=calc.parent.name) for u in parent["undecided"]]
+    out["stats"] = {"derived_from": calc.parent.name}
+    out["settings"] = {"merge_of": calc.parent.name}
+    return out
+
+
+def neighbor_distance(adjacency: np.ndarray) -> np.ndarray:
+    """All-pairs shortest path lengths in the conceptual neighbourhood graph (−1 unreachable)."""
+    Q = adjacency.shape[0]
+    dist = np.full((Q, Q), -1, np.int32)
+    for s in range(Q):
+        dist[s, s] = 0
+        queue = deque([s])
+        while queue:
+            a = queue.popleft()
+            for b in np.flatnonzero(adjacency[a]):
+                if dist[s, b] < 0:
+                    dist[s, b] = dist[s, a] + 1
+                    queue.append(b)
+    return dist
+
+
+__all__ = ["build_base", "merge_tables", "neighbor_distance", "FEASIBLE", "INFEASIBLE",
+           "UNDECIDED"]

@@ -1,0 +1,234 @@
+"""Feasibility problems behind the operator tables (M§III.B Table II, SPEC §2.3).
+
+An *atom* of a calculus is one realisable sign pattern of its constraints (a tuple in
+{−1,0,1}^k) or, for boundary-inclusive calculi, ``"dou"`` (A=B≠C) / ``"tri"`` (A=B=C).
+Each state is a union of atoms. A relation ``XY:Z`` in an atom becomes exact polynomial sign
+constraints on the free coordinates: with u = (Z−X)×(Y−X), v = (Z−X)·(Y−X), m = |Z−X|²,
+n = |Y−X|², every calculus constraint f(α, β, ρ) is replaced by n^D f(u/n, v/n, m/n), plus
+n > 0 (the frame exists). Degenerate atoms say n = 0 and m > 0 (dou) or m = 0 (tri).
+
+Frames (all exact, no loss of generality by similarity invariance): if the first relation
+``AB:C`` is non-degenerate, A=(0,0), B=(0,1), C=(x0,x1), D=(x2,x3); if it is ``dou``,
+A=B=(0,0), C=(0,1); if ``tri``, A=B=C=(0,0); D stays free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from ..calculi.calculus import Calculus
+from ..calculi.poly import Poly
+from .feasibility import ProblemBatch
+
+NV = 4  # free coordinates: C = (x0, x1), D = (x2, x3)
+NAMES = ("xc", "yc", "xd", "yd")
+Point = tuple[Poly, Poly]
+
+
+def _const(v) -> Poly:
+    return Poly.const(NV, v, NAMES)
+
+
+def _var(i) -> Poly:
+    return Poly.var(NV, i, NAMES)
+
+
+@dataclass
+class Problem:
+    """A conjunction of exact polynomial sign constraints (None = trivially infeasible)."""
+
+    constraints: list[tuple[Poly, int]] | None
+    tag: tuple = field(default=())
+    #: search-domain restrictions used by the branch-and-bound only (never by verification)
+    domain: list[tuple[Poly, int]] = field(default_factory=list)
+
+    @property
+    def trivially_infeasible(self) -> bool:
+        return self.constraints is None
+
+
+def frame(atom_abc) -> dict[str, Point]:
+    """Coordinates of A, B, C, D for a problem whose first relation AB:C is ``atom_abc``."""
+    z, one = _const(0), _const(1)
+    D = (_var(2), _var(3))
+    if atom_abc == "dou":
+        return {"A": (z, z), "B": (z, z), "C": (z, one), "D": D}
+    if atom_abc == "tri":
+        return {"A": (z, z), "B": (z, z), "C": (z, z), "D": D}
+    return {"A": (z, z), "B": (z, one), "C": (_var(0), _var(1)), "D": D}
+
+
+def relation(calc: Calculus, atom, X: Point, Y: Point, Z: Point) -> list[tuple[Poly, int]]:
+    """Sign constraints saying ``XY:Z`` is in ``atom``."""
+    return list(_relation(calc, atom, X, Y, Z))
+
+
+@lru_cache(maxsize=65536)
+def _relation(calc: Calculus, atom, X: Point, Y: Point, Z: Point) -> tuple:
+    dx, dy = Y[0] - X[0], Y[1] - X[1]
+    ex, ey = Z[0] - X[0], Z[1] - X[1]
+    n = dx * dx + dy * dy
+    m = ex * ex + ey * ey
+    if atom == "dou":
+        return ((n, 0), (m, 1))
+    if atom == "tri":
+        return ((n, 0), (m, 0))
+    u = ex * dy - ey * dx
+    v = ex * dx + ey * dy
+    out = [(n, 1)]
+    for poly, s in zip(calc.constraints, atom, strict=True):
+        out.append((poly.substitute([u, v, m], homogenize_with=n), int(s)))
+    return tuple(out)
+
+
+def simplify(constraints: list[tuple[Poly, int]]) -> list[tuple[Poly, int]] | None:
+    """Drop satisfied constants, merge identical boundaries; None if a contradiction shows."""
+    kept: dict[Poly, int] = {}
+    for poly, s in constraints:
+        if poly.is_constant():
+            if (poly.constant() > 0) - (poly.constant() < 0) != s:
+                return None
+            continue
+        norm, lead = poly.normalized()
+        s_norm = s * lead
+        if norm in kept and kept[norm] != s_norm:
+            return None
+        kept[norm] = s_norm
+    return [(p, s) for p, s in kept.items()]
+
+
+def atoms(calc: Calculus) -> tuple[list, list[int]]:
+    """The atoms of a calculus defined by constraints, and the state of each atom."""
+    import itertools
+
+    from ..calculi.calculus import _pattern_index
+
+    sign_set = (-1, 0, 1) if calc.boundary_inclusive else (-1, 1)
+    out, state = [], []
+    for signs in itertools.product(sign_set, repeat=calc.k):
+        st = int(calc.sign_table[_pattern_index(signs)])
+        if st >= 0:
+            out.append(tuple(signs))
+            state.append(st)
+    if calc.degenerate is not None:
+        out += ["dou", "tri"]
+        state += [calc.dou, calc.tri]
+    return out, state
+
+
+def unary_problem(calc: Calculus, op: str, p, q) -> Problem:
+    """Is ``AB:C ∈ p`` compatible with LEFT (BC:A), RIGHT (CA:B) or INVERSE (BA:C) ∈ q?"""
+    F = frame(p)
+    A, B, C = F["A"], F["B"], F["C"]
+    cons = relation(calc, p, A, B, C)
+    if op == "left":
+        cons += relation(calc, q, B, C, A)
+    elif op == "right":
+        cons += relation(calc, q, C, A, B)
+    elif op == "inverse":
+        cons += relation(calc, q, B, A, C)
+    else:
+        raise ValueError(f"unknown unary operator {op!r}")
+    return Problem(simplify(cons), (op, p, q))
+
+
+def _ratio_bound(X: Point, Y: Point, ratio: float) -> list[tuple[Poly, int]]:
+    """|XY| > |AB| / ratio: keeps the search away from a frame's degenerate point."""
+    n = (Y[0] - X[0]) ** 2 + (Y[1] - X[1]) ** 2
+    return [] if n.is_constant() else [(n - 1 / ratio**2, 1)]
+
+
+def compose_problem(calc: Calculus, p, q, r, box: float = 8.0) -> Problem:
+    """Is there a configuration with AB:C ∈ p, BC:D ∈ q and AB:D ∈ r? (M§III.B)"""
+    F = frame(p)
+    A, B, C, D = F["A"], F["B"], F["C"], F["D"]
+    cons = relation(calc, p, A, B, C) + relation(calc, q, B, C, D) + relation(calc, r, A, B, D)
+    domain = [c for X, Y in ((A, C), (B, C), (A, D), (B, D), (C, D))
+              for c in _ratio_bound(X, Y, box)]
+    return Problem(simplify(cons), ("compose", p, q, r), domain)
+
+
+def _disk_inside(calc: Calculus, atom, X: Point, r: float) -> list[tuple[Poly, int]]:
+    """The disk of radius r around X (canonical frame) lies inside the open atom.
+
+    Needs line or circle constraints (weighted degree one in α, β, ρ): a line's signed
+    distance must exceed r, a circle's centre distance must clear its radius by r.
+    """
+    import math
+    from fractions import Fraction
+
+    out = []
+    for poly, s in zip(calc.constraints, atom, strict=True):
+        if poly.weighted_degree() > 1:
+            raise NotImplementedError("adjacency needs line/circle constraints")
+        t = poly.terms
+        k = t.get((0, 0, 1), Fraction(0))
+        a = t.get((1, 0, 0), Fraction(0))
+        b = t.get((0, 1, 0), Fraction(0))
+        c = t.get((0, 0, 0), Fraction(0))
+        x, y = X
+        if k == 0:
+            norm = Fraction(math.sqrt(a * a + b * b))
+            out.append((s * (a * x + b * y + c) - r * norm, 1))
+            continue
+        cx, cy = -a / (2 * k), -b / (2 * k)
+        R2 = (a * a + b * b) / (4 * k * k) - c / k
+        R = Fraction(math.sqrt(max(R2, 0)))
+        d2 = (x - cx) ** 2 + (y - cy) ** 2
+        if s * k > 0:  # outside the circle
+            out.append((d2 - (R + r) ** 2, 1))
+        elif R > r:
+            out.append((d2 - (R - r) ** 2, -1))
+        else:
+            return [(_const(-1), 1)]
+    return out
+
+
+def adjacency_problem(calc: Calculus, p, q, r: float) -> Problem:
+    """Do open atoms p and q meet with positive angle? (conceptual neighbours, P§2.3.1)
+
+    True iff disks of radius r inside p and inside q have centres closer than 8r: regions
+    sharing an edge or a corner with sectors of ≳ 30° qualify (EDC's triple points have 60°
+    sectors), zero-angle cusp contacts do not (a cusp of width ~t²/2 holds such a disk only
+    at a distance t ~ 2√r from its tip).
+    """
+    C, D = (_var(0), _var(1)), (_var(2), _var(3))
+    gap = (C[0] - D[0]) ** 2 + (C[1] - D[1]) ** 2 - (8 * r) ** 2
+    cons = _disk_inside(calc, p, C, r) + _disk_inside(calc, q, D, r) + [(gap, -1)]
+    return Problem(simplify(cons), ("adjacent", p, q))
+
+
+def to_batch(problems: list[Problem], box: float) -> ProblemBatch:
+    """Dense quadratic-form arrays for the solver (problems must not be trivially infeasible)."""
+    K = max((len(pr.constraints) + len(pr.domain) for pr in problems), default=1) or 1
+    P = len(problems)
+    A = np.zeros((P, K, NV, NV))
+    b = np.zeros((P, K, NV))
+    c = np.zeros((P, K))
+    sign = np.zeros((P, K), np.int8)
+    active = np.zeros((P, K), bool)
+    used = np.zeros((P, NV), bool)
+    for i, pr in enumerate(problems):
+        for k, (poly, s) in enumerate(pr.constraints + pr.domain):
+            c[i, k], b[i, k], A[i, k] = poly.quadratic_form()
+            sign[i, k] = s
+            active[i, k] = True
+            for v in poly.variables():
+                used[i, v] = True
+    lo = np.where(used, -box, 0.0)
+    hi = np.where(used, box, 0.0)
+    return ProblemBatch(A, b, c, sign, active, lo, hi)
+
+
+def verify(problem: Problem, x) -> bool:
+    """Exact (rational) check that x satisfies every constraint of the problem."""
+    if problem.constraints is None:
+        return False
+    for poly, s in problem.constraints:
+        val = poly.evaluate(list(x))
+        if (val > 0) - (val < 0) != s:
+            return False
+    return True
