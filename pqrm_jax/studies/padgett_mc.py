@@ -176,24 +176,27 @@ def _mesh_sharding():
     return NamedSharding(mesh, PartitionSpec("runs")), len(devs)
 
 
-_BATCHED: dict = {}
+_COMPILED: dict = {}
 
 
-def _batched(run_fn, sharding):
-    key = (id(run_fn), sharding)
-    if key not in _BATCHED:
-        _BATCHED.clear()
-        _BATCHED[key] = (run_fn, jax.jit(jax.vmap(run_fn, in_axes=(0, None)),
-                                         out_shardings=sharding))
-    return _BATCHED[key][1]
-
-
-def run_level(cfg: Config, run_fn, level_index: int, sigma_r: float, progress=None) -> dict:
-    """All runs of one noise level, sharded over devices, in chunks; returns numpy results."""
+def compiled_runner(cfg: Config):
+    """(run_fn, jitted vmapped run_fn, sharding) for ``cfg``, cached per configuration."""
     sharding, ndev = _mesh_sharding()
+    key = (json.dumps(cfg.to_json(), sort_keys=True), ndev)
+    if key not in _COMPILED:
+        _COMPILED.clear()
+        run_fn = _make_run_fn(cfg, _distance_matrices(cfg.representations))
+        batched = jax.jit(jax.vmap(run_fn, in_axes=(0, None)), out_shardings=sharding)
+        _COMPILED[key] = (run_fn, batched, sharding)
+    return _COMPILED[key]
+
+
+def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None) -> dict:
+    """All runs of one noise level, sharded over devices, in chunks; returns numpy results."""
+    _, batched, sharding = compiled_runner(cfg)
+    ndev = len(jax.devices())
     chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
     base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
-    batched = _batched(run_fn, sharding)
     parts = []
     for start in range(0, cfg.runs, chunk):
         idx = np.arange(start, start + chunk)
@@ -322,15 +325,13 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
     done_ids = {d["level"] for d in done}
     levels = cfg.sigma_levels()
     todo = [i for i in range(len(levels)) if i not in done_ids]
-    dists = _distance_matrices(cfg.representations)
-    run_fn = _make_run_fn(cfg, dists)
     total = len(todo) * cfg.runs
     bar = tqdm(total=total, desc="padgett-mc runs", unit="run", disable=quiet,
                file=sys.stderr)
     t0 = time.perf_counter()
     for i in todo:
         bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-        res = run_level(cfg, run_fn, i, levels[i]["sigma_r"], bar)
+        res = run_level(cfg, i, levels[i]["sigma_r"], bar)
         line, arrays = summarise_level(cfg, levels[i], res, i)
         np.savez_compressed(out / f"level_{i:02d}.npz", **arrays)
         with open(out / "levels.jsonl", "a") as f:

@@ -1,0 +1,186 @@
+"""PQRM online map (P eq. 2.10, Alg. 1) and metrics (eq. 2.11, Figs 2.6–2.16)."""
+
+from collections import deque
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pqrm_jax import calculi, pqrm
+from pqrm_jax.pqrm import metrics
+
+POS = jnp.array([[0.0, 0.0], [0.0, 10.0], [4.0, 4.0], [-6.0, 2.0]])
+ALL = jnp.ones(4, bool)
+
+# SPEC §2.1 EDC conceptual neighbourhood (test fixture only)
+EDC_NEIGHBOURS = {
+    1: (2, 3, 4, 5, 6), 2: (1, 3, 4, 9, 10), 3: (1, 2, 4, 5, 6, 7, 8),
+    4: (1, 2, 3, 7, 8, 9, 10), 5: (1, 3, 6, 7, 11, 12, 13), 6: (1, 3, 5, 7, 11, 12, 13),
+    7: (3, 4, 5, 6, 8, 11, 12, 13, 14), 8: (3, 4, 7, 9, 10, 13, 14, 15, 16),
+    9: (2, 4, 8, 10, 14, 15, 16), 10: (2, 4, 8, 9, 14, 15, 16), 11: (5, 6, 7, 12, 13, 17, 19),
+    12: (5, 6, 7, 11, 13, 17, 19), 13: (5, 6, 7, 8, 11, 12, 14, 17, 18),
+    14: (7, 8, 9, 10, 13, 15, 16, 17, 18), 15: (8, 9, 10, 14, 16, 18, 20),
+    16: (8, 9, 10, 14, 15, 18, 20), 17: (11, 12, 13, 14, 18, 19, 20),
+    18: (13, 14, 15, 16, 17, 19, 20), 19: (11, 12, 17, 18, 20), 20: (15, 16, 17, 18, 19),
+}
+
+
+def _fixture_distances():
+    d = np.full((20, 20), -1, int)
+    for s in range(20):
+        d[s, s] = 0
+        q = deque([s])
+        while q:
+            u = q.popleft()
+            for v in EDC_NEIGHBOURS[u + 1]:
+                if d[s, v - 1] < 0:
+                    d[s, v - 1] = d[s, u] + 1
+                    q.append(v - 1)
+    return d
+
+
+@pytest.fixture(scope="module")
+def pq():
+    return pqrm.mapper(("edc", "lr"), num_landmarks=4, num_samples=200)
+
+
+def test_ordered_triplets():
+    t = pqrm.ordered_triplets(5)
+    assert t.shape == (60, 3) and len({tuple(x) for x in t}) == 60
+    assert np.all((t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2]))
+    with pytest.raises(ValueError, match="at least three"):
+        pqrm.ordered_triplets(2)
+    with pytest.raises(ValueError, match="at least three"):
+        pqrm.mapper(("edc",), num_landmarks=2)
+
+
+def test_bayes_update_matches_eq_2_10(pq):
+    k1, k2 = jax.random.key(1), jax.random.key(2)
+    vis = jnp.array([True, True, True, False])
+    pos2 = POS + 0.7
+    st = pq.update(pq.init(), k1, POS, vis, 3.0)
+    st = pq.update(st, k2, pos2, vis, 3.0)
+    tri = pq.triplets
+    seen = np.all(np.asarray(vis)[tri], axis=1)
+    assert np.array_equal(np.asarray(st.mapped), seen) and seen.sum() == 6  # all orderings
+    for name in ("edc", "lr"):
+        m1 = np.asarray(pqrm.state_probabilities(k1, name, POS[tri], 3.0, 200))
+        m2 = np.asarray(pqrm.state_probabilities(k2, name, pos2[tri], 3.0, 200))
+        post = m1 * m2
+        post = post / post.sum(1, keepdims=True)
+        np.testing.assert_allclose(np.asarray(st.probs[name])[seen], post[seen], atol=1e-6)
+        assert np.all(np.asarray(st.probs[name])[~seen] == 0)  # unobserved: unmapped
+    assert np.asarray(st.num_updates)[seen].tolist() == [2] * 6
+
+
+def test_unobserved_unchanged_new_initialised(pq):
+    st = pq.update(pq.init(), jax.random.key(1), POS, jnp.array([1, 1, 1, 0], bool), 2.0)
+    before = {k: np.asarray(v) for k, v in st.probs.items()}
+    st2 = pq.update(st, jax.random.key(2), POS, jnp.array([1, 1, 0, 1], bool), 2.0)
+    tri = pq.triplets
+    s1 = np.all(np.array([1, 1, 1, 0], bool)[tri], 1)
+    s2 = np.all(np.array([1, 1, 0, 1], bool)[tri], 1)
+    new = s2 & ~s1
+    untouched = s1 & ~s2
+    meas = np.asarray(pqrm.state_probabilities(jax.random.key(2), "edc", POS[tri], 2.0, 200))
+    np.testing.assert_allclose(np.asarray(st2.probs["edc"])[new], meas[new], atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(st2.probs["edc"])[untouched],
+                                  before["edc"][untouched])
+
+
+def test_conflict_keeps_prior_and_is_counted(pq):
+    vis = jnp.array([True, True, True, False])
+    right = POS
+    left = POS.at[2, 0].set(-4.0)
+    st = pq.update(pq.init(), jax.random.key(1), right, vis, 0.0)
+    st2 = pq.update(st, jax.random.key(2), left, vis, 0.0)
+    for name in ("edc", "lr"):
+        p = np.asarray(st2.probs[name])
+        assert np.isfinite(p).all()
+        np.testing.assert_array_equal(p, np.asarray(st.probs[name]))
+        assert int(st2.num_conflicts[name].sum()) == 6
+
+
+def test_rejected_and_dropped_measurements_never_nan(pq):
+    on_line = POS.at[2].set(jnp.array([0.0, 5.0]))  # C on AB, σ = 0: no defined sample
+    st = pq.update(pq.init(), jax.random.key(1), on_line, jnp.array([1, 1, 1, 0], bool), 0.0)
+    assert int(st.num_rejected.sum()) == 6 and not bool(st.mapped.any())
+    nan_pos = POS.at[3].set(jnp.nan)
+    st = pq.update(pq.init(), jax.random.key(1), nan_pos, ALL, 1.0)
+    assert int(st.num_dropped) == 1 and int(st.mapped.sum()) == 6
+    assert all(np.isfinite(np.asarray(v)).all() for v in st.probs.values())
+
+
+def test_update_validation(pq):
+    st = pq.init()
+    k = jax.random.key(0)
+    with pytest.raises(ValueError, match="non-negative"):
+        pq.update(st, k, POS, ALL, -1.0)
+    with pytest.raises(ValueError, match="non-negative"):
+        pq.update(st, k, POS, ALL, float("nan"))
+    with pytest.raises(ValueError, match="shape"):
+        pq.update(st, k, POS[:3], ALL, 1.0)
+    with pytest.raises(ValueError, match="duplicate"):
+        pqrm.update_observed(pq, st, k, [0, 1, 1], np.asarray(POS[:3]), 1.0)
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        pqrm.update_observed(pq, st, k, [0, 1, 2], np.asarray(POS[:3]) * np.nan, 1.0)
+    with pytest.raises(ValueError, match=r"\[0, 4\)"):
+        pqrm.update_observed(pq, st, k, [0, 1, 7], np.asarray(POS[:3]), 1.0)
+    two = pqrm.update_observed(pq, st, k, [0, 1], np.asarray(POS[:2]), 1.0)
+    assert not bool(two.mapped.any()) and int(two.step) == 1
+    three = pqrm.update_observed(pq, st, k, [3, 0, 1], np.asarray(POS)[[3, 0, 1]], 1.0)
+    assert int(three.mapped.sum()) == 6
+
+
+def test_update_under_vmap_and_scan(pq):
+    keys = jax.random.split(jax.random.key(3), 5)
+
+    def one(key):
+        def step(s, k):
+            return pq.update(s, k, POS, ALL, 1.5), None
+
+        s, _ = jax.lax.scan(step, pq.init(), jax.random.split(key, 3))
+        return s
+
+    st = jax.jit(jax.vmap(one))(keys)
+    assert st.probs["edc"].shape == (5, 24, 20)
+    assert np.all(np.asarray(st.num_updates) == 3)
+    np.testing.assert_allclose(np.asarray(st.probs["edc"]).sum(-1), 1.0, atol=1e-5)
+
+
+def test_metrics_on_known_maps():
+    q = 20
+    uniform = jnp.full((3, q), 1.0 / q)
+    assert np.allclose(np.asarray(metrics.entropy(uniform)), np.log(20))
+    onehot = jax.nn.one_hot(jnp.array([0, 5, 7]), q)
+    mask = jnp.array([True, True, False])
+    assert float(metrics.mean_map_entropy(onehot, mask)) == 0.0
+    truth = jnp.array([0, 6, 7])
+    assert float(metrics.error_rate(onehot, truth, mask)) == 0.5
+    topn = np.asarray(metrics.topn_error_rates(onehot + 0.01 * jax.nn.one_hot(truth, q),
+                                              truth, mask))
+    assert topn[0] == 0.5 and topn[1] == 0.0 and np.all(np.diff(topn) <= 0)
+    assert float(metrics.ml_probability(onehot, mask)) == 1.0
+    cm = np.asarray(metrics.confusion_matrix(onehot, truth, mask))
+    assert cm.sum() == 2 and cm[0, 0] == 1 and cm[6, 5] == 1
+    d = _fixture_distances()
+    assert d.max() == 4  # P §2.3.1
+    nd = float(metrics.neighbor_distance(onehot, truth, mask, jnp.asarray(d)))
+    assert nd == (0 + d[5, 6]) / 2 == 0.5
+    assert float(metrics.mean_map_entropy(onehot, jnp.zeros(3, bool))) == 0.0  # empty: 0
+    try:  # the lead's tables, when present, must agree with the SPEC fixture
+        np.testing.assert_array_equal(np.asarray(calculi.get("edc").neighbor_distance), d)
+    except (ImportError, AttributeError, FileNotFoundError):
+        pass
+
+
+def test_true_states_and_normalized_positions():
+    lm = jnp.array([[10.0, 10.0], [10.0, 30.0], [15.0, 20.0], [0.0, 0.0]])
+    tri = np.array([[0, 1, 2], [1, 0, 2]])
+    xy, dab = metrics.normalized_positions(lm, tri)
+    np.testing.assert_allclose(np.asarray(xy), [[0.25, 0.5], [-0.25, 0.5]], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(dab), [20.0, 20.0])
+    edc = calculi.get("edc")
+    st = np.asarray(metrics.true_states(edc, lm, tri))
+    assert st.tolist() == [int(edc.classify(lm[i], lm[j], lm[k])) for i, j, k in tri]
