@@ -163,8 +163,18 @@ def _variadic_sum(ops, axis):
 
 def _edc_block_counts(mT, sT, zc):
     """Counts in key order for one block: mT (6, B), sT (3, B), zc (c, C, 6) → (B, 20) int32."""
-    pos = [mT[j][None, None, :] + sT[j // 2][None, None, :] * zc[:, :, j, None] for j in range(6)]
-    key = _edc_keys(*_uvmn(*pos))  # (c, C, B)
+    def col(x):
+        return x[None, None, :]
+
+    def zz(j):
+        return zc[:, :, j, None]
+
+    # d = B − A and e = C − A per sample: mean difference + the two scaled noise terms
+    dx = col(mT[2] - mT[0]) + col(sT[1]) * zz(2) - col(sT[0]) * zz(0)
+    dy = col(mT[3] - mT[1]) + col(sT[1]) * zz(3) - col(sT[0]) * zz(1)
+    ex = col(mT[4] - mT[0]) + col(sT[2]) * zz(4) - col(sT[0]) * zz(0)
+    ey = col(mT[5] - mT[1]) + col(sT[2]) * zz(5) - col(sT[0]) * zz(1)
+    key = _edc_keys(ex * dy - ey * dx, ex * dx + ey * dy, ex * ex + ey * ey, dx * dx + dy * dy)
     word = key >> 2
     val = jnp.left_shift(jnp.uint32(1), (key & 3) * _FIELD_BITS)
     zero = jnp.uint32(0)
