@@ -1,0 +1,1 @@
+"""Deterministic qualitative relational mapping with camera measurements (M, MT; SPEC §4)."""

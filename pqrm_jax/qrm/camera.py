@@ -1,0 +1,411 @@
+"""Camera measurement of qualitative states (M§IV, Table III; M§V feasibility).
+
+From one image we know the bearings of the visible landmarks and the ordering of their
+ranges, nothing else. For a landmark triple with ranges ``d = (d_near, d_mid, d_far)`` along
+known unit bearing vectors ``w_s``, the positions are ``P_s = d_s w_s`` (camera at the
+origin). Every calculus constraint used here is a line or circle ``c0 + c1 α + c2 β + c3 ρ``
+in the canonical frame of ``XY:Z``; homogenised (M Table III, ``pqrm_jax.tables.problems``)
+it becomes ``c0 n + c1 u + c2 v + c3 m`` with ``n = |Y−X|², m = |Z−X|²,
+u = (Z−X)×(Y−X), v = (Z−X)·(Y−X)`` — a *quadratic form in d*. The measurement is scale free,
+so instead of McClelland's (l, r) ∈ (0, ∞)² with an ad-hoc upper bound we use the exact,
+bounded parametrisation of the range-ordering cone
+
+    d = (a·b, b, 1),   (a, b) ∈ [0, 1]²      (d_near ≤ d_mid ≤ d_far),
+
+which covers every configuration with the observed ordering (ties included, on the closed
+box edges) and needs no artificial bound. Each constraint becomes a polynomial with
+monomials ``a^i b^j`` (i, j ≤ 2); at ``b → 0`` the near and middle landmarks collapse onto
+the camera, and constraints that vanish there identically are divided by ``b`` (exact: their
+``d_far²`` coefficient is structurally zero, and b > 0 in the open cone).
+
+**Kernel** (batched over triples, static shapes). Per triple a pool of ``pool`` boxes in
+(a, b) is refined by quadtree splits for ``depth`` rounds (a branch-and-bound in the sense of
+M§V / Alg. 1, but shared by all states and the three cyclic relations of the triple):
+
+* bound every constraint over every box (monomials are monotone on the positive box, so
+  the enclosure is exact at the corners and valid everywhere); a sign is *certain* only with
+  a relative safety margin ``eps`` (float32 rounding can never flip a certain sign);
+* the atoms (sign patterns) compatible with a box are those agreeing with every certain
+  sign; a box whose signs are all certain, or whose centre has a certain sign pattern,
+  *proves* an atom feasible (a witness);
+* a box is kept only if it is compatible with an atom that is wanted (``target``) and not
+  yet proven; kept boxes are split into four while the pool has room.
+
+The measured set is ``proven ∪ (atoms compatible with a surviving box) ∪ ¬target``: a state
+is removed only when every box of the cone is certainly incompatible with it, i.e. when it is
+proven infeasible (soundness, SPEC §4: the true state is never dropped). States that are
+neither proven nor excluded at the depth limit (``undecided``) are kept.
+
+Why a specialised kernel rather than :func:`pqrm_jax.tables.feasibility.solve` (which is
+used as the oracle in the tests): the generic solver runs one branch-and-bound per
+(relation, state) in float64 with a pool per problem; an image of 30 landmarks has
+4060 × 3 × 20 = 243 600 such problems. Sharing one subdivision between the 20 states and the
+three cyclic relations of a triple and bounding all constraints of a box with one batched
+matrix product makes the image update about two orders of magnitude cheaper.
+"""
+
+from __future__ import annotations
+
+import itertools
+from functools import cache, partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..calculi import Calculus
+from .spec import QRMSpec, qrm_spec
+
+__all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
+           "select_nearest", "slot_triples", "CYCLIC", "cone_forms"]
+
+#: the three cyclic relations of a slot triple (near, mid, far) = (0, 1, 2): XY:Z
+CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+_EPS = 2e-5  # relative safety margin on certain signs (float32 rounding ~1e-7)
+
+
+class TripleMeasurement(NamedTuple):
+    """Kernel output for T triples (slot order near, mid, far).
+
+    sets: (T, 3) uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
+    undecided: (T, 3) uint32 states kept without a witness (neither proven nor excluded).
+    """
+
+    sets: jax.Array
+    undecided: jax.Array
+
+
+class ImageMeasurement(NamedTuple):
+    """One image's measurement (M§IV) of the ``n`` nearest visible landmarks.
+
+    ids: (S,) int32 landmark id of each slot, nearest first; −1 for empty slots.
+    triples: (T, 3) int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
+    sets: (T, 3) uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
+        ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
+    valid: (T,) bool, all three slots hold a visible landmark.
+    undecided: (T, 3) uint32 states kept undecided at the depth limit.
+    """
+
+    ids: jax.Array
+    triples: jax.Array
+    sets: jax.Array
+    valid: jax.Array
+    undecided: jax.Array
+
+
+# --------------------------------------------------------------------------------------
+# constraint forms over the ordering cone
+# --------------------------------------------------------------------------------------
+def _quadratic_forms(bearings):
+    """(…, 3) bearings → n, m, u, v forms (…, O=3, 3, 3) over d for the cyclic relations."""
+    w = jnp.stack([jnp.cos(bearings), jnp.sin(bearings)], -1)  # (..., 3 slots, 2)
+    eye = jnp.eye(3, dtype=w.dtype)
+    out = []
+    for X, Y, Z in CYCLIC:
+        # linear maps d -> point difference, (..., 2, 3)
+        ld = w[..., Y, :, None] * eye[Y] - w[..., X, :, None] * eye[X]
+        le = w[..., Z, :, None] * eye[Z] - w[..., X, :, None] * eye[X]
+        n = jnp.einsum("...is,...ir->...sr", ld, ld)
+        m = jnp.einsum("...is,...ir->...sr", le, le)
+        v = jnp.einsum("...is,...ir->...sr", le, ld)
+        u = (le[..., 0, :, None] * ld[..., 1, None, :] - le[..., 1, :, None] * ld[..., 0, None, :])
+        sym = lambda q: 0.5 * (q + jnp.swapaxes(q, -1, -2))  # noqa: E731
+        out.append(jnp.stack([n, sym(u), sym(v), m], -3))  # (..., 4, 3, 3)
+    return jnp.stack(out, -4)  # (..., O, 4, 3, 3)
+
+
+def cone_forms(spec: QRMSpec, bearings):
+    """Monomial coefficients (…, O, K, 3, 3) of every constraint over (a, b) ∈ [0, 1]².
+
+    ``coef[..., o, k, i, j]`` multiplies ``a^i b^j``. Constraints whose constant term
+    (the ``d_far²`` coefficient) vanishes structurally are divided by ``b``.
+    """
+    forms = _quadratic_forms(bearings)  # (..., O, 4, 3, 3)
+    lin = jnp.asarray(spec.lin, forms.dtype)  # (K, 4)
+    F = jnp.einsum("kc,...ocsr->...oksr", lin, forms)  # (..., O, K, 3, 3) over d
+    z = jnp.zeros_like(F[..., 0, 0])
+    # d = (ab, b, 1): d0² = a²b², 2d0d1 = ab², d1² = b², 2d0d2 = ab, 2d1d2 = b, d2² = 1
+    C = jnp.stack([
+        jnp.stack([F[..., 2, 2], 2 * F[..., 1, 2], F[..., 1, 1]], -1),  # a^0 b^{0,1,2}
+        jnp.stack([z, 2 * F[..., 0, 2], 2 * F[..., 0, 1]], -1),  # a^1
+        jnp.stack([z, z, F[..., 0, 0]], -1),  # a^2
+    ], -2)
+    scale = jnp.max(jnp.abs(C), axis=(-1, -2), keepdims=True)
+    # the d_far² coefficient is an integer combination of |w|² = 1: exact zero test is safe
+    divide = jnp.abs(C[..., 0:1, 0:1]) <= 1e-4 * scale
+    shifted = jnp.concatenate([C[..., 1:], jnp.zeros_like(C[..., :1])], -1)
+    return jnp.where(divide, shifted, C)
+
+
+# --------------------------------------------------------------------------------------
+# the batched kernel
+# --------------------------------------------------------------------------------------
+def _powers(x):
+    return jnp.stack([jnp.ones_like(x), x, x * x], -1)
+
+
+def _monomials(a, b):
+    """(..., ) → (..., 9) values of a^i b^j, flattened i-major."""
+    return (_powers(a)[..., :, None] * _powers(b)[..., None, :]).reshape(*a.shape, 9)
+
+
+def _atom_masks_to_states(atom_mask, atom_state):
+    """(...,) uint32 atom masks → state masks."""
+    bits = (atom_mask[..., None] >> jnp.arange(atom_state.shape[0], dtype=jnp.uint32)) & 1
+    vals = jnp.where(bits.astype(bool), jnp.uint32(1) << atom_state.astype(jnp.uint32),
+                     jnp.uint32(0))
+    return jax.lax.reduce(vals, np.uint32(0), jax.lax.bitwise_or, (vals.ndim - 1,))
+
+
+def _state_masks_to_atoms(state_mask, atom_state):
+    bits = (state_mask[..., None] >> atom_state.astype(jnp.uint32)) & 1
+    vals = jnp.where(bits.astype(bool),
+                     jnp.uint32(1) << jnp.arange(atom_state.shape[0], dtype=jnp.uint32),
+                     jnp.uint32(0))
+    return jax.lax.reduce(vals, np.uint32(0), jax.lax.bitwise_or, (vals.ndim - 1,))
+
+
+def _or_reduce(x, axis):
+    return jax.lax.reduce(x, np.uint32(0), jax.lax.bitwise_or, (axis,))
+
+
+def _and_reduce(x, axis):
+    return jax.lax.reduce(x, np.uint32(0xFFFFFFFF), jax.lax.bitwise_and, (axis,))
+
+
+@partial(jax.jit, static_argnames=("spec", "pool", "depth"))
+def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
+    T = bearings.shape[0]
+    O, K = len(CYCLIC), spec.k
+    coef = cone_forms(spec, bearings).reshape(T, O * K, 9)  # (T, OK, 9)
+    cp, cn = jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)
+    cabs = jnp.abs(coef)
+    pos = jnp.asarray(spec.pos, jnp.uint32)
+    neg = jnp.asarray(spec.neg, jnp.uint32)
+    amb = jnp.asarray(spec.amb, jnp.uint32)
+    pattern_atom = jnp.asarray(spec.pattern_atom)
+    atom_state = jnp.asarray(spec.atom_state)
+    weights = jnp.asarray(3 ** np.arange(K), jnp.int32)
+    target = _state_masks_to_atoms(target_states, atom_state)  # (T, O)
+
+    def evaluate(box, alive, proven):
+        a0, a1, b0, b1 = (box[..., i] for i in range(4))
+        ml, mh = _monomials(a0, b0), _monomials(a1, b1)  # (T, B, 9)
+        mc = _monomials(0.5 * (a0 + a1), 0.5 * (b0 + b1))
+        dot = lambda m, c: jnp.einsum("tbm,tqm->tbq", m, c)  # noqa: E731
+        lo = dot(ml, cp) + dot(mh, cn)
+        hi = dot(mh, cp) + dot(ml, cn)
+        tol = _EPS * dot(mh, cabs) + 1e-30
+        val = dot(mc, coef)
+        tol_c = _EPS * dot(mc, cabs) + 1e-30
+        cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0)).reshape(T, -1, O, K)
+        cmask = jnp.where(cert == 1, pos, jnp.where(cert == -1, neg, amb))
+        compat = _and_reduce(cmask, 3)  # (T, B, O)
+        compat = jnp.where(alive[..., None], compat, jnp.uint32(0))
+        full = jnp.all(cert != 0, -1) & alive[..., None]
+        proven = proven | _or_reduce(jnp.where(full, compat, jnp.uint32(0)), 1)
+        # witness at the box centre
+        sc = jnp.where(val > tol_c, 1, jnp.where(val < -tol_c, -1, 0)).reshape(T, -1, O, K)
+        idx = jnp.sum((sc + 1) * weights, -1)
+        atom = pattern_atom[idx]
+        ok = jnp.all(sc != 0, -1) & (atom >= 0) & alive[..., None]
+        wit = jnp.where(ok, jnp.uint32(1) << jnp.maximum(atom, 0).astype(jnp.uint32),
+                        jnp.uint32(0))
+        proven = proven | _or_reduce(wit, 1)
+        need = target & ~proven  # (T, O)
+        useful = alive & jnp.any((compat & need[:, None, :]) != 0, -1)
+        return compat, useful, proven
+
+    slots = jnp.arange(pool)
+
+    def split(box, useful):
+        order = jnp.argsort(~useful, axis=-1, stable=True)
+        box = jnp.take_along_axis(box, order[..., None], 1)
+        u = useful.sum(-1)  # (T,)
+        n_split = jnp.minimum(u, (pool - u) // 3)
+        s = slots[None]
+        in_first = s < u[:, None]
+        rel = s - u[:, None]
+        is_child = (rel >= 0) & (rel < 3 * n_split[:, None])
+        src = jnp.where(in_first, s, jnp.where(is_child, rel // 3, 0))
+        child = jnp.where(in_first, jnp.where(s < n_split[:, None], 0, -1),
+                          jnp.where(is_child, 1 + rel % 3, -1))
+        sb = jnp.take_along_axis(box, src[..., None], 1)
+        a0, a1, b0, b1 = (sb[..., i] for i in range(4))
+        am, bm = 0.5 * (a0 + a1), 0.5 * (b0 + b1)
+        hi_a = (child % 2) == 1
+        hi_b = child >= 2
+        na0 = jnp.where(child < 0, a0, jnp.where(hi_a, am, a0))
+        na1 = jnp.where(child < 0, a1, jnp.where(hi_a, a1, am))
+        nb0 = jnp.where(child < 0, b0, jnp.where(hi_b, bm, b0))
+        nb1 = jnp.where(child < 0, b1, jnp.where(hi_b, b1, bm))
+        alive = in_first | is_child
+        return jnp.stack([na0, na1, nb0, nb1], -1), alive
+
+    dtype = coef.dtype
+    box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
+    alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
+    proven = jnp.zeros((T, O), jnp.uint32)
+
+    def cond(state):
+        it, _, alive, _, busy = state
+        return (it < depth) & busy
+
+    def body(state):
+        it, box, alive, proven, _ = state
+        _, useful, proven = evaluate(box, alive, proven)
+        box, alive = split(box, useful)
+        return it + 1, box, alive, proven, useful.any()
+
+    _, box, alive, proven, _ = jax.lax.while_loop(
+        cond, body, (0, box, alive, proven, jnp.asarray(True)))
+    compat, useful, proven = evaluate(box, alive, proven)
+    remaining = _or_reduce(jnp.where(useful[..., None], compat, jnp.uint32(0)), 1)
+    possible = proven | (remaining & target) | ~target
+    all_atoms = jnp.uint32(spec.atom_full)
+    sets = _atom_masks_to_states(possible & all_atoms, atom_state)
+    und = _atom_masks_to_states(remaining & target & ~proven & all_atoms, atom_state)
+    return sets, und
+
+
+def measure_triples(
+    bearings: jax.Array,
+    calc: Calculus | str | QRMSpec = "edc",
+    target: jax.Array | None = None,
+    *,
+    pool: int = 16,
+    depth: int = 12,
+) -> TripleMeasurement:
+    """Feasible states of the three cyclic relations of each triple (M§IV), batched.
+
+    ``bearings`` (T, 3): bearings of each triple's landmarks in *range order* (nearest
+    first; ties allowed). ``target`` (T, 3) uint32 state masks restricts the work to states
+    still open in the map (others are returned as possible, unchecked); default all states.
+
+    Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
+
+    >>> import numpy as np
+    >>> from pqrm_jax.qrm.spec import states_of
+    >>> # near landmark straight ahead, middle one to the left, far one to the right
+    >>> m = measure_triples(np.array([[0.0, 1.2, -0.9]], np.float32))
+    >>> "7" in states_of("edc", int(m.sets[0, 0])) or len(states_of("edc", int(m.sets[0, 0])))
+    10
+    """
+    spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
+    bearings = jnp.asarray(bearings)
+    if bearings.ndim != 2 or bearings.shape[-1] != 3:
+        raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
+    if not jnp.issubdtype(bearings.dtype, jnp.floating):
+        bearings = bearings.astype(jnp.float32)
+    if not isinstance(bearings, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(bearings))):
+        raise ValueError("bearings contain NaN or inf values")
+    if target is None:
+        target = jnp.full(bearings.shape[:1] + (3,), spec.full, jnp.uint32)
+    target = jnp.asarray(target, jnp.uint32)
+    if target.shape != bearings.shape[:1] + (3,):
+        raise ValueError(f"target must have shape {bearings.shape[:1] + (3,)}, got {target.shape}")
+    if pool < 4 or depth < 1:
+        raise ValueError(f"pool must be >= 4 and depth >= 1, got pool={pool}, depth={depth}")
+    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth)
+    return TripleMeasurement(sets, und)
+
+
+# --------------------------------------------------------------------------------------
+# images
+# --------------------------------------------------------------------------------------
+@cache
+def slot_triples(n_slots: int) -> np.ndarray:
+    """(C(S, 3), 3) int32 slot triples s0 < s1 < s2 (range order: s0 nearest)."""
+    if n_slots < 3:
+        return np.zeros((0, 3), np.int32)
+    return np.asarray(list(itertools.combinations(range(n_slots), 3)), np.int32)
+
+
+def select_nearest(range_rank: jax.Array, visible: jax.Array, n: int) -> jax.Array:
+    """(n,) landmark ids of the ``n`` nearest visible landmarks, nearest first (−1 = none)."""
+    N = range_rank.shape[0]
+    key = jnp.where(visible & (range_rank >= 0), range_rank, N + jnp.arange(N))
+    order = jnp.argsort(key)[:n]
+    ok = jnp.take(visible & (range_rank >= 0), order)
+    ids = jnp.where(ok, order, -1).astype(jnp.int32)
+    if n > N:
+        ids = jnp.concatenate([ids, jnp.full((n - N,), -1, jnp.int32)])
+    return ids
+
+
+def _check_observation(bearings, range_rank, visible):
+    bearings = np.asarray(bearings)
+    rank = np.asarray(range_rank)
+    vis = np.asarray(visible, bool)
+    if bearings.ndim != 1 or rank.shape != bearings.shape or vis.shape != bearings.shape:
+        raise ValueError("bearings, range_rank and visible must be 1-D arrays of equal length, "
+                         f"got {bearings.shape}, {rank.shape}, {vis.shape}")
+    if not np.all(np.isfinite(bearings[vis])):
+        raise ValueError("non-finite bearing for a visible landmark: "
+                         f"ids {np.flatnonzero(vis & ~np.isfinite(bearings)).tolist()}")
+    r = rank[vis]
+    if np.any(r < 0):
+        raise ValueError("a visible landmark has no range rank (−1)")
+    if len(np.unique(r)) != len(r):
+        raise ValueError("ties in the range ordering: range_rank must give distinct ranks to "
+                         "visible landmarks (break ties first; a tie is a valid configuration "
+                         "on the boundary of both orders, so either order is sound)")
+    if vis.sum() < 3:
+        raise ValueError(f"fewer than three visible landmarks ({int(vis.sum())}): no triple "
+                         "to measure")
+
+
+@partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
+def _measure_image(spec, bearings, range_rank, visible, target_map, *, n, pool, depth):
+    ids = select_nearest(range_rank, visible, n)
+    tri = jnp.asarray(slot_triples(n))
+    lid = ids[tri]  # (T, 3)
+    valid = jnp.all(lid >= 0, -1)
+    safe = jnp.maximum(lid, 0)
+    b = bearings[safe]
+    if target_map is None:
+        target = jnp.full(lid.shape, spec.full, jnp.uint32)
+    else:
+        target = jnp.stack([target_map[safe[:, X], safe[:, Y], safe[:, Z]]
+                            for X, Y, Z in CYCLIC], -1)
+    sets, und = _kernel(spec, b, target, pool=pool, depth=depth)
+    full = jnp.uint32(spec.full)
+    sets = jnp.where(valid[:, None], sets, full)
+    und = jnp.where(valid[:, None], und, jnp.uint32(0))
+    return ImageMeasurement(ids, lid, sets, valid, und)
+
+
+def measure_image(
+    bearings: jax.Array,
+    range_rank: jax.Array,
+    visible: jax.Array,
+    n: int,
+    calc: Calculus | str | QRMSpec = "edc",
+    target_map: jax.Array | None = None,
+    *,
+    pool: int = 16,
+    depth: int = 12,
+    check: bool = True,
+) -> ImageMeasurement:
+    """Measure every triple of the ``n`` nearest visible landmarks of one image (M§IV).
+
+    ``bearings``, ``range_rank``, ``visible``: a :class:`sim.sensors.CameraObservation`'s
+    fields. ``target_map`` (N, N, N) uint32: the current map relations (only their open
+    states are tested). Checks (when concrete, ``check=True``): finite bearings of visible
+    landmarks, distinct ranks, at least three visible landmarks — each raises ``ValueError``.
+
+    >>> import jax, sim
+    >>> lm = sim.uniform_landmarks(jax.random.key(0), 6)
+    >>> cam = sim.camera(jax.numpy.array([50.0, 50.0, 0.0]), lm, sim.SensorParams(200.0))
+    >>> m = measure_image(cam.bearings, cam.range_rank, cam.visible, n=6)
+    >>> m.sets.shape, bool(m.valid.all())
+    ((20, 3), True)
+    """
+    spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
+    if not isinstance(n, int) or n < 3:
+        raise ValueError(f"n (landmarks per image) must be an int >= 3, got {n!r}")
+    if check and not any(isinstance(x, jax.core.Tracer) for x in (bearings, range_rank, visible)):
+        _check_observation(bearings, range_rank, visible)
+    return _measure_image(spec, jnp.asarray(bearings), jnp.asarray(range_rank),
+                          jnp.asarray(visible), target_map, n=n, pool=pool, depth=depth)
