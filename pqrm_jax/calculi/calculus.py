@@ -174,7 +174,8 @@ class Calculus:
         return cls(name, labels, constraints, table, boundary_inclusive=boundary_inclusive,
                    degenerate=degenerate, description=description)
 
-    def merge(self, name: str, groups: Mapping[str, Sequence[str]], description: str = "") -> Calculus:
+    def merge(self, name: str, groups: Mapping[str, Sequence[str]],
+              description: str = "") -> Calculus:
         """Coarsen: ``groups`` maps each new label to the fine labels it merges.
 
         Every fine state must be in exactly one group. Operator tables of the merged calculus

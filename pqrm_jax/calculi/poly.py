@@ -17,9 +17,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from fractions import Fraction
-from typing import Union
 
-Number = Union[int, float, Fraction]
+Number = int | float | Fraction
 
 
 def _frac(x: Number) -> Fraction:

@@ -42,12 +42,14 @@ def _coords(frame: dict, x) -> list[list[float]]:
 class _Decider:
     """Decides lists of problems: witnesses given → B&B → z3; keeps records."""
 
-    def __init__(self, box, progress, pool, max_iters, log):
+    def __init__(self, box, progress, pool, max_iters, log, certify_all=False):
         self.box, self.progress, self.pool, self.max_iters = box, progress, pool, max_iters
+        self.certify_all = certify_all
         self.undecided: list[dict] = []
         self.stats = {"problems": 0, "trivial": 0, "prepass": 0, "bnb_feasible": 0,
                       "bnb_infeasible": 0, "bnb_undecided": 0, "z3_sat": 0, "z3_unsat": 0,
-                      "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0}
+                      "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0,
+                      "z3_confirmed_infeasible": 0, "z3_overturned": 0}
         self.log = log
 
     def run(self, name: str, problems: list[pb.Problem], known: dict[int, list]) -> tuple:
@@ -76,14 +78,25 @@ class _Decider:
                     self.stats["bnb_feasible"] += 1
                 elif st == INFEASIBLE:
                     self.stats["bnb_infeasible"] += 1
+                    if self.certify_all:  # the B&B domain is bounded: confirm on the plane
+                        leftover.append(i)
+                        continue
                 else:
                     leftover.append(i)
-            self.stats["bnb_undecided"] += len(leftover)
+            bnb_infeasible = {i for i, st in zip(todo, sol.status, strict=True)
+                              if st == INFEASIBLE}
+            self.stats["bnb_undecided"] += len(set(leftover) - bnb_infeasible)
             t0 = time.perf_counter()
             for i in leftover:
                 pr = problems[i]
                 verdict, x = certify.decide(pr.constraints)
-                rec = {"problem": name, "tag": _tag(pr.tag), "bnb": "undecided",
+                if i in bnb_infeasible:
+                    if verdict == certify.UNSAT:
+                        self.stats["z3_confirmed_infeasible"] += 1
+                        continue
+                    self.stats["z3_overturned"] += 1
+                rec = {"problem": name, "tag": _tag(pr.tag),
+                       "bnb": "infeasible-in-box" if i in bnb_infeasible else "undecided",
                        "resolved": f"z3-{verdict}"}
                 if verdict == certify.SAT:
                     feas[i] = True
@@ -140,12 +153,12 @@ def _verified(calc, atoms, cfg, pairs) -> bool:
 
 def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed: int = 0,
                n_samples: int = 1 << 20, pool: int = 32, max_iters: int = 120,
-               adjacency_radius: float = 1e-2, log=print) -> dict:
+               adjacency_radius: float = 1e-2, certify_all: bool = False, log=print) -> dict:
     """Exact tables of a calculus defined by constraints (not a merge)."""
     t_start = time.perf_counter()
     atoms, astate = pb.atoms(calc)
     na, Q = len(atoms), calc.num_states
-    dec = _Decider(box, progress, pool, max_iters, log)
+    dec = _Decider(box, progress, pool, max_iters, log, certify_all)
     pre_unary, pre_comp = _prepass(calc, atoms, seed, n_samples)
 
     # atoms that exist at all
@@ -202,16 +215,20 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
 
     adjacency = np.zeros((Q, Q), bool)
     nondeg = [i for i in live if isinstance(atoms[i], tuple)]
-    probs, keys = [], []
-    for a in nondeg:
-        for b in nondeg:
-            if a < b and astate[a] != astate[b]:
-                keys.append((a, b))
-                probs.append(pb.adjacency_problem(calc, atoms[a], atoms[b], adjacency_radius))
-    feas, _ = dec.run("adjacency", probs, {})
-    for n, (a, b) in enumerate(keys):
-        if feas[n]:
-            adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True
+    if calc.boundary_inclusive:
+        adjacency |= _face_adjacency(calc, atoms, astate, nondeg)
+    else:
+        probs, keys = [], []
+        for a in nondeg:
+            for b in nondeg:
+                if a < b and astate[a] != astate[b]:
+                    keys.append((a, b))
+                    probs.append(pb.adjacency_problem(calc, atoms[a], atoms[b],
+                                                      adjacency_radius))
+        feas, _ = dec.run("adjacency", probs, {})
+        for n, (a, b) in enumerate(keys):
+            if feas[n]:
+                adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True
     if calc.degenerate is not None:
         adjacency[calc.dou, calc.tri] = adjacency[calc.tri, calc.dou] = True
 
@@ -222,8 +239,28 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
         "witnesses": comp_wit, "undecided": dec.undecided, "stats": dec.stats,
         "settings": {"box": box, "ratio_bound": box, "pool": pool, "max_iters": max_iters,
                      "adjacency_radius": adjacency_radius, "prepass_samples": n_samples,
+                     "certify_all": certify_all,
                      "seed": seed},
     }
+
+
+def _face_adjacency(calc, atoms, astate, live) -> np.ndarray:
+    """Boundary-inclusive calculi: relations are neighbours iff one lies in the closure of the
+    other (the face order). For an arrangement of lines (convex cells) face j lies in the
+    closure of cell i iff j's sign vector is i's with some signs set to zero."""
+    if any(p.terms.get((0, 0, 1)) or p.weighted_degree() > 1 for p in calc.constraints):
+        raise NotImplementedError("face adjacency needs line constraints")
+    Q = calc.num_states
+    adj = np.zeros((Q, Q), bool)
+
+    def below(j, i):  # face j ≤ face i
+        return all(sj == 0 or sj == si for sj, si in zip(atoms[j], atoms[i], strict=True))
+
+    for i in live:
+        for j in live:
+            if i != j and astate[i] != astate[j] and (below(j, i) or below(i, j)):
+                adj[astate[i], astate[j]] = True
+    return adj
 
 
 def merge_tables(calc: Calculus, parent: dict) -> dict:
@@ -253,8 +290,10 @@ def merge_tables(calc: Calculus, parent: dict) -> dict:
 
     out["unary_witnesses"] = relabel(parent["unary_witnesses"], 2)
     out["witnesses"] = relabel(parent["witnesses"], 3)
-    out["undecided"] = [dict(u, inherited_from=calc.parent.name) for u in parent["undecided"]]
-    out["stats"] = {"derived_from": calc.parent.name}
+    out["undecided"] = []  # certification lives with the parent's table
+    out["stats"] = {"derived_from": calc.parent.name,
+                    "parent_undecided_by_bnb": len(parent["undecided"]),
+                    "parent_open": sum(u["resolved"] == "open" for u in parent["undecided"])}
     out["settings"] = {"merge_of": calc.parent.name}
     return out
 

@@ -1,0 +1,131 @@
+"""Calculus core: registry, classification, invariances, merges, bad input (SPEC §2)."""
+
+import jax
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pqrm_jax import calculi
+from pqrm_jax.calculi import BOUNDARY, DEGENERATE, INVALID, Calculus, alpha, beta
+
+SIZES = {"edc": 20, "edc_lune": 17, "triple_cross": 8, "double_cross": 6, "single_cross": 4,
+         "lr": 2, "quadrant": 4, "dcc": 17, "lr_full": 9}
+A0, B0 = np.zeros(2), np.array([0.0, 1.0])
+
+
+def test_registry_sizes_and_unknown_name():
+    for name, q in SIZES.items():
+        assert calculi.get(name).num_states == q
+    with pytest.raises(KeyError, match="known calculi: edc"):
+        calculi.get("edcc")
+
+
+@pytest.mark.parametrize("point,label", [
+    ((-0.5, 2.5), "1"), ((0.5, 2.5), "2"), ((-0.3, 1.3), "3"), ((0.3, 1.3), "4"),
+    ((-1.5, 0.8), "5"), ((1.5, 0.8), "10"), ((-0.95, 0.9), "6"), ((0.95, 0.9), "9"),
+    ((-0.3, 0.7), "7"), ((0.3, 0.7), "8"), ((-0.3, 0.3), "13"), ((0.3, 0.3), "14"),
+    ((-0.95, 0.1), "12"), ((0.95, 0.1), "15"), ((-1.5, 0.2), "11"), ((1.5, 0.2), "16"),
+    ((-0.3, -0.3), "17"), ((0.3, -0.3), "18"), ((-1, -1), "19"), ((1, -1), "20")])
+def test_edc_numbering_matches_spec_layout(point, label):
+    edc = calculi.get("edc")
+    assert edc.states[int(edc.classify(A0, B0, np.array(point, float)))] == label
+
+
+def test_dcc_boundaries_and_degenerate_cases():
+    dcc = calculi.get("dcc")
+    pts = np.array([[0, 0], [0, 2], [0, 4], [0, 1], [-1, 1], [1, -1], [0, -1], [-1, 2], [1, 0]])
+    got = dcc.labels(np.asarray(dcc.classify(np.zeros(2), np.array([0, 2.0]), pts)))
+    assert got == ["11", "5", "2", "8", "7", "15", "14", "4", "12"]
+    assert dcc.labels(np.asarray(dcc.classify(A0, A0, np.array([[0, 0], [3, 1.0]])))) == \
+        ["tri", "dou"]
+    lr = calculi.get("lr_full")
+    got = lr.labels(np.asarray(lr.classify(np.zeros(2), np.array([0, 2.0]), pts[:4])))
+    assert got == ["s", "e", "f", "i"]
+
+
+def test_sentinels_and_bad_shapes():
+    edc = calculi.get("edc")
+    assert int(edc.classify(A0, B0, np.array([0.0, 0.3]))) == BOUNDARY  # on line AB
+    assert int(edc.classify(A0, A0, np.array([1.0, 0.3]))) == DEGENERATE
+    assert int(edc.classify(A0, B0, np.array([np.nan, 0.3]))) == INVALID
+    assert int(edc.classify(A0, B0, np.array([np.inf, 0.3]))) == INVALID
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 2\)"):
+        edc.classify(A0, B0, np.zeros(3))
+
+
+def test_classify_is_jittable_and_batched():
+    edc = calculi.get("edc")
+    f = jax.jit(lambda a, b, c: edc.classify(a, b, c))
+    pts = np.random.default_rng(0).uniform(-3, 3, (7, 5, 2))
+    out = f(A0, B0, pts)
+    assert out.shape == (7, 5)
+    np.testing.assert_array_equal(out, edc.classify(A0, B0, pts))
+
+
+def _rot(p, k):
+    R = np.array([[0, -1], [1, 0]]) if k % 4 == 1 else np.linalg.matrix_power(
+        np.array([[0, -1], [1, 0]]), k % 4)
+    return p @ R.T
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 3), st.integers(-5, 5), st.integers(-5, 5), st.integers(1, 4),
+       st.sampled_from(list(SIZES)))
+def test_invariance_integer_grids(k, tx, ty, s, name):
+    """Exact invariance under rotations by 90°, integer translations and scalings, on an
+    integer grid where collinear, perpendicular and coincident configurations occur."""
+    calc = calculi.get(name)
+    g = np.arange(-3, 4)
+    P = np.array(np.meshgrid(g, g, g, g, g, g)).reshape(6, -1).T[::7].reshape(-1, 3, 2)
+    P = P.astype(float)
+    base = np.asarray(calc.classify(P[:, 0], P[:, 1], P[:, 2]))
+    Q = _rot(P, k) * s + np.array([tx, ty])
+    moved = np.asarray(calc.classify(Q[:, 0], Q[:, 1], Q[:, 2]))
+    np.testing.assert_array_equal(base, moved)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(0, 2 * np.pi), st.floats(0.1, 10), st.floats(-50, 50), st.floats(-50, 50))
+def test_invariance_random_floats(theta, s, tx, ty):
+    edc = calculi.get("edc")
+    rng = np.random.default_rng(1)
+    P = rng.uniform(-3, 3, (4000, 3, 2))
+    R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    Q = P @ R.T * s + np.array([tx, ty])
+    vals = np.asarray(edc.constraint_values(*(np.asarray(P[:, i], np.float64) for i in range(3))))
+    n = ((P[:, 1] - P[:, 0]) ** 2).sum(-1)
+    clear = np.abs(vals).min(-1) / n > 1e-4  # away from boundaries (float rounding)
+    a = np.asarray(edc.classify(P[:, 0], P[:, 1], P[:, 2]))
+    b = np.asarray(edc.classify(Q[:, 0], Q[:, 1], Q[:, 2]))
+    np.testing.assert_array_equal(a[clear], b[clear])
+    assert clear.mean() > 0.9
+
+
+def test_merge_validation_and_user_calculus():
+    edc = calculi.get("edc")
+    with pytest.raises(ValueError, match="in no group"):
+        edc.merge("bad", {"x": ["1"]})
+    with pytest.raises(ValueError, match="in two groups"):
+        edc.merge("bad", {"x": edc.states, "y": ["1"]})
+    with pytest.raises(ValueError, match="not a state"):
+        edc.merge("bad", {"x": ["99"]})
+    # the open FDC defined directly by constraints classifies like the merge of EDC
+    direct = Calculus.from_rule(
+        "fdc_direct", [-alpha, -beta, 1 - beta],
+        lambda s: ("l" if s[0] > 0 else "r") + ("f" if s[2] < 0 else ("b" if s[1] > 0 else "m"))
+        if not (s[2] < 0 and s[1] > 0) else None)
+    merged = calculi.get("double_cross")
+    pts = np.random.default_rng(2).uniform(-3, 3, (5000, 2))
+    a = direct.labels(np.asarray(direct.classify(A0, B0, pts)))
+    b = merged.labels(np.asarray(merged.classify(A0, B0, pts)))
+    assert a == b
+    assert direct.definition_hash != merged.definition_hash
+
+
+def test_merged_calculus_classifies_internal_boundaries():
+    """A point on a boundary internal to a merged state gets that state, not BOUNDARY."""
+    lune = calculi.get("edc_lune")
+    assert lune.states[int(lune.classify(A0, B0, np.array([0.0, 0.3])))] == "lune"
+    lr = calculi.get("lr")
+    assert lr.states[int(lr.classify(A0, B0, np.array([-1.0, 0.5])))] == "l"
