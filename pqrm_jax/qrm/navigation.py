@@ -1,0 +1,180 @@
+"""Graph-based navigation between Voronoi cells along RNG paths (M§VII.B), closed loop.
+
+Strategy (M§VII.B steps 1–6): find the landmarks nearest to START and END (their Voronoi
+cells), plan the cheapest sequence of landmarks along RNG edges (hop count plus ``lam`` times
+the Alg. 2 edge cost — the qualitative map has no metric lengths), then drive towards the
+next landmark of the sequence using only its camera bearing until the rover is inside its
+Voronoi cell, which the camera detects as that landmark being the nearest (range rank 0);
+repeat until the goal landmark's cell is reached. Step 7 (a local planner to END) is
+executed as a straight drive to END. Everything runs in one jitted ``lax.scan`` per run and
+``vmap``s over start/goal pairs.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import sim
+from sim.rover import RoverParams, RoverState, _step
+
+from .rng import RNGEstimate
+
+__all__ = ["NavResult", "plan_next_hop", "navigate", "navigate_many"]
+
+
+class NavResult(NamedTuple):
+    """``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
+    (metres driven), ``straight`` (|END − START|), ``poses`` (n_steps + 1, 3), ``path``
+    (N,) planned landmark sequence (−1 padded), ``hops``."""
+
+    success: jax.Array
+    reached_cell: jax.Array
+    length: jax.Array
+    straight: jax.Array
+    poses: jax.Array
+    path: jax.Array
+    hops: jax.Array
+
+
+@jax.jit
+def plan_next_hop(edges: jax.Array, cost: jax.Array, lam: float = 1.0):
+    """All-pairs shortest paths on the RNG estimate (Floyd–Warshall, ``lax.fori_loop``).
+
+    Returns ``(dist (N, N), nxt (N, N))``: ``nxt[i, j]`` is the landmark after i on a
+    cheapest path to j (−1 if unreachable); edge weight = 1 + lam · w_ij.
+    """
+    n = edges.shape[0]
+    w = jnp.where(edges, 1.0 + lam * cost, jnp.inf)
+    w = jnp.where(jnp.eye(n, dtype=bool), 0.0, w)
+    nxt = jnp.where(jnp.isfinite(w), jnp.arange(n)[None, :], -1)
+
+    def body(k, st):
+        d, nx = st
+        via = d[:, k][:, None] + d[k][None, :]
+        better = via < d
+        return jnp.where(better, via, d), jnp.where(better, nx[:, k][:, None], nx)
+
+    return jax.lax.fori_loop(0, n, body, (w, nxt))
+
+
+def _path(nxt, s, g, n):
+    def body(i, st):
+        path, cur = st
+        cur = jnp.where(cur >= 0, nxt[jnp.maximum(cur, 0), g], -1)
+        cur = jnp.where(path[i - 1] == g, -1, cur)
+        return path.at[i].set(cur), cur
+
+    path0 = jnp.full((n,), -1, jnp.int32).at[0].set(s)
+    path, _ = jax.lax.fori_loop(1, n, body, (path0, s))
+    return path
+
+
+@partial(jax.jit, static_argnames=("n_steps",))
+def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, tol):
+    n = landmarks.shape[0]
+    d_s = jnp.sum((landmarks - start[:2]) ** 2, -1)
+    d_g = jnp.sum((landmarks - goal) ** 2, -1)
+    s, g = jnp.argmin(d_s), jnp.argmin(d_g)
+    path = _path(nxt, s, g, n)
+    hops = jnp.sum(path >= 0) - 1
+    reachable = jnp.any(path == g)
+
+    def body(carry, _):
+        state, k, dist = carry
+        cam = sim.sensors._camera(state.pose, landmarks, sensor)
+        nearest = jnp.argmin(jnp.where(cam.visible, cam.range_rank, n + 1))
+        target = path[jnp.clip(k, 0, n - 1)]
+        in_cell = (nearest == target) & cam.visible[jnp.maximum(target, 0)]
+        k = jnp.where(in_cell & (target != g) & (target >= 0), k + 1, k)
+        target = path[jnp.clip(k, 0, n - 1)]
+        at_goal_cell = (target == g) & (nearest == g)
+        # bearing-only drive to the next landmark; last leg: drive to END (local planner)
+        rel = jnp.where(at_goal_cell, goal, landmarks[jnp.maximum(target, 0)]) - state.pose[:2]
+        err = sim._validate.wrap_angle(jnp.arctan2(rel[1], rel[0]) - state.pose[2])
+        dist_goal = jnp.sqrt(jnp.sum((goal - state.pose[:2]) ** 2))
+        done = at_goal_cell & (dist_goal < tol)
+        visible_target = cam.visible[jnp.maximum(target, 0)] | at_goal_cell
+        v = jnp.where(done | ~visible_target | ~reachable, 0.0,
+                      params.max_speed * jnp.maximum(jnp.cos(err), 0.0) ** 2)
+        v = jnp.where(at_goal_cell, jnp.minimum(v, dist_goal / params.dt), v)
+        u = jnp.stack([v, jnp.where(done, 0.0, k_turn * err)])
+        new = _step(state, u, params)
+        dist = dist + jnp.sqrt(jnp.sum((new.pose[:2] - state.pose[:2]) ** 2))
+        return (new, k, dist), (new.pose, at_goal_cell, done)
+
+    st0 = RoverState(start, jnp.zeros((), start.dtype))
+    (final, _, length), (poses, cell, done) = jax.lax.scan(
+        body, (st0, jnp.zeros((), jnp.int32), jnp.zeros((), start.dtype)), None, length=n_steps)
+    straight = jnp.sqrt(jnp.sum((goal - start[:2]) ** 2))
+    return NavResult(done.any(), cell.any(), length, straight,
+                     jnp.concatenate([start[None], poses]), path, hops)
+
+
+def navigate(
+    landmarks: jax.Array,
+    rng: RNGEstimate,
+    start: jax.Array,
+    goal: jax.Array,
+    params: RoverParams | None = None,
+    sensor: sim.SensorParams | None = None,
+    *,
+    n_steps: int = 3000,
+    lam: float = 1.0,
+    k_turn: float = 2.0,
+    tol: float = 0.5,
+) -> NavResult:
+    """Drive the simulated rover from ``start`` (x, y, θ) to ``goal`` (x, y) (M§VII.B).
+
+    ``landmarks`` are the true positions (the simulator's world; the controller sees them
+    only through :func:`sim.camera` bearings and range ranks).
+
+    >>> import jax, jax.numpy as jnp
+    >>> from pqrm_jax.qrm.hypergraph import true_map
+    >>> from pqrm_jax.qrm.rng import rng_estimate
+    >>> lm = jnp.array([[10., 10.], [30., 12.], [50., 10.], [70., 12.]])
+    >>> res = navigate(lm, rng_estimate(true_map(lm)), jnp.array([8., 8., 0.]),
+    ...                jnp.array([72., 14.]))
+    >>> bool(res.success), res.path.tolist()
+    (True, [0, 1, 2, 3])
+    """
+    params = RoverParams() if params is None else params
+    sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
+    landmarks = jnp.asarray(landmarks, jnp.float32)
+    start = jnp.asarray(start, jnp.float32)
+    goal = jnp.asarray(goal, jnp.float32)
+    for nm, x, shp in (("start", start, (3,)), ("goal", goal, (2,))):
+        if x.shape != shp:
+            raise ValueError(f"{nm} must have shape {shp}, got {x.shape}")
+        if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
+            raise ValueError(f"{nm} contains NaN or inf")
+    _, nxt = plan_next_hop(rng.edges, rng.cost, lam)
+    sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
+    return _navigate(landmarks, nxt, start, goal, params, sensor, n_steps=n_steps,
+                     k_turn=k_turn, tol=tol)
+
+
+def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, sensor=None, *,
+                  n_steps: int = 3000, lam: float = 1.0) -> NavResult:
+    """:func:`navigate` ``vmap``-ed over start/goal pairs (S, 3) / (S, 2)."""
+    params = RoverParams() if params is None else params
+    sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
+    sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
+    _, nxt = plan_next_hop(rng.edges, rng.cost, lam)
+    f = jax.vmap(lambda s, g: _navigate(jnp.asarray(landmarks, jnp.float32), nxt, s, g,
+                                        params, sensor, n_steps=n_steps, k_turn=2.0,
+                                        tol=0.5))
+    return f(jnp.asarray(starts, jnp.float32), jnp.asarray(goals, jnp.float32))
+
+
+def summarize(res: NavResult) -> dict:
+    """Success rate and path length / straight-line ratio over a batch of runs."""
+    ok = np.asarray(res.success)
+    ratio = np.asarray(res.length) / np.maximum(np.asarray(res.straight), 1e-9)
+    return {"runs": int(ok.size), "success_rate": float(ok.mean()),
+            "length_ratio_mean": float(ratio[ok].mean()) if ok.any() else float("nan"),
+            "length_ratio_median": float(np.median(ratio[ok])) if ok.any() else float("nan")}
