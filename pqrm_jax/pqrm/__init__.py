@@ -10,7 +10,7 @@
 
 >>> import jax, jax.numpy as jnp
 >>> from pqrm_jax import pqrm
->>> means = jnp.array([[[0., 0.], [0., 10.], [-4., 5.]]])
+>>> means = jnp.array([[[0., 0.], [0., 10.], [-4., 4.]]])
 >>> pqrm.state_probabilities(jax.random.key(0), "lr", means, 0.0, 10).tolist()
 [[1.0, 0.0]]
 """

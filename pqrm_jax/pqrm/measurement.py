@@ -18,6 +18,10 @@ an arithmetic state key (side × band × circle count) — no table lookup, no d
 ``edc.classify`` on every sample whose constraint values are all non-zero and finite (a test
 checks this); a sample with a zero constraint (C exactly on a boundary, A = B) or a non-finite
 value is *rejected* (counted in no state), which is what ``classify`` does for EDC boundaries.
+Because every representation is aggregated from EDC counts, a sample on an EDC boundary is
+rejected for a coarser calculus too, even where that boundary is internal to a coarse state
+(e.g. β = ½ for LR); with σ > 0 this has probability zero, with σ = 0 it affects only inputs
+exactly on an EDC boundary.
 The counts are accumulated with a single variadic XLA reduction into byte fields packed four
 per uint32 word (chunks of at most 255 samples, so a field never overflows) — a histogram
 without scatter and without a one-hot tensor.
@@ -332,7 +336,7 @@ def state_probabilities(
         defined state (see the module docstring).
 
     >>> import jax, jax.numpy as jnp
-    >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 5.]]])      # C right of AB, mid band
+    >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])      # C right of AB
     >>> p = state_probabilities(jax.random.key(0), "lr", means, 0.0, 100)
     >>> p.tolist()
     [[0.0, 1.0]]
@@ -351,7 +355,7 @@ def multi_state_probabilities(
     """``state_probabilities`` for several merges of one root calculus from one sampling pass.
 
     >>> import jax, jax.numpy as jnp
-    >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 5.]]])
+    >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])
     >>> ps = multi_state_probabilities(jax.random.key(0), ["edc", "lr"], means, 0.5, 500)
     >>> sorted(ps), ps["lr"].tolist()
     (['edc', 'lr'], [[0.0, 1.0]])
