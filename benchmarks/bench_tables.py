@@ -1,9 +1,10 @@
 """Batched vs per-problem branch-and-bound for the EDC composition problems (issue #2).
 
 Same solver code, same problems, same process: the batched run solves all problems in one
-jit-compiled program (chunks of 512); the reference solves them one at a time (batch of 1,
-compiled once). Also times a full EDC table build (witness pre-pass + B&B + z3 for what the
-B&B leaves undecided), with and without z3 confirmation of every B&B refutation.
+jit-compiled work-queue program (64 problems in flight); the reference solves them one at a
+time (one call per problem, the same compiled step with one slot). ``--full`` also times full
+EDC table builds (witness pre-pass + B&B + z3 for what the B&B leaves undecided), with and
+without z3 confirmation of every B&B refutation.
 
     .venv/bin/python benchmarks/bench_tables.py [--problems 384] [--full]
 """
@@ -40,13 +41,13 @@ def main() -> None:
             probs.append(pr)
     batch = pb.to_batch(probs, 8.0)
     kw = {"pool": 32, "max_iters": 120}
-    solve(batch.take(slice(0, 8)), chunk=512, **kw)  # compile (padded to the chunk size)
+    solve(batch.take(slice(0, 64)), **kw)  # compile
     t0 = time.perf_counter()
-    batched = solve(batch, chunk=512, **kw)
+    batched = solve(batch, **kw)
     t_batched = time.perf_counter() - t0
-    solve(batch.take(slice(0, 1)), chunk=1, **kw)  # compile the batch-of-one program
+    solve(batch.take(slice(0, 1)), **kw)  # compile the one-slot program
     t0 = time.perf_counter()
-    single = [solve(batch.take(slice(i, i + 1)), chunk=1, **kw).status[0]
+    single = [solve(batch.take(slice(i, i + 1)), **kw).status[0]
               for i in range(batch.size)]
     t_single = time.perf_counter() - t0
     agree = float(np.mean(np.asarray(single) == batched.status))

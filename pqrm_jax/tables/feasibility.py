@@ -3,7 +3,8 @@
 Each problem asks for an x in a box [lo, hi] ⊂ R^nv with ``sign(q_k(x)) == s_k`` for every
 active constraint k, where ``q_k(x) = c_k + b_kᵀx + xᵀA_k x`` and s_k ∈ {−1, 0, +1}
 (strict inequalities and equalities). All problems of a batch run in one jit-compiled
-``lax.while_loop``; every problem owns a fixed-capacity pool of boxes (static shapes, masks).
+``lax.while_loop``; every problem in flight owns a fixed-capacity pool of boxes (static
+shapes, masks).
 
 Per iteration and box:
 
@@ -16,6 +17,11 @@ Per iteration and box:
   centre is kept as its witness (re-verified exactly by the caller);
 * **branch**: surviving boxes are split in half along their longest edge while the pool has
   room; boxes narrower than ``min_width`` are no longer split.
+
+Problems run through a work queue of ``slots`` in-flight problems inside one
+``lax.while_loop``: a decided problem frees its slot for the next one, so the batch never waits
+for its slowest member (the per-problem reference in ``benchmarks/bench_tables.py`` runs the
+same step with one slot).
 
 A problem is FEASIBLE (witness found), INFEASIBLE (no box left: no solution inside the box,
 up to the floating-point evaluation of dyadic boxes), or UNDECIDED (boxes left at the limit;
@@ -102,84 +108,111 @@ def _values(A, b, c, x):
     return c[:, None] + jnp.einsum("pki,pbi->pbk", b, x) + quad
 
 
-@partial(jax.jit, static_argnames=("pool", "max_iters", "probes"))
-def _solve(A, b, c, sign, active, lo0, hi0, min_width, key, *, pool: int, max_iters: int,
-           probes: int):
-    P, _, nv = b.shape
-    l = jnp.zeros((P, pool, nv), lo0.dtype).at[:, 0].set(lo0)
-    u = jnp.zeros((P, pool, nv), hi0.dtype).at[:, 0].set(hi0)
-    alive = jnp.zeros((P, pool), bool).at[:, 0].set(True)
-    found = jnp.zeros((P,), bool)
-    witness = jnp.zeros((P, nv), lo0.dtype)
+def _step(A, b, c, sign, active, l, u, alive, key, min_width, pool, probes):
+    """One bound / prune / witness / branch round for S slots → updated pools and verdicts."""
+    S, _, nv = l.shape
     slots = jnp.arange(pool)
-
-    def cond(state):
-        it, l, u, alive, found, witness, stuck, key = state
-        busy = alive.any(-1) & ~found & ~stuck
-        return (it < max_iters) & busy.any()
-
-    def body(state):
-        it, l, u, alive, found, witness, _, key = state
-        blo, bhi = _bounds(A, b, c, l, u)
-        s = sign[:, None, :]
-        act = active[:, None, :]
-        ok = jnp.where(s > 0, bhi > 0, jnp.where(s < 0, blo < 0, (blo <= 0) & (bhi >= 0)))
-        keep = alive & jnp.all(ok | ~act, axis=-1)
-        # witness probes: the centre and `probes` uniform points of every box
-        key, sub = jax.random.split(key)
-        t = jax.random.uniform(sub, (probes,) + l.shape, l.dtype)
-        xs = jnp.concatenate([0.5 * (l + u)[None], l[None] + t * (u - l)[None]], 0)
-        x = jnp.moveaxis(xs, 0, 1).reshape(P, -1, nv)
-        val = _values(A, b, c, x)
-        sat = jnp.where(s > 0, val > 0, jnp.where(s < 0, val < 0, val == 0))
-        good = jnp.tile(keep, (1, probes + 1)) & jnp.all(sat | ~act, axis=-1)
-        first = jnp.argmax(good, axis=-1)
-        hit = good.any(-1) & ~found
-        witness = jnp.where(hit[:, None], jnp.take_along_axis(x, first[:, None, None], 1)[:, 0],
-                            witness)
-        found = found | hit
-        keep = keep & ~found[:, None]
-        # compact survivors to the front of each pool
-        order = jnp.argsort(~keep, axis=-1, stable=True)
-        l = jnp.take_along_axis(l, order[..., None], 1)
-        u = jnp.take_along_axis(u, order[..., None], 1)
-        n_keep = keep.sum(-1)
-        width = u - l
-        splittable = (slots[None] < n_keep[:, None]) & (width.max(-1) > min_width)
-        # split the first survivors that can still be split, as many as there is room for
-        rank = jnp.cumsum(splittable, axis=-1) - 1
-        room = pool - n_keep
-        do_split = splittable & (rank < room[:, None])
-        n_split = do_split.sum(-1)
-        dim = jnp.argmax(width, axis=-1)
-        onehot = jax.nn.one_hot(dim, nv, dtype=bool)
-        mid = 0.5 * (l + u)
-        l_child1, u_child1 = l, jnp.where(do_split[..., None] & onehot, mid, u)
-        l_child2, u_child2 = jnp.where(onehot, mid, l), u
-        # child 2 of the r-th split box goes to slot n_keep + r
-        src_rank = slots[None] - n_keep[:, None]
-        split_pos = jnp.argsort(~do_split, axis=-1, stable=True)  # indices of split boxes
-        src = jnp.take_along_axis(split_pos, jnp.clip(src_rank, 0, pool - 1), -1)
-        is_new = (src_rank >= 0) & (src_rank < n_split[:, None])
-        new_l = jnp.where(is_new[..., None], jnp.take_along_axis(l_child2, src[..., None], 1),
-                          l_child1)
-        new_u = jnp.where(is_new[..., None], jnp.take_along_axis(u_child2, src[..., None], 1),
-                          u_child1)
-        alive = (slots[None] < (n_keep + n_split)[:, None]) & ~found[:, None]
-        stuck = (n_split == 0) & (n_keep > 0)
-        return it + 1, new_l, new_u, alive, found, witness, stuck, key
-
-    stuck0 = jnp.zeros((P,), bool)
-    state = (0, l, u, alive, found, witness, stuck0, key)
-    it, l, u, alive, found, witness, stuck, _ = jax.lax.while_loop(cond, body, state)
-    status = jnp.where(found, FEASIBLE, jnp.where(alive.any(-1), UNDECIDED, INFEASIBLE))
-    return status, witness, it
+    blo, bhi = _bounds(A, b, c, l, u)
+    s = sign[:, None, :]
+    act = active[:, None, :]
+    ok = jnp.where(s > 0, bhi > 0, jnp.where(s < 0, blo < 0, (blo <= 0) & (bhi >= 0)))
+    keep = alive & jnp.all(ok | ~act, axis=-1)
+    # witness probes: the centre and `probes` uniform points of every box
+    t = jax.random.uniform(key, (probes,) + l.shape, l.dtype)
+    xs = jnp.concatenate([0.5 * (l + u)[None], l[None] + t * (u - l)[None]], 0)
+    x = jnp.moveaxis(xs, 0, 1).reshape(S, -1, nv)
+    val = _values(A, b, c, x)
+    sat = jnp.where(s > 0, val > 0, jnp.where(s < 0, val < 0, val == 0))
+    good = jnp.tile(keep, (1, probes + 1)) & jnp.all(sat | ~act, axis=-1)
+    found = good.any(-1)
+    first = jnp.argmax(good, axis=-1)
+    witness = jnp.take_along_axis(x, first[:, None, None], 1)[:, 0]
+    # compact survivors to the front of each pool, then split while there is room
+    order = jnp.argsort(~keep, axis=-1, stable=True)
+    l = jnp.take_along_axis(l, order[..., None], 1)
+    u = jnp.take_along_axis(u, order[..., None], 1)
+    n_keep = keep.sum(-1)
+    width = u - l
+    splittable = (slots[None] < n_keep[:, None]) & (width.max(-1) > min_width)
+    rank = jnp.cumsum(splittable, axis=-1) - 1
+    do_split = splittable & (rank < (pool - n_keep)[:, None])
+    n_split = do_split.sum(-1)
+    onehot = jax.nn.one_hot(jnp.argmax(width, axis=-1), nv, dtype=bool)
+    mid = 0.5 * (l + u)
+    u_child1 = jnp.where(do_split[..., None] & onehot, mid, u)
+    l_child2 = jnp.where(onehot, mid, l)
+    src_rank = slots[None] - n_keep[:, None]  # child 2 of the r-th split box → slot n_keep + r
+    split_pos = jnp.argsort(~do_split, axis=-1, stable=True)
+    src = jnp.take_along_axis(split_pos, jnp.clip(src_rank, 0, pool - 1), -1)
+    is_new = (src_rank >= 0) & (src_rank < n_split[:, None])
+    new_l = jnp.where(is_new[..., None], jnp.take_along_axis(l_child2, src[..., None], 1), l)
+    new_u = jnp.where(is_new[..., None], jnp.take_along_axis(u, src[..., None], 1), u_child1)
+    alive = slots[None] < (n_keep + n_split)[:, None]
+    empty = n_keep == 0
+    stuck = (n_split == 0) & (n_keep > 0)
+    return new_l, new_u, alive, found, witness, empty, stuck
 
 
-def solve(batch: ProblemBatch, *, pool: int = 64, max_iters: int = 600,
-          min_width: float = 2.0**-24, chunk: int = 512, probes: int = 2, seed: int = 0,
-          progress: bool = False, desc: str = "feasibility") -> Solution:
-    """Solve every problem of ``batch`` (float64, batched in chunks of ``chunk`` problems)."""
+@partial(jax.jit, static_argnames=("slots", "pool", "max_iters", "probes"))
+def _solve(A, b, c, sign, active, lo0, hi0, min_width, key, *, slots: int, pool: int,
+           max_iters: int, probes: int):
+    """Work queue: ``slots`` problems are in flight; a finished slot takes the next problem."""
+    P, _, nv = b.shape
+    S = slots
+    dtype = lo0.dtype
+
+    def fresh(idx):
+        ok = idx < P
+        j = jnp.clip(idx, 0, P - 1)
+        l = jnp.zeros((S, pool, nv), dtype).at[:, 0].set(lo0[j])
+        u = jnp.zeros((S, pool, nv), dtype).at[:, 0].set(hi0[j])
+        alive = jnp.zeros((S, pool), bool).at[:, 0].set(ok)
+        return jnp.where(ok, idx, -1), l, u, alive
+
+    prob, l, u, alive = fresh(jnp.arange(S, dtype=jnp.int32))
+    state = dict(prob=prob, l=l, u=u, alive=alive, age=jnp.zeros(S, jnp.int32),
+                 nxt=jnp.int32(S), status=jnp.full(P, UNDECIDED, jnp.int32),
+                 witness=jnp.zeros((P, nv), dtype), key=key, it=jnp.int32(0))
+
+    def cond(st):
+        return (st["prob"] >= 0).any()
+
+    def body(st):
+        key, sub = jax.random.split(st["key"])
+        j = jnp.clip(st["prob"], 0, P - 1)
+        busy = st["prob"] >= 0
+        l, u, alive, found, wit, empty, stuck = _step(
+            A[j], b[j], c[j], sign[j], active[j] & busy[:, None], st["l"], st["u"],
+            st["alive"] & busy[:, None], sub, min_width, pool, probes)
+        age = st["age"] + 1
+        verdict = jnp.where(found, FEASIBLE, jnp.where(empty, INFEASIBLE, UNDECIDED))
+        done = busy & (found | empty | stuck | (age >= max_iters))
+        tgt = jnp.where(done, st["prob"], P)  # P = out of bounds: dropped
+        status = st["status"].at[tgt].set(verdict, mode="drop")
+        witness = st["witness"].at[tgt].set(wit, mode="drop")
+        # refill finished slots with the next problems of the queue
+        rank = (jnp.cumsum(done) - 1).astype(jnp.int32)
+        new_idx = st["nxt"] + rank
+        np_, nl, nu, na = fresh(new_idx)
+        d = done[:, None, None]
+        return dict(prob=jnp.where(done, np_, st["prob"]), l=jnp.where(d, nl, l),
+                    u=jnp.where(d, nu, u), alive=jnp.where(done[:, None], na, alive),
+                    age=jnp.where(done, 0, age), nxt=st["nxt"] + done.sum(dtype=jnp.int32),
+                    status=status, witness=witness, key=key, it=st["it"] + 1)
+
+    st = jax.lax.while_loop(cond, body, state)
+    return st["status"], st["witness"], st["it"]
+
+
+def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
+          min_width: float = 2.0**-24, slots: int = 64, probes: int = 2, seed: int = 0,
+          chunk: int = 4096, progress: bool = False, desc: str = "feasibility") -> Solution:
+    """Solve every problem of ``batch`` in one jit-compiled work-queue program (float64).
+
+    ``slots`` problems are in flight at a time, each with a pool of ``pool`` boxes; a slot
+    whose problem is decided (or reaches ``max_iters`` rounds) takes the next one, so easy
+    problems never wait for hard ones. ``chunk`` problems go to the device per call (progress).
+    """
     P = batch.size
     status = np.full(P, UNDECIDED, np.int8)
     witness = np.zeros((P, batch.b.shape[-1]))
@@ -193,17 +226,14 @@ def solve(batch: ProblemBatch, *, pool: int = 64, max_iters: int = 600,
         for s in starts:
             sub = batch.take(slice(s, s + chunk))
             n = sub.size
-            if n < chunk and P > chunk:  # pad the last chunk to reuse the compiled program
-                pad = chunk - n
-                sub = ProblemBatch(*(np.concatenate([x, np.repeat(x[-1:], pad, 0)]) for x in
-                                     (sub.A, sub.b, sub.c, sub.sign, sub.active, sub.lo, sub.hi)))
             st, wit, it = _solve(
                 jnp.asarray(sub.A, jnp.float64), jnp.asarray(sub.b, jnp.float64),
                 jnp.asarray(sub.c, jnp.float64), jnp.asarray(sub.sign, jnp.int32),
                 jnp.asarray(sub.active), jnp.asarray(sub.lo, jnp.float64),
                 jnp.asarray(sub.hi, jnp.float64), jnp.float64(min_width),
-                jax.random.PRNGKey(seed + s), pool=pool, max_iters=max_iters, probes=probes)
-            status[s:s + n] = np.asarray(st)[:n]
-            witness[s:s + n] = np.asarray(wit)[:n]
-            iters = max(iters, int(it))
+                jax.random.PRNGKey(seed + s), slots=min(slots, n), pool=pool,
+                max_iters=max_iters, probes=probes)
+            status[s:s + n] = np.asarray(st)
+            witness[s:s + n] = np.asarray(wit)
+            iters += int(it)
     return Solution(status, witness, iters)
