@@ -40,6 +40,7 @@ class Metrics(NamedTuple):
     first_open: jax.Array  # (Q+1,) histogram of open-state counts of newly measured relations
     inconsistent: jax.Array
     undecided: jax.Array  # states kept without witness nor exclusion in this image
+    first_proven: jax.Array  # (Q+1,) same histogram counting only states with a witness
 
 
 def _cyclic_mask(n):
@@ -96,9 +97,12 @@ def _step(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
     hist = jnp.zeros(spec.num_states + 1, jnp.int32).at[cnt.ravel()].add(
         jnp.repeat(first, 3).astype(jnp.int32))
     undecided = jnp.sum(jnp.where(meas.valid[:, None], popcount(meas.undecided), 0))
+    cnt_p = popcount(meas.sets & ~meas.undecided)
+    hist_p = jnp.zeros(spec.num_states + 1, jnp.int32).at[cnt_p.ravel()].add(
+        jnp.repeat(first, 3).astype(jnp.int32))
     m, rep = _apply(spec, m, meas.triples, meas.sets, meas.valid, max_sweeps=64)
     vals = _metrics(spec, m, truth)
-    return m, Metrics(*vals, hist, rep.inconsistent, undecided)
+    return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p)
 
 
 @partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))

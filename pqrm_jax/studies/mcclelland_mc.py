@@ -1,0 +1,265 @@
+"""McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7a–d).
+
+Per run: 30 landmarks uniform in a 100 m × 100 m square, 50 random imaging poses
+(``sim.random_imaging_points``), omnidirectional camera (bearings + range ordering, M§IV);
+at every pose the ``n`` nearest landmarks are measured (all their triples, only the states
+still open in the map are tested) and fused into the map with path consistency (M§VI.B);
+n ∈ {6, 9, 12, 18, 24, 30}. Metrics per image: % of incorrect EDC states removed, % of
+fully constrained edges, % of open states not adjacent to the truth, total RNG edge cost
+(Alg. 2), time per update; and the distribution of open-state counts at the first
+measurement of a relation.
+
+Engineering: each finished (n, run) is written to ``runs/n{n}_r{run}.npz`` (a killed study
+resumes); run keys are ``fold_in(seed, run)`` (the same layouts and poses for every n);
+one compiled program per n (``run_sequence``, a ``lax.scan`` over images); per-update times
+come from an extra image-by-image pass of the first ``--timed-runs`` runs. ``report.md`` and
+``fig7.png`` are rewritten at the end (``--report-only`` redoes them from stored results).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+NAME = "mcclelland-mc"
+HELP = "McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7): n nearest of 30 landmarks"
+
+
+@dataclasses.dataclass
+class Config:
+    runs: int = 100
+    images: int = 50
+    landmarks: int = 30
+    size: float = 100.0
+    ns: tuple[int, ...] = (6, 9, 12, 18, 24, 30)
+    timed_runs: int = 2
+    pool: int = 16
+    depth: int = 12
+    seed: int = 0
+
+
+REDUCED = dict(runs=3, images=20, ns=(6, 12, 18, 30), timed_runs=1)
+
+
+def _layout(cfg: Config, run: int):
+    import sim
+
+    k = jax.random.fold_in(jax.random.key(cfg.seed), run)
+    k1, k2 = jax.random.split(k)
+    lm = sim.uniform_landmarks(k1, cfg.landmarks, (cfg.size, cfg.size))
+    poses = sim.random_imaging_points(k2, cfg.images, (cfg.size, cfg.size))
+    return lm, poses
+
+
+def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
+    from pqrm_jax.qrm import hypergraph as H
+    from pqrm_jax.qrm import pipeline as P
+    from pqrm_jax.qrm.spec import qrm_spec
+
+    spec = qrm_spec("edc")
+    truth = H.true_relations(lm, spec)
+    m = H.empty_map(cfg.landmarks, spec)
+    m, _ = P.map_step(m, poses[0], lm, n, spec, truth=truth, pool=cfg.pool, depth=cfg.depth)
+    jax.block_until_ready(m.rel)  # compile
+    m = H.empty_map(cfg.landmarks, spec)
+    out = []
+    for t in range(poses.shape[0]):
+        t0 = time.perf_counter()
+        m, met = P.map_step(m, poses[t], lm, n, spec, truth=truth, pool=cfg.pool,
+                            depth=cfg.depth)
+        jax.block_until_ready(m.rel)
+        out.append(time.perf_counter() - t0)
+    return np.asarray(out)
+
+
+def run_study(cfg: Config, out: Path, progress: bool = True) -> None:
+    from tqdm.auto import tqdm
+
+    from pqrm_jax.qrm import pipeline as P
+
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+    todo = [(n, r) for n in cfg.ns for r in range(cfg.runs)
+            if not (out / "runs" / f"n{n}_r{r}.npz").exists()]
+    for n, r in tqdm(todo, desc=NAME, disable=not progress):
+        lm, poses = _layout(cfg, r)
+        t0 = time.perf_counter()
+        m, met = P.run_sequence(lm, poses, n, "edc", pool=cfg.pool, depth=cfg.depth)
+        jax.block_until_ready(m.rel)
+        wall = time.perf_counter() - t0
+        rec = {f: np.asarray(getattr(met, f)) for f in met._fields}
+        rec["wall"] = np.asarray(wall)
+        if r < cfg.timed_runs:
+            rec["update_time"] = _time_updates(cfg, lm, poses, n)
+        np.savez(out / "runs" / f"n{n}_r{r}.npz", **rec)
+
+
+def load(out: Path, cfg: Config) -> dict:
+    res = {}
+    for n in cfg.ns:
+        recs = [np.load(p) for p in sorted((out / "runs").glob(f"n{n}_r*.npz"))]
+        if not recs:
+            continue
+        res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0].files
+                  if k != "update_time"}
+        times = [r["update_time"] for r in recs if "update_time" in r.files]
+        if times:
+            res[n]["update_time"] = np.stack(times)
+    return res
+
+
+def _fit_slope(ns, t):
+    ns, t = np.asarray(ns, float), np.asarray(t, float)
+    ok = t > 0
+    if ok.sum() < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(ns[ok]), np.log(t[ok]), 1)[0])
+
+
+def report(out: Path, cfg: Config) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = load(out, cfg)
+    ns = sorted(res)
+    fig, ax = plt.subplots(2, 3, figsize=(15, 8.5))
+    panels = [("removed_pct", "(a) incorrect states removed [%]"),
+              ("not_adjacent_pct", "(b) open states not adjacent to truth [%]"),
+              ("rng_cost", "(c) total RNG edge cost Σw"),
+              ("update_time", "(d) time per update [s]"),
+              ("constrained_pct", "fully constrained edges [%]")]
+    colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(ns), 1)))
+    for (key, title), a in zip(panels, ax.ravel(), strict=False):
+        for n, c in zip(ns, colors, strict=True):
+            if key not in res[n]:
+                continue
+            v = res[n][key]
+            x = np.arange(1, v.shape[1] + 1)
+            mu, sd = v.mean(0), v.std(0)
+            a.plot(x, mu, color=c, label=f"n={n}")
+            if key != "update_time":
+                a.fill_between(x, mu - sd, mu + sd, color=c, alpha=0.15)
+        a.set_title(title)
+        a.set_xlabel("image")
+        if key == "update_time":
+            a.set_yscale("log")
+    ax[0, 0].legend()
+    a = ax[1, 2]
+    for n, c in zip(ns, colors, strict=True):
+        h = res[n]["first_open"].sum((0, 1))
+        a.plot(np.arange(h.size), h / max(h.sum(), 1), "o-", color=c, label=f"n={n}")
+    a.axvline(10.5, color="k", ls=":")
+    a.set_title("open states after the first measurement of a relation")
+    a.set_xlabel("open states (of 20)")
+    fig.suptitle(f"QRM Monte Carlo (M Fig. 7): {cfg.landmarks} landmarks, {cfg.images} images,"
+                 f" {len(next(iter(res.values()))['wall']) if res else 0} runs")
+    fig.tight_layout()
+    fig.savefig(out / "fig7.png", dpi=110)
+    plt.close(fig)
+
+    summary = {}
+    for n in ns:
+        r = res[n]
+        h = r["first_open"].sum((0, 1))
+        s = {
+            "runs": int(r["wall"].shape[0]),
+            "removed_pct_final": float(r["removed_pct"][:, -1].mean()),
+            "removed_pct_final_sd": float(r["removed_pct"][:, -1].std()),
+            "removed_pct_image1": float(r["removed_pct"][:, 0].mean()),
+            "constrained_pct_final": float(r["constrained_pct"][:, -1].mean()),
+            "not_adjacent_pct_final": float(r["not_adjacent_pct"][:, -1].mean()),
+            "rng_cost_peak": float(r["rng_cost"].mean(0).max()),
+            "rng_cost_final": float(r["rng_cost"][:, -1].mean()),
+            "first_half_removed_frac": float(h[:11].sum() / max(h.sum(), 1)),
+            "first_half_removed_frac_proven": float(
+                r["first_proven"].sum((0, 1))[:11].sum() / max(h.sum(), 1)),
+            "first_open_mean": float((h * np.arange(h.size)).sum() / max(h.sum(), 1)),
+            "truth_kept": bool(r["truth_kept"].all()),
+            "inconsistent": int(r["inconsistent"].sum()),
+            "run_wall_s_mean": float(r["wall"].mean()),
+        }
+        if "update_time" in r:
+            s["update_time_peak_s"] = float(r["update_time"].mean(0).max())
+            s["update_time_mean_s"] = float(r["update_time"].mean())
+        summary[n] = s
+    peaks = [summary[n].get("update_time_peak_s", np.nan) for n in ns]
+    slope = _fit_slope(ns, peaks)
+    (out / "summary.json").write_text(json.dumps({"per_n": summary, "peak_slope": slope},
+                                                 indent=1))
+    lines = [f"# {NAME}: QRM Monte Carlo study (M§VIII.B, Fig. 7)", "",
+             f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
+             "![fig7](fig7.png)", "",
+             "| n | runs | removed % (img 1) | removed % (final) | constrained % | not-adjacent % "
+             "| RNG cost peak → final | first meas. ≥ half removed (all kept / proven only) "
+             "| truth kept | peak update s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for n in ns:
+        s = summary[n]
+        lines.append(
+            f"| {n} | {s['runs']} | {s['removed_pct_image1']:.1f} | "
+            f"{s['removed_pct_final']:.1f} ± {s['removed_pct_final_sd']:.1f} | "
+            f"{s['constrained_pct_final']:.1f} | {s['not_adjacent_pct_final']:.1f} | "
+            f"{s['rng_cost_peak']:.2f} → {s['rng_cost_final']:.2f} | "
+            f"{100 * s['first_half_removed_frac']:.1f} % / "
+            f"{100 * s['first_half_removed_frac_proven']:.1f} % | {s['truth_kept']} | "
+            f"{s.get('update_time_peak_s', float('nan')):.3f} |")
+    lines += ["", f"Peak update time vs n, fitted log-log slope: **{slope:.2f}** "
+              "(McClelland: 3.5, unoptimised C#; here a fixed-shape batched program whose cost "
+              "is dominated by the C(n,3) triples of the measurement, so ≈ 3 is expected).", "",
+              "## Comparison with the published behaviour (M§VIII.B)", "",
+              "- *First measurement removes at least half the states in almost all cases*: "
+              "see the 'first meas.' column (fraction of newly measured relations with ≤ 10 "
+              "of 20 states open). 'all kept' counts every state the measurement keeps, "
+              "including those the branch-and-bound can neither prove nor exclude at its "
+              "depth limit (mostly states whose closure touches a degenerate corner of the "
+              "range-ordering cone: kept for soundness); 'proven only' counts states with a "
+              "witness, the exact figure's lower bound and McClelland's ε-volume rule.",
+              "- *n ≥ 18 ends nearly as well as n = 30; n < 15 converges much slower*: compare "
+              "the final removed % across rows.",
+              "- *The RNG converges faster than the map*: RNG cost peaks early and decays while "
+              "the removed % still grows.",
+              "- *Open states cluster around the truth for n ≥ 18* (Fig. 7b: < 45 % "
+              "not adjacent) while n = 6, 9 stay in the 45–90 % 'uniform' band.",
+              "- The true state was never removed (soundness) in any run: 'truth kept'."]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    return summary
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
+    p.add_argument("--out", default="results/mcclelland-mc")
+    p.add_argument("--runs", type=int)
+    p.add_argument("--images", type=int)
+    p.add_argument("--ns", type=int, nargs="+")
+    p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
+    p.add_argument("--report-only", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    a = p.parse_args(argv)
+    cfg = Config(**REDUCED) if a.reduced else Config()
+    for k in ("runs", "images"):
+        if getattr(a, k) is not None:
+            setattr(cfg, k, getattr(a, k))
+    if a.ns:
+        cfg.ns = tuple(a.ns)
+    if cfg.runs < 1 or cfg.images < 1 or any(n < 3 or n > cfg.landmarks for n in cfg.ns):
+        print("runs and images must be >= 1 and every n in 3..landmarks", file=sys.stderr)
+        return 2
+    out = Path(a.out)
+    if not a.report_only:
+        run_study(cfg, out, progress=not a.no_progress)
+    summary = report(out, cfg)
+    for n, s in summary.items():
+        print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "
+              f"{s['constrained_pct_final']:.1f}%  not-adj {s['not_adjacent_pct_final']:.1f}%"
+              f"  first≥half {100 * s['first_half_removed_frac']:.1f}%")
+    print(f"report: {out / 'report.md'}")
+    return 0
