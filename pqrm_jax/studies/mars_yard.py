@@ -1,0 +1,241 @@
+"""Mars-Yard-like traverse (M§VIII.C, Figs. 10–11) and RNG navigation (M§VII.B).
+
+The JPL Mars Yard data are not available; we simulate its structure: 30 landmarks uniform in
+a 30 m × 30 m yard, one traverse of 50 imaging poses 1–2 m apart (``sim.traverse``), the 18
+nearest landmarks measured at every pose (M: "the nearest 18 landmarks were then used").
+Outputs: Fig. 10 (cumulative % of EDC states removed, % open states not adjacent to truth,
+RNG cost per image), Fig. 11 (RNG estimate after images 1, 15, 30, 50, edges coloured by
+w_ij), the wall time of the whole traverse (M: 250 s in C#), and closed-loop navigation
+along the final RNG estimate between random start/goal pairs (success rate, path length vs
+straight line), also along the true RNG for reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+NAME = "mars-yard"
+HELP = "Mars-Yard-like traverse (M§VIII.C, Figs. 10-11) + RNG navigation (M§VII.B)"
+
+
+@dataclasses.dataclass
+class Config:
+    landmarks: int = 30
+    size: float = 30.0
+    images: int = 50
+    n: int = 18
+    nav_pairs: int = 200
+    nav_steps: int = 1500
+    traverses: int = 5
+    seed: int = 0
+    snapshots: tuple[int, ...] = (1, 15, 30, 50)
+
+
+REDUCED = dict(nav_pairs=48, traverses=2)
+
+
+def _world(cfg: Config, i: int):
+    import sim
+
+    k = jax.random.fold_in(jax.random.key(cfg.seed), i)
+    k1, k2 = jax.random.split(k)
+    lm = sim.uniform_landmarks(k1, cfg.landmarks, (cfg.size, cfg.size))
+    poses = sim.traverse(k2, cfg.images, size=(cfg.size, cfg.size))
+    return lm, poses
+
+
+def run_traverse(cfg: Config, i: int) -> dict:
+    """Map one traverse image by image (jitted steps); per-image metrics, maps and times."""
+    from pqrm_jax.qrm import hypergraph as H
+    from pqrm_jax.qrm import pipeline as P
+    from pqrm_jax.qrm.spec import qrm_spec
+
+    spec = qrm_spec("edc")
+    lm, poses = _world(cfg, i)
+    truth = H.true_relations(lm, spec)
+    # compile once (not timed), then the timed traverse as one scanned program
+    m, met = P.run_sequence(lm, poses, cfg.n, spec)
+    jax.block_until_ready(m.rel)
+    t0 = time.perf_counter()
+    m, met = P.run_sequence(lm, poses, cfg.n, spec)
+    jax.block_until_ready(m.rel)
+    wall = time.perf_counter() - t0
+    # snapshots: image-by-image (for Fig. 11)
+    maps = []
+    mm = H.empty_map(cfg.landmarks, spec)
+    for t in range(cfg.images):
+        mm, _ = P.map_step(mm, poses[t], lm, cfg.n, spec, truth=truth)
+        if t + 1 in cfg.snapshots:
+            maps.append((t + 1, mm))
+    rec = {f: np.asarray(getattr(met, f)) for f in met._fields}
+    return {"lm": np.asarray(lm), "poses": np.asarray(poses), "met": rec, "wall": wall,
+            "final": m, "snaps": maps}
+
+
+def run_navigation(cfg: Config, lm, m, key) -> dict:
+    import sim
+    from pqrm_jax.qrm import hypergraph as H
+    from pqrm_jax.qrm import navigation as NAV
+    from pqrm_jax.qrm import rng as R
+
+    k1, k2, k3 = jax.random.split(key, 3)
+    starts = jnp.concatenate([jax.random.uniform(k1, (cfg.nav_pairs, 2)) * cfg.size,
+                              jax.random.uniform(k3, (cfg.nav_pairs, 1), minval=-3, maxval=3)],
+                             1)
+    goals = jax.random.uniform(k2, (cfg.nav_pairs, 2)) * cfg.size
+    params = sim.RoverParams(dt=0.1, max_speed=1.0, max_turn_rate=1.0)
+    out = {}
+    for name, est in (("estimated", R.rng_estimate(m)), ("true", R.rng_estimate(H.true_map(lm)))):
+        res = NAV.navigate_many(lm, est, starts, goals, params=params, n_steps=cfg.nav_steps)
+        s = NAV.summarize(res)
+        s["mean_hops"] = float(np.asarray(res.hops).mean())
+        out[name] = s
+        out[name + "_res"] = res
+    return out
+
+
+def _plots(out: Path, cfg: Config, tr: dict, nav: dict):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pqrm_jax.qrm import rng as R
+
+    met = tr["met"]
+    x = np.arange(1, cfg.images + 1)
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    ax[0].plot(x, met["removed_pct"])
+    ax[0].set_title("(a) EDC states removed [% of 30-landmark map]")
+    ax[1].plot(x, met["not_adjacent_pct"])
+    ax[1].set_title("(b) open states not adjacent to truth [%]")
+    ax[2].plot(x, met["rng_cost"])
+    ax[2].set_title("(c) total RNG edge cost")
+    for a in ax:
+        a.set_xlabel("image")
+    fig.tight_layout()
+    fig.savefig(out / "fig10.png", dpi=110)
+    plt.close(fig)
+
+    lm, poses = tr["lm"], tr["poses"]
+    fig, ax = plt.subplots(1, len(tr["snaps"]), figsize=(4.2 * len(tr["snaps"]), 4.2))
+    cmap = plt.cm.jet
+    for a, (t, m) in zip(np.atleast_1d(ax), tr["snaps"], strict=True):
+        est = R.rng_estimate(m)
+        e, w = np.asarray(est.edges), np.asarray(est.cost)
+        known = np.asarray(m.known)
+        for i, j in zip(*np.nonzero(np.triu(e)), strict=True):
+            c = "k" if w[i, j] == 0 else cmap(min(w[i, j] / max(w.max(), 1e-9), 1.0))
+            a.plot(lm[[i, j], 0], lm[[i, j], 1], color=c, lw=1.2)
+        a.plot(lm[~known, 0], lm[~known, 1], "o", mfc="none", mec="0.7")
+        a.plot(lm[known, 0], lm[known, 1], "bo")
+        a.plot(poses[:t, 0], poses[:t, 1], "g^", ms=4)
+        a.plot(poses[t - 1, 0], poses[t - 1, 1], "r^", ms=8)
+        a.set_title(f"RNG after image {t}")
+        a.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(out / "fig11.png", dpi=110)
+    plt.close(fig)
+
+    res = nav["estimated_res"]
+    fig, a = plt.subplots(figsize=(5.5, 5.5))
+    from pqrm_jax.qrm import rng as R2
+
+    e = R2.true_rng(lm)
+    for i, j in zip(*np.nonzero(np.triu(e)), strict=True):
+        a.plot(lm[[i, j], 0], lm[[i, j], 1], color="0.6", lw=0.8)
+    a.plot(lm[:, 0], lm[:, 1], "ko", mfc="none")
+    for k in range(min(6, res.poses.shape[0])):
+        p = np.asarray(res.poses[k])
+        a.plot(p[:, 0], p[:, 1], lw=1.2)
+        a.plot(p[0, 0], p[0, 1], "o")
+    a.set_title("navigation along the estimated RNG (6 runs)")
+    a.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(out / "navigation.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
+    p.add_argument("--out", default="out/mars-yard")
+    p.add_argument("--runs", type=int, help="number of traverses (default 5)")
+    p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
+    p.add_argument("--no-progress", action="store_true")
+    a = p.parse_args(argv)
+    from tqdm.auto import tqdm
+
+    cfg = Config(**REDUCED) if a.reduced else Config()
+    if a.runs is not None:
+        if a.runs < 1:
+            print("--runs must be >= 1")
+            return 2
+        cfg.traverses = a.runs
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+    rows = []
+    for i in tqdm(range(cfg.traverses), desc=NAME, disable=a.no_progress):
+        f = out / f"traverse_{i}.json"
+        if f.exists() and i > 0:
+            rows.append(json.loads(f.read_text()))
+            continue
+        tr = run_traverse(cfg, i)
+        nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
+        row = {"traverse": i, "wall_s": tr["wall"],
+               "removed_pct": tr["met"]["removed_pct"].tolist(),
+               "constrained_pct": tr["met"]["constrained_pct"].tolist(),
+               "not_adjacent_pct": tr["met"]["not_adjacent_pct"].tolist(),
+               "rng_cost": tr["met"]["rng_cost"].tolist(),
+               "truth_kept": bool(tr["met"]["truth_kept"].all()),
+               "nav_estimated": nav["estimated"], "nav_true": nav["true"]}
+        f.write_text(json.dumps(row))
+        rows.append(row)
+        if i == 0:
+            _plots(out, cfg, tr, nav)
+    walls = [r["wall_s"] for r in rows]
+    ne = [r["nav_estimated"] for r in rows]
+    nt = [r["nav_true"] for r in rows]
+    lines = [f"# {NAME}: Mars-Yard-like traverse (M§VIII.C) and RNG navigation (M§VII.B)", "",
+             f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
+             "![fig10](fig10.png)", "", "![fig11](fig11.png)", "",
+             "![navigation](navigation.png)", "",
+             "| traverse | wall s (50 images, measure + update) | removed % img 1 / 15 / 30 / 50 "
+             "| constrained % final | RNG cost peak → final | truth kept | nav success est. / "
+             "true RNG | length ratio est. / true |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        rp = r["removed_pct"]
+        lines.append(
+            f"| {r['traverse']} | {r['wall_s']:.2f} | {rp[0]:.1f} / {rp[14]:.1f} / "
+            f"{rp[29]:.1f} / {rp[-1]:.1f} | {r['constrained_pct'][-1]:.1f} | "
+            f"{max(r['rng_cost']):.2f} → {r['rng_cost'][-1]:.2f} | {r['truth_kept']} | "
+            f"{100 * r['nav_estimated']['success_rate']:.0f} % / "
+            f"{100 * r['nav_true']['success_rate']:.0f} % | "
+            f"{r['nav_estimated']['length_ratio_median']:.2f} / "
+            f"{r['nav_true']['length_ratio_median']:.2f} |")
+    lines += ["", f"Whole traverse: **{np.mean(walls):.2f} s** mean wall time (compiled; "
+              f"2-core CPU shared with other jobs) vs 250 s in McClelland's C# (target ≤ 5 s).",
+              "", f"Navigation over {cfg.nav_pairs} random start/goal pairs per traverse: "
+              f"success {100 * np.mean([s['success_rate'] for s in ne]):.1f} % along the "
+              f"estimated RNG, {100 * np.mean([s['success_rate'] for s in nt]):.1f} % along the "
+              f"true RNG; median path length / straight line "
+              f"{np.nanmean([s['length_ratio_median'] for s in ne]):.2f} (estimated) and "
+              f"{np.nanmean([s['length_ratio_median'] for s in nt]):.2f} (true).", "",
+              "## Comparison with M Figs. 10–11", "",
+              "- Slower, sigmoid-like convergence of the removed % than the random-point Monte "
+              "Carlo (sequential images 1–2 m apart are highly correlated; landmarks enter the "
+              "map gradually).",
+              "- RNG cost: lower peak than the Monte Carlo, a slowly growing but well "
+              "constrained RNG (Fig. 11 snapshots).",
+              "- The true state is never removed ('truth kept')."]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines[8:]))
+    return 0
