@@ -154,15 +154,18 @@ def _step(A, b, c, sign, active, l, u, alive, key, min_width, pool, probes):
 
 
 @partial(jax.jit, static_argnames=("slots", "pool", "max_iters", "probes"))
-def _solve(A, b, c, sign, active, lo0, hi0, min_width, key, *, slots: int, pool: int,
+def _solve(A, b, c, sign, active, lo0, hi0, min_width, key, n, *, slots: int, pool: int,
            max_iters: int, probes: int):
-    """Work queue: ``slots`` problems are in flight; a finished slot takes the next problem."""
+    """Work queue: ``slots`` problems are in flight; a finished slot takes the next problem.
+
+    Arrays are padded to a bucket size P; only the first ``n`` (traced) problems are queued.
+    """
     P, _, nv = b.shape
     S = slots
     dtype = lo0.dtype
 
     def fresh(idx):
-        ok = idx < P
+        ok = idx < n
         j = jnp.clip(idx, 0, P - 1)
         l = jnp.zeros((S, pool, nv), dtype).at[:, 0].set(lo0[j])
         u = jnp.zeros((S, pool, nv), dtype).at[:, 0].set(hi0[j])
@@ -226,14 +229,20 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
         for s in starts:
             sub = batch.take(slice(s, s + chunk))
             n = sub.size
+            S = min(slots, n)
+            bucket = max(S, 1 << (n - 1).bit_length())  # few distinct shapes → few compiles
+            if bucket > n:
+                sub = ProblemBatch(*(np.concatenate([x, np.repeat(x[-1:], bucket - n, 0)])
+                                     for x in (sub.A, sub.b, sub.c, sub.sign, sub.active,
+                                               sub.lo, sub.hi)))
             st, wit, it = _solve(
                 jnp.asarray(sub.A, jnp.float64), jnp.asarray(sub.b, jnp.float64),
                 jnp.asarray(sub.c, jnp.float64), jnp.asarray(sub.sign, jnp.int32),
                 jnp.asarray(sub.active), jnp.asarray(sub.lo, jnp.float64),
                 jnp.asarray(sub.hi, jnp.float64), jnp.float64(min_width),
-                jax.random.PRNGKey(seed + s), slots=min(slots, n), pool=pool,
+                jax.random.PRNGKey(seed + s), jnp.int32(n), slots=S, pool=pool,
                 max_iters=max_iters, probes=probes)
-            status[s:s + n] = np.asarray(st)
-            witness[s:s + n] = np.asarray(wit)
+            status[s:s + n] = np.asarray(st)[:n]
+            witness[s:s + n] = np.asarray(wit)[:n]
             iters += int(it)
     return Solution(status, witness, iters)
