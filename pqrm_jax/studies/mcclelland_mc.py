@@ -236,7 +236,7 @@ def report(out: Path, cfg: Config) -> dict:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="results/mcclelland-mc")
+    p.add_argument("--out", default="out/mcclelland-mc")
     p.add_argument("--runs", type=int)
     p.add_argument("--images", type=int)
     p.add_argument("--ns", type=int, nargs="+")
