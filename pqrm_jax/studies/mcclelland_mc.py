@@ -104,7 +104,8 @@ def run_study(cfg: Config, out: Path, progress: bool = True) -> None:
 def load(out: Path, cfg: Config) -> dict:
     res = {}
     for n in cfg.ns:
-        recs = [np.load(p) for p in sorted((out / "runs").glob(f"n{n}_r*.npz"))]
+        recs = [np.load(out / "runs" / f"n{n}_r{r}.npz") for r in range(cfg.runs)
+                if (out / "runs" / f"n{n}_r{r}.npz").exists()]
         if not recs:
             continue
         res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0].files
