@@ -287,10 +287,10 @@ def measure_triples(
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
-    >>> # near landmark straight ahead, middle one to the left, far one to the right
-    >>> m = measure_triples(np.array([[0.0, 1.2, -0.9]], np.float32))
-    >>> "7" in states_of("edc", int(m.sets[0, 0])) or len(states_of("edc", int(m.sets[0, 0])))
-    10
+    >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far; truth: 1
+    >>> m = measure_triples(np.arctan2(P[:, 1], P[:, 0])[None].astype(np.float32))
+    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 4
+    ['1', '5', '11', '12']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     bearings = jnp.asarray(bearings)

@@ -136,7 +136,7 @@ def navigate(
     >>> import jax, jax.numpy as jnp
     >>> from pqrm_jax.qrm.hypergraph import true_map
     >>> from pqrm_jax.qrm.rng import rng_estimate
-    >>> lm = jnp.array([[10., 10.], [30., 12.], [50., 10.], [70., 12.]])
+    >>> lm = jnp.array([[10., 10.], [30., 13.], [52., 9.], [70., 12.]])
     >>> res = navigate(lm, rng_estimate(true_map(lm)), jnp.array([8., 8., 0.]),
     ...                jnp.array([72., 14.]))
     >>> bool(res.success), res.path.tolist()

@@ -54,7 +54,7 @@ def rng_estimate(m: QRMMap, calc: Calculus | str | QRMSpec = "edc") -> RNGEstima
 
     >>> import jax.numpy as jnp
     >>> from pqrm_jax.qrm.hypergraph import true_map
-    >>> pts = jnp.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.2]])   # 2 lies in the lune of 0, 1
+    >>> pts = jnp.array([[0.0, 0.0], [2.0, 0.0], [1.1, 0.3]])   # 2 lies in the lune of 0, 1
     >>> est = rng_estimate(true_map(pts))
     >>> est.edges.astype(int).tolist(), float(est.total_cost)
     ([[0, 0, 1], [0, 0, 1], [1, 1, 0]], 0.0)
