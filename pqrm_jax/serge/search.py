@@ -9,13 +9,18 @@ replacement among the untried regions). Merging two adjacent connected regions g
 connected region, so ψ2 = 1 throughout — contiguity is guaranteed by construction.
 
 All T trials are independent and run as one ``vmap`` of a ``lax.while_loop`` with static
-shapes: the state of a trial is the (R0,) map from initial regions to current regions, the
-(K, R0) belief-by-region masses, the (R0, R0) region adjacency and masks. The best trial by
-log ψ is kept (Alg. 2 lines 28–32).
+shapes, in blocks of ``WIDTH`` trials (so that a block's state stays in cache). The
+key-independent start (region masses, adjacency, the pair-gain cache below) is computed once
+and shared by all trials. The best trial by log ψ is kept (Alg. 2 lines 28–32).
 
-Only the beliefs assigned to ``C_n`` or ``C_m`` change saliency under a merge, so the gain of
-merging n into m is ``Σ_{k: L_k ∈ {n, m}} [log(M_kn + M_km) − log M_{k L_k}]`` plus the change of
-log ψ1; it is evaluated for all m at once.
+Incremental potential. Only the beliefs assigned to ``C_n`` or ``C_m`` change saliency under
+a merge, so the gain of merging n into m is ``G[n, m] = Σ_{k: L_k ∈ {n, m}} [log(M_kn + M_km)
+− log M_{k L_k}]`` plus the change of log ψ1. ``G`` (R0, R0) is symmetric and is cached: a
+merge of n into t changes only row and column t (the beliefs and masses of every other pair
+are untouched), so a step costs one row read (pick n, best t) and, on a merge, the new row t
+— from the beliefs of t in blocks of ``BLOCK`` (a loop over the blocks actually used) plus one
+segment sum over the beliefs of the other regions — instead of the full (R0 × K) evaluation.
+Adjacency is ``G > −inf``. :func:`pair_gains` is the direct evaluation (tests compare).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .cells import Problem
-from .potential import SAL_FLOOR, check_params, log_psi1, log_saliency
+from .potential import SAL_FLOOR, check_params, log_psi1
 
 
 def _hash_uniform(seed, counter, n):
@@ -43,6 +48,10 @@ def _hash_uniform(seed, counter, n):
     x = x * jnp.uint32(0x846CA68B)
     x = x ^ (x >> 16)
     return (x >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+
+
+BLOCK = 8          # beliefs of the merged region evaluated per inner step
+WIDTH = 64         # trials per vmapped block (the per-trial state then stays in cache)
 
 
 def _setup(mass, adj, belief_region, lab0, active):
@@ -60,79 +69,153 @@ def _setup(mass, adj, belief_region, lab0, active):
     return lab, mt, a, lb, alive, bmask
 
 
-def _trial(mass, adj, belief_region, lab0, active, mu, sigma, key):
-    """One merge-search trial (Alg. 2 lines 5–28); jit/vmap-able.
-
-    Written with one-hot masks instead of scatters so that, batched over trials, every
-    update is a fused element-wise pass.
-    """
-    k_static, r0 = mass.shape
+def pair_gains(mt, a, lb, alive, bmask):
+    """Direct (R0, R0) saliency gain of merging every adjacent alive pair (n, m):
+    ``G[n, m] = Σ_{k ∈ n ∪ m} log(M_kn + M_km) − log M_{k L_k}`` (−inf where not adjacent).
+    Symmetric; the initial value of the merge search's incremental cache."""
+    r0, k = mt.shape
     ar = jnp.arange(r0)
+    sal = mt.T[jnp.arange(k), lb]                                     # (K,) S_k
+    logs = jnp.log(jnp.maximum(sal, SAL_FLOOR))
+    p = jnp.log(jnp.maximum(mt[:, None, :] + mt[None, :, :], SAL_FLOOR)) - logs
+    own = (lb[None, :] == ar[:, None]) & bmask[None, :]               # (R0, K) k ∈ region
+    aff = own[:, None, :] | own[None, :, :]
+    g = jnp.sum(jnp.where(aff, p, 0.0), axis=2)
+    ok = a & alive[:, None] & alive[None, :]
+    return jnp.where(ok, g, -jnp.inf)
+
+
+def _row_gain(mt, row_t, t, lb, logs, sal, bmask):
+    """(R0,) gain of merging the (just merged) region t with every region m, from the beliefs
+    of t (in blocks of ``BLOCK``, a while loop over the blocks actually used) and the beliefs
+    of each m (a segment sum over all beliefs)."""
+    r0, k = mt.shape
+    in_t = (lb == t) & bmask
+    nb = jnp.sum(in_t)
+    slot = jnp.where(in_t, jnp.cumsum(in_t) - 1, k + BLOCK)
+    pos = jnp.zeros(k + BLOCK, jnp.int32).at[slot].set(jnp.arange(k, dtype=jnp.int32),
+                                                       mode="drop")
+
+    def cond(c):
+        return c[0] * BLOCK < nb
+
+    def body(c):
+        j, acc = c
+        idx = jax.lax.dynamic_slice(pos, (j * BLOCK,), (BLOCK,))
+        valid = j * BLOCK + jnp.arange(BLOCK) < nb
+        cols = mt[:, idx]                                             # (R0, BLOCK)
+        v = jnp.log(jnp.maximum(row_t[idx][None, :] + cols, SAL_FLOOR)) - logs[idx][None, :]
+        return j + 1, acc + jnp.sum(jnp.where(valid[None, :], v, 0.0), axis=1)
+
+    _, part_t = jax.lax.while_loop(cond, body, (jnp.int32(0), jnp.zeros(r0, mt.dtype)))
+    vm = jnp.log(jnp.maximum(sal + row_t, SAL_FLOOR)) - logs          # (K,) for k in m
+    vm = jnp.where(bmask & ~in_t, vm, 0.0)
+    part_m = jax.ops.segment_sum(vm, jnp.where(bmask & ~in_t, lb, r0), num_segments=r0 + 1)
+    return part_t + part_m[:r0]
+
+
+def _init_state(mass, adj, belief_region, lab0, active):
+    """Key-independent start of every trial (computed once, shared by all trials)."""
     lab, mt, a, lb, alive, bmask = _setup(mass, adj, belief_region, lab0, active)
+    k = mass.shape[0]
+    sal = mt.T[jnp.arange(k), lb]
+    logs = jnp.log(jnp.maximum(sal, SAL_FLOOR))
+    g = pair_gains(mt, a, lb, alive, bmask)
+    return lab, mt, g, lb, logs, sal, alive, bmask
+
+
+def _run_trial(init, mu, sigma, key, max_steps=None, branch=False):
+    """One merge-search trial (Alg. 2 lines 5–28) from the shared start ``init``; returns the
+    final state (jit/vmap-able). ``max_steps`` stops early (tests of the incremental cache).
+    ``branch`` applies the merge under ``lax.cond`` (cheaper for a single trial; under vmap a
+    cond becomes a select over the whole state, so the batched program uses the branch-free
+    form). Both give the same result."""
+    lab, mt, g, lb, logs, sal, alive, bmask = init
+    k_static, r0 = mt.shape[1], mt.shape[0]
+    ar = jnp.arange(r0)
     k_max = jnp.sum(bmask)
     count = jnp.sum(alive)
-    max_iter = r0 * (r0 + 1) + 2
-    logs = log_saliency(mt.T, lb)                                     # (K,) log S_k
+    max_iter = r0 * (r0 + 1) + 2 if max_steps is None else max_steps
 
     def lp1(c):
         return log_psi1(c, mu, sigma, k_max, k_static)
 
+    def merge(s, n, t, accept):
+        # merge C_n into C_t; with ``accept`` False every update is a no-op (the branch-free
+        # form used when batched: only rows t and n of the state are touched, never the
+        # whole (R0, K) / (R0, R0) arrays)
+        lab, mt, g, lb, logs, sal, alive = s
+        row_t = mt[t] + jnp.where(accept, mt[n], 0.0)
+        mt = mt.at[t].set(row_t)
+        lb = jnp.where((lb == n) & accept, t, lb)
+        in_t = (lb == t) & accept
+        logs = jnp.where(in_t, jnp.log(jnp.maximum(row_t, SAL_FLOOR)), logs)
+        sal = jnp.where(in_t, row_t, sal)
+        alive = alive & ~((ar == n) & accept)
+        adj_t = (jnp.isfinite(g[t]) | jnp.isfinite(g[n])) & alive & (ar != t)
+        gt = jnp.where(adj_t, _row_gain(mt, row_t, t, lb, logs, sal, bmask), -jnp.inf)
+        gt = jnp.where(accept, gt, g[t])
+        g = g.at[t].set(gt).at[:, t].set(gt)
+        lab = jnp.where((lab == n) & accept, t, lab)
+        return lab, mt, g, lb, logs, sal, alive
+
     def cond(s):
-        lab, mt, a, lb, logs, alive, tried, count, key, it = s
+        alive, tried, it = s[6], s[7], s[10]
         return jnp.any(alive & ~tried) & (it < max_iter)
 
     def body(s):
-        lab, mt, a, lb, logs, alive, tried, count, key, it = s
+        *st, tried, count, seed, it = s
+        g, alive = st[2], st[6]
         cand = alive & ~tried
-        n = jnp.argmax(jnp.where(cand, _hash_uniform(key, it.astype(jnp.uint32), r0), -1.0))
-        e_n = ar == n
-        mn = mt[n]                                                    # (K,) masses of C_n
-        newlog = jnp.log(jnp.maximum(mn[None, :] + mt, SAL_FLOOR))    # (R0 candidates, K)
-        in_n = lb == n
-        affected = (in_n[None, :] | (lb[None, :] == ar[:, None])) & bmask[None, :]
-        delta = jnp.sum(jnp.where(affected, newlog - logs[None, :], 0.0), axis=1)
-        delta = jnp.where(a[n], delta, -jnp.inf)
+        n = jnp.argmax(jnp.where(cand, _hash_uniform(seed, it.astype(jnp.uint32), r0), -1.0))
+        delta = jnp.where(alive, g[n], -jnp.inf)
         t = jnp.argmax(delta)
         gain = delta[t] + lp1(count - 1) - lp1(count)
         accept = gain > 0
-        # merge C_n into C_t (a no-op when not accepted: both masks are then empty)
-        acc_t = (ar == t) & accept
-        acc_n = e_n & accept
-        row_n = a[n]
-        mt = jnp.where(acc_n[:, None], 0.0, mt + acc_t[:, None] * mn[None, :])
-        a = (a | (acc_t[:, None] & row_n[None, :]) | (row_n[:, None] & acc_t[None, :]))
-        a = a & ~acc_n[:, None] & ~acc_n[None, :] & ~jnp.eye(r0, dtype=bool)
-        moved = (in_n | (lb == t)) & accept
-        logs = jnp.where(moved, newlog[t], logs)
-        lb = jnp.where(in_n & accept, t, lb)
-        lab = jnp.where((lab == n) & accept, t, lab)
-        alive = alive & ~acc_n
-        tried = jnp.where(accept, False, tried | e_n)
-        return (lab, mt, a, lb, logs, alive, tried, jnp.where(accept, count - 1, count), key,
-                it + 1)
+        if branch:
+            st = jax.lax.cond(accept, lambda s: merge(s, n, t, True), lambda s: s, tuple(st))
+        else:
+            st = merge(tuple(st), n, t, accept)
+        tried = jnp.where(accept, False, tried | (ar == n))
+        return (*st, tried, jnp.where(accept, count - 1, count), seed, it + 1)
 
-    tried = jnp.zeros(r0, bool)
     seed = jax.random.bits(key, (), jnp.uint32)
-    s = jax.lax.while_loop(cond, body, (lab, mt, a, lb, logs, alive, tried, count, seed, 0))
-    lab, mt, a, lb, logs, alive, tried, count, key, it = s
+    s = (lab, mt, g, lb, logs, sal, alive, jnp.zeros(r0, bool), count, seed, jnp.int32(0))
+    return jax.lax.while_loop(cond, body, s)
+
+
+def _trial(mass, adj, belief_region, lab0, active, mu, sigma, key):
+    """One trial from the problem (setup + search); used one at a time by the reference."""
+    init = _init_state(mass, adj, belief_region, lab0, active)
+    return _result(init, _run_trial(init, mu, sigma, key), mu, sigma)
+
+
+def _result(init, s, mu, sigma):
+    bmask = init[7]
+    lab, mt, g, lb, logs, sal, alive, tried, count, seed, it = s
+    k_static = mt.shape[1]
     lp3 = jnp.sum(jnp.where(bmask, logs, 0.0))
-    l1 = lp1(count)
+    l1 = log_psi1(count, mu, sigma, jnp.sum(bmask), k_static)
     return lab, count, l1 + lp3, l1, lp3, it
 
 
-_trial_jit = jax.jit(_trial)
-
-
-@partial(jax.jit, static_argnames=("chunk",))
-def _trials_batched(mass, adj, belief_region, lab0, active, mu, sigma, keys, chunk):
-    f = jax.vmap(_trial, in_axes=(None, None, None, None, None, None, None, 0))
+@partial(jax.jit, static_argnames=("width",))
+def _trials_batched(mass, adj, belief_region, lab0, active, mu, sigma, keys, width):
+    init = _init_state(mass, adj, belief_region, lab0, active)
+    f = jax.vmap(lambda kk: _result(init, _run_trial(init, mu, sigma, kk), mu, sigma))
     t = keys.shape[0]
-    if chunk >= t:
-        return f(mass, adj, belief_region, lab0, active, mu, sigma, keys)
-    nchunk = t // chunk
-    out = jax.lax.map(lambda kk: f(mass, adj, belief_region, lab0, active, mu, sigma, kk),
-                      keys.reshape(nchunk, chunk, *keys.shape[1:]))
+    if width >= t:
+        return f(keys)
+    out = jax.lax.map(f, keys.reshape(t // width, width, *keys.shape[1:]))
     return jax.tree.map(lambda x: x.reshape(t, *x.shape[2:]), out)
+
+
+_init_jit = jax.jit(_init_state)
+
+
+@partial(jax.jit, static_argnames=("branch",))
+def _one_trial(init, mu, sigma, key, branch=True):
+    return _result(init, _run_trial(init, mu, sigma, key, branch=branch), mu, sigma)
 
 
 @dataclass(frozen=True)
@@ -235,8 +318,14 @@ def serge(
         raise ValueError(f"serge: trials must be ≥ 1, got {trials}")
     chunk = min(chunk, t)
     tt = math.ceil(t / chunk) * chunk
-    keys = jax.random.split(key, tt)
-    lab, count, lp, l1, l3, it = _trials_batched(*args, keys, chunk)
+    # key derivation unchanged (split into a multiple of ``chunk``); a trial depends only on
+    # its own key, so only the first t are run, in vmapped blocks of WIDTH trials
+    keys = jax.random.split(key, tt)[:t]
+    width = min(WIDTH, t)
+    tp = math.ceil(t / width) * width
+    if tp > t:
+        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], tp - t, axis=0)])
+    lab, count, lp, l1, l3, it = _trials_batched(*args, keys, width)
     lab, lp, l1, l3, it = (np.asarray(x)[:t] for x in (lab, lp, l1, l3, it))
     best = int(np.argmax(lp))
     return _compact(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
@@ -248,7 +337,10 @@ def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.
     one at a time in a Python loop of jitted single trials."""
     args = _inputs(problem, mu, sigma, active, start)
     keys = jax.random.split(key, trials)
-    outs = [jax.tree.map(np.asarray, _trial_jit(*args, keys[i])) for i in range(trials)]
+    mass, adj, belief_region, lab0, active, mu_, sigma_ = args
+    init = _init_jit(mass, adj, belief_region, lab0, active)      # shared start, once
+    outs = [jax.tree.map(np.asarray, _one_trial(init, mu_, sigma_, keys[i]))
+            for i in range(trials)]
     lab = np.stack([o[0] for o in outs])
     lp, l1, l3, it = (np.array([o[j] for o in outs]) for j in (2, 3, 4, 5))
     best = int(np.argmax(lp))
