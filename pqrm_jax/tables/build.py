@@ -87,9 +87,10 @@ class _Decider:
                               if st == INFEASIBLE}
             self.stats["bnb_undecided"] += len(set(leftover) - bnb_infeasible)
             t0 = time.perf_counter()
-            for i in leftover:
+            verdicts = certify.decide_many([problems[i].constraints for i in leftover],
+                                           progress=self.progress, desc=f"{name} (z3)")
+            for i, (verdict, x) in zip(leftover, verdicts, strict=True):
                 pr = problems[i]
-                verdict, x = certify.decide(pr.constraints)
                 if i in bnb_infeasible:
                     if verdict == certify.UNSAT:
                         self.stats["z3_confirmed_infeasible"] += 1

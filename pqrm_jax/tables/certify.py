@@ -8,7 +8,10 @@ as a float approximation) or UNSAT. It is also the independent oracle of the tes
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ProcessPoolExecutor
 from fractions import Fraction
+from multiprocessing import get_context
 
 from ..calculi.poly import Poly
 
@@ -55,3 +58,27 @@ def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
         else:  # algebraic number
             wit.append(Fraction(v.approx(20).as_fraction()))
     return SAT, wit
+
+
+def _decide_one(constraints):
+    return decide(constraints)
+
+
+def decide_many(problems: list, workers: int | None = None, progress: bool = False,
+                desc: str = "z3") -> list:
+    """``decide`` for many constraint lists, on all cores (spawned workers: JAX-safe)."""
+    workers = workers or min(os.cpu_count() or 1, 8)
+    if workers <= 1 or len(problems) < 64:
+        it = problems
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(it, desc=desc, leave=False)
+        return [decide(c) for c in it]
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
+        it = ex.map(_decide_one, problems, chunksize=32)
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(it, total=len(problems), desc=desc, leave=False)
+        return list(it)
