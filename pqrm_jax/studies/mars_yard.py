@@ -230,11 +230,20 @@ def main(argv: list[str]) -> int:
               f"{np.nanmean([s['length_ratio_median'] for s in ne]):.2f} (estimated) and "
               f"{np.nanmean([s['length_ratio_median'] for s in nt]):.2f} (true).", "",
               "## Comparison with M Figs. 10–11", "",
-              "- Slower, sigmoid-like convergence of the removed % than the random-point Monte "
-              "Carlo (sequential images 1–2 m apart are highly correlated; landmarks enter the "
-              "map gradually).",
-              "- RNG cost: lower peak than the Monte Carlo, a slowly growing but well "
-              "constrained RNG (Fig. 11 snapshots).",
+              "- M: slower, sigmoid-shaped convergence of the removed % than the random-point "
+              "Monte Carlo (Fig. 7, n = 18), because sequential images 1–2 m apart are highly "
+              "correlated and landmarks enter the map gradually. Here: removed % after images "
+              f"1 / 15 / 30 / 50 = {np.mean([r['removed_pct'][0] for r in rows]):.1f} / "
+              f"{np.mean([r['removed_pct'][14] for r in rows]):.1f} / "
+              f"{np.mean([r['removed_pct'][29] for r in rows]):.1f} / "
+              f"{np.mean([r['removed_pct'][-1] for r in rows]):.1f} (compare the n = 18 row of "
+              "the mcclelland-mc report).",
+              "- M: the RNG grows slowly but stays well constrained (Fig. 11); here RNG cost "
+              f"peak → final {np.mean([max(r['rng_cost']) for r in rows]):.2f} → "
+              f"{np.mean([r['rng_cost'][-1] for r in rows]):.2f}.",
+              "- The estimated RNG keeps candidate edges that are not yet pruned; they act as "
+              "shortcuts for navigation (the simulated camera sees every landmark), so paths "
+              "along the estimate can be shorter than along the true RNG.",
               "- The true state is never removed ('truth kept')."]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines[8:]))
