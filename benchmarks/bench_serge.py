@@ -5,7 +5,10 @@
 Scene: the simulated 55-object lab (P§3.4.1), grid 96², μ = 20, σ = 2. The batched run
 (:func:`pqrm_jax.serge.serge`, one vmapped while-loop program) and the reference
 (:func:`pqrm_jax.serge.serge_sequential`, a Python loop over the same jitted single trial)
-run the same trials with the same keys in the same process; both are warmed up first. When
+run the same trials with the same keys in the same process; both are warmed up first.
+``speedup`` is against the branch-free single trial (the program that is vmapped);
+``speedup_vs_cond`` against the same trial with the merge under ``lax.cond``; the honest
+ratio is the smaller of the two (the faster reference). When
 ``--seq-trials`` < T the sequential time is measured on S trials and scaled linearly.
 Also reports the time per SERGE solve (T = 100·K trials, P§3.3) and of the relaxed optimiser.
 """
@@ -53,10 +56,15 @@ def main(argv=None) -> int:
     # warm-up (compilation) of both programs
     serge(prob, args.mu, args.sigma, key=key, trials=t_trials)
     serge_sequential(prob, args.mu, args.sigma, key=key, trials=2)
+    serge_sequential(prob, args.mu, args.sigma, key=key, trials=2, branch=True)
     t_batched, rb = _best_of(lambda: serge(prob, args.mu, args.sigma, key=key, trials=t_trials))
     t0 = time.perf_counter()
     rs = serge_sequential(prob, args.mu, args.sigma, key=key, trials=s_trials)
     t_seq = (time.perf_counter() - t0) * t_trials / s_trials
+    t0 = time.perf_counter()
+    serge_sequential(prob, args.mu, args.sigma, key=key, trials=s_trials, branch=True)
+    t_seq_cond = (time.perf_counter() - t0) * t_trials / s_trials
+    steps = float(np.sum(rb.iterations))
     # same keys ⇒ same trials: check the measured ones agree (chunking changes the keys
     # only when T exceeds the chunk size, so compare on a small batched run)
     small = serge(prob, args.mu, args.sigma, key=key, trials=min(s_trials, 256))
@@ -69,6 +77,10 @@ def main(argv=None) -> int:
         "sigma": args.sigma, "trials": t_trials, "seq_trials_measured": s_trials,
         "initial_cells_s": t_init, "batched_s": t_batched, "sequential_s": t_seq,
         "speedup": t_seq / t_batched, "batched_equals_sequential": agree,
+        "sequential_cond_s": t_seq_cond, "speedup_vs_cond": t_seq_cond / t_batched,
+        "batched_us_per_trial_step": t_batched / steps * 1e6,
+        "sequential_us_per_step": t_seq / steps * 1e6,
+        "sequential_cond_us_per_step": t_seq_cond / steps * 1e6,
         "time_per_solve_s": t_batched, "n_regions": rb.n_regions, "log_psi": rb.log_psi,
         "sequential_best_log_psi": rs.log_psi,
         "relaxed_s": t_rel, "relaxed_log_psi": rr.result.log_psi,
