@@ -36,6 +36,13 @@ is removed only when every box of the cone is certainly incompatible with it, i.
 proven infeasible (soundness, SPEC §4: the true state is never dropped). States that are
 neither proven nor excluded at the depth limit (``undecided``) are kept.
 
+Limitations (measured, see the issue report): (1) states whose closure touches a degenerate
+corner of the cone (e.g. near landmark at the camera *and* a range tie) cannot be excluded
+with a float32 safety margin and stay undecided (kept); (2) the pool is per triple and fixed:
+when a camera sees all landmarks inside a narrow bearing sector (imaging point at the edge of
+the field) the curves to resolve are long and the pool fills up, so coarse boxes remain and
+many states stay open (sound, uninformative; a larger ``pool``/``depth`` helps at a cost).
+
 Why a specialised kernel rather than :func:`pqrm_jax.tables.feasibility.solve` (which is
 used as the oracle in the tests): the generic solver runs one branch-and-bound per
 (relation, state) in float64 with a pool per problem; an image of 30 landmarks has
