@@ -13,6 +13,9 @@ bank shared by the rows (common random numbers), EDC states counted per triplet.
   divide into the AB frame, evaluate the constraint polynomials, sign-table lookup,
   ``np.bincount``), best of 3; the same with independent draws per row for reference.
 
+Study step (``--study-runs``): per-run time of the padgett-mc runner, dense reference (every
+triplet sampled every step) vs the sparse batched runner (only seen triplets), same process.
+
 Targets (SPEC §10): ≥ 50× NumPy and ≥ 10⁸ triplet-samples/s on a 2-core CPU. The machine may
 be shared; the ratio is measured in one process under the same conditions. Writes
 ``benchmarks/results/pqrm.json``.
@@ -46,11 +49,40 @@ def _best(f, n):
     return min(ts), out
 
 
+def _study_step(runs: int) -> dict:
+    """padgett-mc per-run time: dense reference runner vs sparse batched runner, same process.
+
+    One chunk of ``runs`` runs at σ_R = 40 m (compiled and warmed up first, best of 3); the
+    results of the two runners are compared for bit-identity.
+    """
+    from pqrm_jax.studies import padgett_mc as P
+
+    cfg = P.Config(runs=runs, levels=1, chunk_runs=runs)
+    out, times = {}, {}
+    for name, dense in (("dense", True), ("sparse", False)):
+        P.run_level(cfg, 0, 40.0, dense=dense)  # compile + warm up
+        ts = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            out[name] = P.run_level(cfg, 0, 40.0, dense=dense)
+            ts.append(time.perf_counter() - t0)
+        times[name] = min(ts) / runs
+    same = all(np.array_equal(a, b, equal_nan=True) for a, b in zip(
+        jax.tree_util.tree_leaves(out["dense"]), jax.tree_util.tree_leaves(out["sparse"]),
+        strict=True))
+    return {"what": "padgett-mc per-run time, sigma_r = 40 m, all six representations",
+            "runs": runs, "dense_s_per_run": times["dense"],
+            "sparse_s_per_run": times["sparse"],
+            "speedup": times["dense"] / times["sparse"], "bit_identical": bool(same)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--triplets", type=int, default=7200, help="N (10 maps of 10 landmarks)")
     ap.add_argument("--samples", type=int, default=1024, help="S per triplet")
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "pqrm.json"))
+    ap.add_argument("--study-runs", type=int, default=50,
+                    help="runs for the padgett-mc per-run comparison (0: skip)")
     args = ap.parse_args(argv)
     n, s = args.triplets, args.samples
     key = jax.random.key(0)
@@ -90,6 +122,8 @@ def main(argv=None) -> int:
         "load_average": os.getloadavg(), "machine": platform.processor() or platform.machine(),
         "jax": jax.__version__, "numpy": np.__version__,
     }
+    if args.study_runs:
+        res["study_step"] = _study_step(args.study_runs)
     print(json.dumps(res, indent=2))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

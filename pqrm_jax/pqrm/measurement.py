@@ -166,12 +166,16 @@ def _variadic_sum(ops, axis):
 
 
 def _edc_block_counts(mT, sT, zc):
-    """Counts in key order for one block: mT (6, B), sT (3, B), zc (c, C, 6) → (B, 20) int32."""
+    """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
+
+    ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
+    per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
+    """
     def col(x):
         return x[None, None, :]
 
     def zz(j):
-        return zc[:, :, j, None]
+        return zc[:, :, j, None] if zc.ndim == 3 else zc[:, :, j, :]
 
     # d = B − A and e = C − A per sample: mean difference + the two scaled noise terms
     dx = col(mT[2] - mT[0]) + col(sT[1]) * zz(2) - col(sT[0]) * zz(0)

@@ -17,8 +17,10 @@ Engineering: the run axis is sharded over ``jax.devices()`` (a 1-D ``NamedShardi
 runs are processed in chunks (progress bar, bounded memory); each finished noise level is
 appended to ``levels.jsonl`` (+ ``level_XX.npz``) so a killed study resumes at the first
 unfinished level; run keys are ``fold_in(fold_in(seed, level), run)``, so results do not
-depend on chunking, device count or resumption. ``report.md`` and the figures are written at
-the end (``--report-only`` rewrites them from the stored results).
+depend on chunking, device count or resumption. Each step samples eq. 2.9 only for the triplets
+seen (``Mapper.update_batch``, compacted across the runs of a chunk), with results identical to
+the dense per-run reference (``run_level(..., dense=True)``). ``report.md`` and the figures
+are written at the end (``--report-only`` rewrites them from the stored results).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import json
 import math
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -105,37 +108,49 @@ def _distance_matrices(reps) -> dict[str, np.ndarray | None]:
     return out
 
 
-def _make_run_fn(cfg: Config, dists: dict):
-    """``run(key, sigma_r) -> dict`` of per-run results (jit/vmap-able)."""
-    import sim.sensors
+def _setup(cfg: Config):
     import sim.trajectories
-    import sim.world
-    from pqrm_jax import calculi, pqrm
-    from pqrm_jax.pqrm import metrics
+    from pqrm_jax import pqrm
 
     pq = pqrm.mapper(cfg.representations, cfg.num_landmarks, cfg.num_samples)
-    cals = pq.calculi
-    tri = pq.triplets
     half = cfg.world_size / 2
     poses = sim.trajectories.perimeter_loop((half, half), cfg.loop_radius,
                                             math.radians(cfg.dtheta_deg))
+    return pq, poses
+
+
+def _run_inputs(cfg: Config, poses, key, sigma_r):
+    """One run's world, sensor and per-step keys (as in the original per-run function)."""
+    import sim.sensors
+    import sim.world
+
+    k_world, k_steps = jax.random.split(key)
+    lm = sim.world.uniform_landmarks(k_world, cfg.num_landmarks,
+                                     (cfg.world_size, cfg.world_size))
+    params = sim.sensors.SensorParams(max_range=cfg.max_range, fov=2 * jnp.pi,
+                                      landmark_radius=0.0, sigma=sigma_r)
+    keys = jax.random.split(k_steps, poses.shape[0])
+    return lm, params, keys
+
+
+def _observe_step(k, pose, lm, params):
+    import sim.sensors
+
+    k_obs, k_map = jax.random.split(k)
+    obs = sim.sensors.observe(k_obs, pose, lm, params)
+    return obs.rel, obs.visible, k_map
+
+
+def _make_metrics_fn(cfg: Config, dists: dict, pq):
+    """``metrics(lm, state) -> dict`` of one run's results from its final map."""
+    from pqrm_jax import calculi
+    from pqrm_jax.pqrm import metrics
+
+    cals = pq.calculi
+    tri = pq.triplets
     edc = calculi.get("edc")
 
-    def run(key, sigma_r):
-        k_world, k_steps = jax.random.split(key)
-        lm = sim.world.uniform_landmarks(k_world, cfg.num_landmarks,
-                                         (cfg.world_size, cfg.world_size))
-        params = sim.sensors.SensorParams(max_range=cfg.max_range, fov=2 * jnp.pi,
-                                          landmark_radius=0.0, sigma=sigma_r)
-        keys = jax.random.split(k_steps, poses.shape[0])
-
-        def step(state, inp):
-            pose, k = inp
-            k_obs, k_map = jax.random.split(k)
-            obs = sim.sensors.observe(k_obs, pose, lm, params)
-            return pq.update(state, k_map, obs.rel, obs.visible, sigma_r), None
-
-        state, _ = jax.lax.scan(step, pq.init(), (poses, keys))
+    def run_metrics(lm, state):
         out = {"n_mapped": jnp.sum(state.mapped), "n_updates": jnp.sum(state.num_updates),
                "n_rejected": jnp.sum(state.num_rejected)}
         for c in cals:
@@ -165,7 +180,60 @@ def _make_run_fn(cfg: Config, dists: dict):
                       "mapped": state.mapped & (truth >= 0)}
         return out
 
+    return run_metrics
+
+
+def _make_dense_run_fn(cfg: Config, dists: dict):
+    """``run(key, sigma_r) -> dict`` of one run, sampling every triplet at every step.
+
+    The original per-run formulation (``jax.vmap`` it over runs); kept as the reference the
+    sparse batched runner is tested and benchmarked against.
+    """
+    pq, poses = _setup(cfg)
+    run_metrics = _make_metrics_fn(cfg, dists, pq)
+
+    def run(key, sigma_r):
+        lm, params, keys = _run_inputs(cfg, poses, key, sigma_r)
+
+        def step(state, inp):
+            pose, k = inp
+            rel, vis, k_map = _observe_step(k, pose, lm, params)
+            return pq.update(state, k_map, rel, vis, sigma_r), None
+
+        state, _ = jax.lax.scan(step, pq.init(), (poses, keys))
+        return run_metrics(lm, state)
+
     return run
+
+
+def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
+    """``run_batch(keys (R,), sigma_r) -> dict`` of per-run results (leading axis R).
+
+    Same results as ``jax.vmap(_make_dense_run_fn(...))`` bit for bit (same keys, same draws):
+    the R maps are stepped together with ``Mapper.update_batch``, which samples eq. 2.9 only
+    for the triplets seen at each step (compacted across the R runs; ``groups`` independent
+    compactions, one per device).
+    """
+    pq, poses = _setup(cfg)
+    run_metrics = _make_metrics_fn(cfg, dists, pq)
+
+    def run_batch(run_keys, sigma_r):
+        lm, params, keys = jax.vmap(partial(_run_inputs, cfg, poses),
+                                    in_axes=(0, None))(run_keys, sigma_r)
+        r = run_keys.shape[0]
+        state0 = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (r, *x.shape)),
+                                        pq.init())
+
+        def step(states, inp):
+            pose, k = inp  # (3,), (R,)
+            rel, vis, k_map = jax.vmap(_observe_step, in_axes=(0, None, 0, 0))(
+                k, pose, lm, params)
+            return pq.update_batch(states, k_map, rel, vis, sigma_r, groups=groups), None
+
+        states, _ = jax.lax.scan(step, state0, (poses, jnp.swapaxes(keys, 0, 1)))
+        return jax.vmap(run_metrics)(lm, states)
+
+    return run_batch
 
 
 def _mesh_sharding():
@@ -179,21 +247,29 @@ def _mesh_sharding():
 _COMPILED: dict = {}
 
 
-def compiled_runner(cfg: Config):
-    """(run_fn, jitted vmapped run_fn, sharding) for ``cfg``, cached per configuration."""
+def compiled_runner(cfg: Config, *, dense: bool = False):
+    """(run_batch, jitted run_batch, sharding) for ``cfg``, cached per configuration.
+
+    ``dense=True`` gives the reference runner (``vmap`` of the per-run function, every triplet
+    sampled at every step); the default samples only the seen triplets (same results).
+    """
     sharding, ndev = _mesh_sharding()
-    key = (json.dumps(cfg.to_json(), sort_keys=True), ndev)
+    key = (json.dumps(cfg.to_json(), sort_keys=True), ndev, dense)
     if key not in _COMPILED:
         _COMPILED.clear()
-        run_fn = _make_run_fn(cfg, _distance_matrices(cfg.representations))
-        batched = jax.jit(jax.vmap(run_fn, in_axes=(0, None)), out_shardings=sharding)
-        _COMPILED[key] = (run_fn, batched, sharding)
+        dists = _distance_matrices(cfg.representations)
+        if dense:
+            fn = jax.vmap(_make_dense_run_fn(cfg, dists), in_axes=(0, None))
+        else:
+            fn = _make_batch_fn(cfg, dists, groups=ndev)
+        _COMPILED[key] = (fn, jax.jit(fn, out_shardings=sharding), sharding)
     return _COMPILED[key]
 
 
-def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None) -> dict:
+def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
+              dense: bool = False) -> dict:
     """All runs of one noise level, sharded over devices, in chunks; returns numpy results."""
-    _, batched, sharding = compiled_runner(cfg)
+    _, batched, sharding = compiled_runner(cfg, dense=dense)
     ndev = len(jax.devices())
     chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
     base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
