@@ -141,7 +141,7 @@ def main() -> None:
     res = {"devices": [str(d) for d in jax.devices()], "cpu_count": os.cpu_count(),
            "load_avg_start": os.getloadavg()}
     res["per_update"] = per_update_vs_n(ns, images=6 if a.quick else 11, reps=2 if a.quick else 3)
-    res["batched_vs_single"] = batched_vs_single(n=10 if a.quick else 12, images=3)
+    res["batched_vs_single"] = batched_vs_single(n=10 if a.quick else 18, images=2)
     res["traverse"] = traverse(reps=1 if a.quick else 3)
     res["load_avg_end"] = os.getloadavg()
     print(f"peak per-update log-log slope {res['per_update']['peak_loglog_slope']:.2f} "
