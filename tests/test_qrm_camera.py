@@ -147,17 +147,11 @@ def test_kernel_agrees_with_generic_branch_and_bound():
 
 
 def test_fdc_measurement_contains_truth():
-    """The FDC calculi: the open Double Cross (a merge of EDC) and, when its tables are
-    cached, the boundary-inclusive DCC."""
-    from pqrm_jax import calculi
-    from pqrm_jax.tables import cache_path
-
+    """The FDC calculi: the open Double Cross (a merge of EDC) and the boundary-inclusive
+    DCC (its tables ship with the package)."""
     rng = np.random.default_rng(3)
     P = _configs(rng, 1500)
-    names = ["double_cross"]
-    if cache_path(calculi.get("dcc")).exists():
-        names.append("dcc")
-    for name in names:
+    for name in ("double_cross", "dcc"):
         spec = qrm_spec(name)
         ok, kept, sets = _check_sound(spec, P)
         assert kept[ok].all(), name
