@@ -162,15 +162,21 @@ def initial_cells(
     onehot[np.arange(grid.n_cells), cell_region] = 1.0
     mass = pm @ onehot                                                # (K, R0)
     belief_region = np.where(remap >= 0, remap, np.argmax(mass, axis=1))
+    adj = _region_adjacency(grid, cell_region, r0)
+    return Problem(grid, cell_region.astype(np.int32), jnp.asarray(mass, jnp.float32),
+                   jnp.asarray(adj), jnp.asarray(belief_region, jnp.int32),
+                   jnp.asarray(cell_mass, jnp.float32))
+
+
+def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarray:
+    """(R0, R0) bool: regions sharing a grid edge (no self-adjacency)."""
     e = grid.edges()
     a, b = cell_region[e[:, 0]], cell_region[e[:, 1]]
     adj = np.zeros((r0, r0), dtype=bool)
     adj[a, b] = True
     adj[b, a] = True
     np.fill_diagonal(adj, False)
-    return Problem(grid, cell_region.astype(np.int32), jnp.asarray(mass, jnp.float32),
-                   jnp.asarray(adj), jnp.asarray(belief_region, jnp.int32),
-                   jnp.asarray(cell_mass, jnp.float32))
+    return adj
 
 
 def problem_from_partition(cell_mass, grid: Grid, cell_region, belief_region) -> Problem:
@@ -181,12 +187,7 @@ def problem_from_partition(cell_mass, grid: Grid, cell_region, belief_region) ->
     onehot = np.zeros((grid.n_cells, r0))
     onehot[np.arange(grid.n_cells), cell_region] = 1.0
     mass = np.asarray(cell_mass, np.float64) @ onehot
-    e = grid.edges()
-    a, b = cell_region[e[:, 0]], cell_region[e[:, 1]]
-    adj = np.zeros((r0, r0), dtype=bool)
-    adj[a, b] = True
-    adj[b, a] = True
-    np.fill_diagonal(adj, False)
+    adj = _region_adjacency(grid, cell_region, r0)
     return Problem(grid, cell_region.astype(np.int32), jnp.asarray(mass, jnp.float32),
                    jnp.asarray(adj), jnp.asarray(np.asarray(belief_region), jnp.int32),
                    jnp.asarray(cell_mass, jnp.float32))
