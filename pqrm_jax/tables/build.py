@@ -25,7 +25,7 @@ import numpy as np
 from ..calculi.calculus import Calculus
 from . import certify, exact
 from . import problems as pb
-from .feasibility import FEASIBLE, INFEASIBLE, UNDECIDED, solve
+from .feasibility import FEASIBLE, INFEASIBLE, solve
 
 UNARY = ("left", "right", "inverse")
 _UNARY_KEY = {"left": "bca", "right": "cab", "inverse": "bac"}
@@ -42,7 +42,7 @@ def _coords(frame: dict, x) -> list[list[float]]:
 class _Decider:
     """Decides lists of problems: witnesses given → B&B → z3; keeps records."""
 
-    def __init__(self, box, progress, pool, max_iters, log, certify_all=False):
+    def __init__(self, box, progress, pool, max_iters, certify_all=False):
         self.box, self.progress, self.pool, self.max_iters = box, progress, pool, max_iters
         self.certify_all = certify_all
         self.undecided: list[dict] = []
@@ -50,7 +50,6 @@ class _Decider:
                       "bnb_infeasible": 0, "bnb_undecided": 0, "z3_sat": 0, "z3_unsat": 0,
                       "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0,
                       "z3_confirmed_infeasible": 0, "z3_overturned": 0}
-        self.log = log
 
     def run(self, name: str, problems: list[pb.Problem], known: dict[int, list]) -> tuple:
         """→ (feasible bool array, witness coordinates per index)."""
@@ -154,12 +153,12 @@ def _verified(calc, atoms, cfg, pairs) -> bool:
 
 def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed: int = 0,
                n_samples: int = 1 << 20, pool: int = 32, max_iters: int = 120,
-               adjacency_radius: float = 1e-2, certify_all: bool = False, log=print) -> dict:
+               adjacency_radius: float = 1e-2, certify_all: bool = False) -> dict:
     """Exact tables of a calculus defined by constraints (not a merge)."""
     t_start = time.perf_counter()
     atoms, astate = pb.atoms(calc)
     na, Q = len(atoms), calc.num_states
-    dec = _Decider(box, progress, pool, max_iters, log, certify_all)
+    dec = _Decider(box, progress, pool, max_iters, certify_all)
     pre_unary, pre_comp = _prepass(calc, atoms, seed, n_samples)
 
     # atoms that exist at all
@@ -315,5 +314,4 @@ def neighbor_distance(adjacency: np.ndarray) -> np.ndarray:
     return dist
 
 
-__all__ = ["build_base", "merge_tables", "neighbor_distance", "FEASIBLE", "INFEASIBLE",
-           "UNDECIDED"]
+__all__ = ["build_base", "merge_tables", "neighbor_distance"]
