@@ -248,8 +248,8 @@ class SergeResult:
     def saliency(self) -> np.ndarray:
         """(K,) saliency S_k of each belief in its region (training beliefs)."""
         pm = np.asarray(self.problem.cell_mass, np.float64)
-        return np.array([pm[k, self.cell_labels == self.belief_labels[k]].sum()
-                         for k in range(pm.shape[0])])
+        own = self.cell_labels[None, :] == np.asarray(self.belief_labels)[:, None]  # (K, N)
+        return (pm * own).sum(1)
 
 
 def _compact(problem: Problem, lab: np.ndarray, mu, sigma, logs, iters, best) -> SergeResult:
