@@ -189,6 +189,7 @@ def _and_reduce(x, axis):
 #: compaction checkpoints of the kernel: after this many rounds the triples that still have
 #: useful boxes are gathered into a buffer of half the rows (when they fit)
 _CHECKPOINTS = (3, 6)
+_MIN_COMPACT_ROWS = 32  # smaller batches run the plain loop (gathers would cost more)
 
 
 @partial(jax.jit, static_argnames=("spec", "pool", "depth"))
@@ -287,7 +288,8 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         """Run to the next checkpoint, then continue on a compacted half-size buffer when the
         rows still working fit in it (rows are independent: the result is identical; a row
         without live boxes has nothing remaining)."""
-        if level == len(_CHECKPOINTS) or _CHECKPOINTS[level] >= depth:
+        if level == len(_CHECKPOINTS) or _CHECKPOINTS[level] >= depth or \
+                st[1].shape[0] < _MIN_COMPACT_ROWS:
             return finish(rows, st)
         st = rounds(rows, st, _CHECKPOINTS[level])
         R = st[1].shape[0]
