@@ -32,7 +32,7 @@ def _frac(x: Number) -> Fraction:
 class Poly:
     """Sparse polynomial ``{exponent tuple: Fraction}`` over ``nvars`` variables."""
 
-    __slots__ = ("nvars", "terms", "names")
+    __slots__ = ("nvars", "terms", "names", "_norm")
 
     def __init__(self, nvars: int, terms: dict | None = None, names: Sequence[str] | None = None):
         self.nvars = nvars
@@ -43,6 +43,7 @@ class Poly:
             if c != 0:
                 self.terms[tuple(mono)] = self.terms.get(tuple(mono), Fraction(0)) + c
         self.terms = {m: c for m, c in self.terms.items() if c != 0}
+        self._norm = None  # memo of normalized() (polys are never mutated after construction)
 
     # construction -------------------------------------------------------------------
     @classmethod
@@ -131,9 +132,12 @@ class Poly:
         """
         if not self.terms:
             return self, 0
-        lead = self.terms[max(self.terms)]
-        s = 1 if lead > 0 else -1
-        return Poly(self.nvars, {m: c / lead for m, c in self.terms.items()}, self.names), s
+        if self._norm is None:
+            lead = self.terms[max(self.terms)]
+            s = 1 if lead > 0 else -1
+            self._norm = (Poly(self.nvars, {m: c / lead for m, c in self.terms.items()},
+                               self.names), s)
+        return self._norm
 
     def evaluate(self, x: Sequence[Number]) -> Fraction:
         """Exact value at rational (or float, converted exactly) coordinates."""

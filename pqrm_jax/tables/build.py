@@ -8,8 +8,14 @@ Pipeline for a calculus defined by constraints (atoms = realisable sign patterns
 2. **branch-and-bound** — all remaining problems in one batched JAX program
    (:mod:`.feasibility`) over the box |x| ≤ ``box`` with |BC| ≥ |AB|/``box`` (M§III.B bounds
    the search the same way); witnesses re-verified exactly;
-3. **certification** — problems the B&B leaves undecided go to z3 (:mod:`.certify`), an exact
+3. **path consistency** (open calculi, compose problems) — a B&B-undecided problem whose
+   four-point network the closure under the candidate tables (feasible + undecided entries)
+   empties is infeasible (:mod:`.symmetry`; repeated while it removes entries);
+4. **certification** — problems still undecided go to z3 (:mod:`.certify`), an exact
    decision procedure over the whole plane; each is listed in ``undecided`` with its verdict.
+
+Mirror-symmetric calculi (reflection in AB permutes the atoms; :mod:`.symmetry`) solve one
+problem of each mirror pair; the other takes its verdict and the reflected witness.
 
 Merged calculi take exact unions of their parent's tables.
 """
@@ -23,7 +29,7 @@ import jax
 import numpy as np
 
 from ..calculi.calculus import Calculus
-from . import certify, exact
+from . import certify, exact, symmetry
 from . import problems as pb
 from .feasibility import FEASIBLE, INFEASIBLE, solve
 
@@ -49,10 +55,15 @@ class _Decider:
         self.stats = {"problems": 0, "trivial": 0, "prepass": 0, "bnb_feasible": 0,
                       "bnb_infeasible": 0, "bnb_undecided": 0, "z3_sat": 0, "z3_unsat": 0,
                       "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0,
-                      "z3_confirmed_infeasible": 0, "z3_overturned": 0}
+                      "z3_confirmed_infeasible": 0, "z3_overturned": 0,
+                      "mirror_copies": 0, "pc_infeasible": 0}
 
-    def run(self, name: str, problems: list[pb.Problem], known: dict[int, list]) -> tuple:
-        """→ (feasible bool array, witness coordinates per index)."""
+    def run(self, name: str, problems: list[pb.Problem], known: dict[int, list],
+            refine=None) -> tuple:
+        """→ (feasible bool array, witness coordinates per index).
+
+        ``refine(feasible, undecided) -> refuted`` (bool arrays over the problems) may refute
+        B&B-undecided problems exactly before they go to z3 (path consistency)."""
         n = len(problems)
         feas = np.zeros(n, bool)
         wit: dict[int, list] = {}
@@ -85,6 +96,19 @@ class _Decider:
             bnb_infeasible = {i for i, st in zip(todo, sol.status, strict=True)
                               if st == INFEASIBLE}
             self.stats["bnb_undecided"] += len(set(leftover) - bnb_infeasible)
+            if refine is not None:
+                und = np.zeros(n, bool)
+                und[[i for i in leftover if i not in bnb_infeasible]] = True
+                refuted = refine(feas.copy(), und) & und
+                self.stats["pc_infeasible"] += int(refuted.sum())
+                for i in np.flatnonzero(refuted):
+                    self.undecided.append({"problem": name, "tag": _tag(problems[i].tag),
+                                           "bnb": "undecided",
+                                           "resolved": "path-consistency-infeasible"})
+                if self.certify_all:  # confirm with z3 like the B&B refutations
+                    bnb_infeasible |= set(np.flatnonzero(refuted).tolist())
+                else:
+                    leftover = [i for i in leftover if not refuted[i]]
             t0 = time.perf_counter()
             verdicts = certify.decide_many([problems[i].constraints for i in leftover],
                                            progress=self.progress, desc=f"{name} (z3)")
@@ -113,8 +137,53 @@ class _Decider:
         return feas, wit
 
 
+def _run_mirrored(dec: _Decider, name: str, keys: list[tuple], make, tag,
+                  known: dict[int, list], sigma: list[int] | None, *, unordered: bool = False,
+                  refine=None) -> tuple:
+    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`); the other
+    takes the verdict and the reflected witness (and a copy of any certification record).
+    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag."""
+    rep = symmetry.representatives(keys, sigma, unordered)
+    reps = [n for n in range(len(keys)) if rep[n] == n]
+    pos = {n: r for r, n in enumerate(reps)}
+    known_r: dict[int, list] = {}
+    for n, w in sorted(known.items(), key=lambda kv: kv[0] == rep[kv[0]]):  # own last
+        known_r[pos[rep[n]]] = w if n == rep[n] else symmetry.mirror_witness(w)
+    full_of = np.array([pos[rep[n]] for n in range(len(keys))], np.int64)
+    refine_r = None
+    if refine is not None:
+        def refine_r(feas_r, und_r):
+            refuted = refine(feas_r[full_of], und_r[full_of])
+            out = np.zeros(len(reps), bool)
+            np.logical_or.at(out, full_of, refuted)
+            return out
+    n_rec = len(dec.undecided)
+    feas_r, wit_r = dec.run(name, [make(n) for n in reps], known_r, refine=refine_r)
+    dec.stats["mirror_copies"] += len(keys) - len(reps)
+    feas = feas_r[full_of]
+    wit = {}
+    for n in range(len(keys)):
+        w = wit_r.get(full_of[n])
+        if w is not None:
+            wit[n] = w if n == rep[n] else symmetry.mirror_witness(w)
+    recs = {repr(r["tag"]): r for r in dec.undecided[n_rec:]}
+    for n in range(len(keys)):
+        r = recs.get(repr(_tag(tag(rep[n])))) if n != rep[n] else None
+        if r is not None:
+            dec.undecided.append({**r, "tag": _tag(tag(n)), "mirror_of": r["tag"]})
+    return feas, wit
+
+
 def _tag(tag) -> list:
     return [t if isinstance(t, str) else list(t) for t in tag]
+
+
+def _first_rows(key: np.ndarray, base: int) -> np.ndarray:
+    """Index of the first occurrence of every distinct row of a small-int array (N, c)."""
+    code = np.zeros(len(key), np.int64)
+    for col in key.T:
+        code = code * base + col
+    return np.unique(code, return_index=True)[1]
 
 
 def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
@@ -129,12 +198,12 @@ def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
     for op in UNARY:
         key = np.stack([rel["abc"], rel[_UNARY_KEY[op]]], 1)
         ok = (key >= 0).all(1)
-        _, first = np.unique(key[ok], axis=0, return_index=True)
+        first = _first_rows(key[ok], len(atoms))
         for idx in np.flatnonzero(ok)[first]:
             unary[(op, int(key[idx, 0]), int(key[idx, 1]))] = cfg[idx]
     key = np.stack([rel["abc"], rel["bcd"], rel["abd"]], 1)
     ok = (key >= 0).all(1)
-    _, first = np.unique(key[ok], axis=0, return_index=True)
+    first = _first_rows(key[ok], len(atoms))
     for idx in np.flatnonzero(ok)[first]:
         comp[tuple(int(v) for v in key[idx])] = cfg[idx]
     return unary, comp
@@ -173,40 +242,65 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
     exists, _ = dec.run("atoms", single, known)
     live = [i for i in range(na) if exists[i]]
 
+    sigma = symmetry.mirror_atoms(calc, atoms)
     unary = {op: np.zeros((Q, Q), bool) for op in UNARY}
+    unary_atoms = {op: np.zeros((na, na), bool) for op in UNARY}
     unary_wit: dict[str, list] = {}
     rel_names = {"left": ("B", "C", "A"), "right": ("C", "A", "B"), "inverse": ("B", "A", "C")}
     for op in UNARY:
-        probs, keys, known = [], [], {}
+        keys, known = [], {}
         for i in live:
             for j in live:
                 keys.append((i, j))
-                probs.append(pb.unary_problem(calc, op, atoms[i], atoms[j]))
                 cfg = pre_unary.get((op, i, j))
                 if cfg is not None and _verified(calc, atoms, cfg,
                                                  [(("A", "B", "C"), i), (rel_names[op], j)]):
-                    known[len(probs) - 1] = [list(map(float, p)) for p in cfg[:3]]
-        feas, wit = dec.run(op, probs, known)
+                    known[len(keys) - 1] = [list(map(float, p)) for p in cfg[:3]]
+        feas, wit = _run_mirrored(
+            dec, op, keys,
+            lambda n, op=op, keys=keys: pb.unary_problem(calc, op, *(atoms[x] for x in keys[n])),
+            lambda n, op=op, keys=keys: (op, *(atoms[x] for x in keys[n])), known, sigma)
         for n, (i, j) in enumerate(keys):
             if feas[n]:
+                unary_atoms[op][i, j] = True
                 si, sj = astate[i], astate[j]
                 unary[op][si, sj] = True
                 unary_wit.setdefault(f"{op}|{calc.states[si]}|{calc.states[sj]}", wit[n][:3])
 
     compose = np.zeros((Q, Q, Q), bool)
     comp_wit: dict[str, list] = {}
-    probs, keys, known = [], [], {}
+    keys, known = [], {}
     for i in live:
         for j in live:
             for k in live:
                 keys.append((i, j, k))
-                probs.append(pb.compose_problem(calc, atoms[i], atoms[j], atoms[k], box))
                 cfg = pre_comp.get((i, j, k))
                 if cfg is not None and _verified(
                         calc, atoms, cfg,
                         [(("A", "B", "C"), i), (("B", "C", "D"), j), (("A", "B", "D"), k)]):
-                    known[len(probs) - 1] = [list(map(float, p)) for p in cfg]
-    feas, wit = dec.run("compose", probs, known)
+                    known[len(keys) - 1] = [list(map(float, p)) for p in cfg]
+    refine = None
+    if not calc.boundary_inclusive and all(isinstance(a, tuple) for a in atoms):
+        K = np.asarray(keys, np.int64).reshape(-1, 3)
+
+        def refine(feas_full, und_full):
+            """Path-consistency refutation, repeated while it removes candidate entries."""
+            T = np.zeros((na, na, na), bool)
+            T[tuple(K[feas_full | und_full].T)] = True
+            refuted = np.zeros(len(K), bool)
+            while True:
+                idx = np.flatnonzero(und_full & ~refuted)
+                r = symmetry.path_consistency_refutes(
+                    unary_atoms["left"], unary_atoms["right"], unary_atoms["inverse"], T, K[idx])
+                if not r.any():
+                    return refuted
+                refuted[idx[r]] = True
+                T[tuple(K[idx[r]].T)] = False
+
+    feas, wit = _run_mirrored(
+        dec, "compose", keys,
+        lambda n: pb.compose_problem(calc, *(atoms[x] for x in keys[n]), box),
+        lambda n: ("compose", *(atoms[x] for x in keys[n])), known, sigma, refine=refine)
     for n, (i, j, k) in enumerate(keys):
         if feas[n]:
             s = (astate[i], astate[j], astate[k])
@@ -218,14 +312,11 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
     if calc.boundary_inclusive:
         adjacency |= _face_adjacency(calc, atoms, astate, nondeg)
     else:
-        probs, keys = [], []
-        for a in nondeg:
-            for b in nondeg:
-                if a < b and astate[a] != astate[b]:
-                    keys.append((a, b))
-                    probs.append(pb.adjacency_problem(calc, atoms[a], atoms[b],
-                                                      adjacency_radius))
-        feas, _ = dec.run("adjacency", probs, {})
+        keys = [(a, b) for a in nondeg for b in nondeg if a < b and astate[a] != astate[b]]
+        feas, _ = _run_mirrored(
+            dec, "adjacency", keys,
+            lambda n: pb.adjacency_problem(calc, *(atoms[x] for x in keys[n]), adjacency_radius),
+            lambda n: ("adjacent", *(atoms[x] for x in keys[n])), {}, sigma, unordered=True)
         for n, (a, b) in enumerate(keys):
             if feas[n]:
                 adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True

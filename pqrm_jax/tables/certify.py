@@ -68,7 +68,7 @@ def decide_many(problems: list, workers: int | None = None, progress: bool = Fal
                 desc: str = "z3") -> list:
     """``decide`` for many constraint lists, on all cores (spawned workers: JAX-safe)."""
     workers = workers or min(os.cpu_count() or 1, 8)
-    if workers <= 1 or len(problems) < 64:
+    if workers <= 1 or len(problems) < 16:  # below that, spawning costs more than it saves
         it = problems
         if progress:
             from tqdm.auto import tqdm

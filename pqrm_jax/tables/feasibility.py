@@ -20,8 +20,8 @@ Per iteration and box:
 
 Problems run through a work queue of ``slots`` in-flight problems inside one
 ``lax.while_loop``: a decided problem frees its slot for the next one, so the batch never waits
-for its slowest member (the per-problem reference in ``benchmarks/bench_tables.py`` runs the
-same step with one slot).
+for its slowest member (``benchmarks/bench_tables.py`` compares it with the plain-NumPy
+per-problem reference :mod:`.reference` and with this step run with one slot).
 
 A problem is FEASIBLE (witness found), INFEASIBLE (no box left: no solution inside the box,
 up to the floating-point evaluation of dyadic boxes), or UNDECIDED (boxes left at the limit;

@@ -141,13 +141,21 @@ def _ratio_bound(X: Point, Y: Point, ratio: float) -> list[tuple[Poly, int]]:
     return [] if n.is_constant() else [(n - 1 / ratio**2, 1)]
 
 
+@lru_cache(maxsize=16)
+def _compose_domain(kind, box: float) -> tuple:
+    """The B&B search-domain bounds of a compose problem (they depend on the frame only)."""
+    F = frame(kind)
+    A, B, C, D = F["A"], F["B"], F["C"], F["D"]
+    return tuple(c for X, Y in ((A, C), (B, C), (A, D), (B, D), (C, D))
+                 for c in _ratio_bound(X, Y, box))
+
+
 def compose_problem(calc: Calculus, p, q, r, box: float = 8.0) -> Problem:
     """Is there a configuration with AB:C ∈ p, BC:D ∈ q and AB:D ∈ r? (M§III.B)"""
     F = frame(p)
     A, B, C, D = F["A"], F["B"], F["C"], F["D"]
     cons = relation(calc, p, A, B, C) + relation(calc, q, B, C, D) + relation(calc, r, A, B, D)
-    domain = [c for X, Y in ((A, C), (B, C), (A, D), (B, D), (C, D))
-              for c in _ratio_bound(X, Y, box)]
+    domain = list(_compose_domain(p if isinstance(p, str) else "open", box))
     return Problem(simplify(cons), ("compose", p, q, r), domain)
 
 

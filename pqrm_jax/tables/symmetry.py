@@ -1,0 +1,133 @@
+"""Exact shortcuts for table building: mirror symmetry and path-consistency refutation.
+
+**Mirror symmetry.** Reflecting a configuration in the line AB maps every relation ``XY:Z``
+with canonical coordinates (α, β) to (−α, β). When every constraint of a calculus satisfies
+``p(−α, β, ρ) = ε·p'(α, β, ρ)`` for a constraint p' of the calculus (ε = ±1), reflection
+permutes the atoms, and a unary / compose / adjacency problem is feasible iff its mirror image
+is (the reflected witness realises it). Only one problem of each mirror pair is solved.
+
+**Path consistency** (M§VI.B applied to the four points of one compose problem). A compose
+problem ``(AB:C, BC:D, AB:D) = (i, j, k)`` of an open calculus that is feasible has a witness
+in general position (the feasible set is open; the configurations with some triple on a
+boundary are a proper algebraic subset), and then the relations of all 24 ordered triples
+of A, B, C, D satisfy every unary and composition constraint of the *exact* tables. Given
+supersets of those tables (the feasible entries plus the undecided ones), if the
+path-consistency closure of the four-point network empties a relation, the problem is
+infeasible. Sound, cheap, batched; it does not decide everything (SPEC §11), and z3 settles
+the rest.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from ..calculi.calculus import Calculus
+from ..calculi.poly import Poly
+
+
+def _mirror_poly(p: Poly) -> Poly:
+    return Poly(p.nvars, {m: (-c if m[0] % 2 else c) for m, c in p.terms.items()}, p.names)
+
+
+def mirror_atoms(calc: Calculus, atoms: list) -> list[int] | None:
+    """The atom permutation induced by reflection in AB, or None if the calculus is not
+    mirror symmetric constraint by constraint. Degenerate atoms map to themselves.
+
+    >>> from pqrm_jax import calculi
+    >>> from pqrm_jax.tables import problems as pb
+    >>> at, _ = pb.atoms(calculi.get("edc"))
+    >>> sigma = mirror_atoms(calculi.get("edc"), at)
+    >>> sorted(sigma) == list(range(len(at))), all(sigma[sigma[i]] == i for i in range(len(at)))
+    (True, True)
+    """
+    norm = [p.normalized() for p in calc.constraints]
+    perm, eps = [], []
+    for p in calc.constraints:
+        q, s = _mirror_poly(p).normalized()
+        hit = [j for j, (n, t) in enumerate(norm) if n == q]
+        if not hit:
+            return None
+        perm.append(hit[0])
+        eps.append(s * norm[hit[0]][1])
+    index = {a: n for n, a in enumerate(atoms)}
+    out = []
+    for a in atoms:
+        if isinstance(a, str):
+            out.append(index[a])
+            continue
+        b = [0] * len(a)
+        for i, sgn in enumerate(a):
+            b[perm[i]] = eps[i] * sgn
+        m = index.get(tuple(b))
+        if m is None:
+            return None
+        out.append(m)
+    return out
+
+
+def mirror_witness(w: list) -> list:
+    """Reflect witness coordinates in the line x = 0 (A, B lie on it in every frame)."""
+    return [[0.0 - float(x), float(y)] for x, y in w]
+
+
+def representatives(keys: list[tuple], sigma: list[int] | None,
+                    unordered: bool = False) -> list[int]:
+    """``rep[n]``: the index of the problem solved for problem n (itself or its mirror)."""
+    rep = list(range(len(keys)))
+    if sigma is None:
+        return rep
+    index = {k: n for n, k in enumerate(keys)}
+    for n, k in enumerate(keys):
+        mk = tuple(sigma[x] for x in k)
+        if unordered:
+            mk = tuple(sorted(mk))
+        m = index.get(mk)
+        if m is not None and m < n:
+            rep[n] = m
+    return rep
+
+
+_TRIPLES = list(itertools.permutations(range(4), 3))
+_TID = {t: n for n, t in enumerate(_TRIPLES)}
+
+
+def path_consistency_refutes(left: np.ndarray, right: np.ndarray, inverse: np.ndarray,
+                             compose: np.ndarray, problems: np.ndarray,
+                             max_rounds: int = 50) -> np.ndarray:
+    """Which compose problems (P, 3) of atom indices (AB:C, BC:D, AB:D) the four-point
+    path-consistency closure under the given (superset) atom tables refutes → (P,) bool.
+
+    ``left/right/inverse`` (Q, Q) and ``compose`` (Q, Q, Q) boolean, indexed by atoms.
+    """
+    P, Q = len(problems), left.shape[0]
+    if P == 0:
+        return np.zeros(0, bool)
+    rel = np.ones((P, 24, Q), bool)
+    rows = np.arange(P)
+    for (x, y, z), col in (((0, 1, 2), 0), ((1, 2, 3), 1), ((0, 1, 3), 2)):
+        rel[:, _TID[(x, y, z)]] = False
+        rel[rows, _TID[(x, y, z)], problems[:, col]] = True
+    L, R, Inv = (m.astype(np.float32) for m in (left, right, inverse))
+    T = compose.astype(np.float32).reshape(Q * Q, Q)
+    for _ in range(max_rounds):
+        before = rel.copy()
+        for x, y, z in _TRIPLES:
+            a = rel[:, _TID[(x, y, z)]].astype(np.float32)
+            rel[:, _TID[(y, z, x)]] &= (a @ L) > 0
+            rel[:, _TID[(z, x, y)]] &= (a @ R) > 0
+            rel[:, _TID[(y, x, z)]] &= (a @ Inv) > 0
+        for x, y, z in _TRIPLES:
+            w = 6 - x - y - z
+            a = rel[:, _TID[(x, y, z)]].astype(np.float32)
+            b = rel[:, _TID[(y, z, w)]].astype(np.float32)
+            # COMPOSE(a, b) = ∪_{i∈a, j∈b} T[i, j]: (a ⊗ b) · T
+            ab = (a[:, :, None] * b[:, None, :]).reshape(P, Q * Q)
+            rel[:, _TID[(x, y, w)]] &= (ab @ T) > 0
+        if (~rel.any(-1)).any(-1).all() or np.array_equal(rel, before):
+            break
+    return (~rel.any(-1)).any(-1)
+
+
+__all__ = ["mirror_atoms", "mirror_witness", "representatives", "path_consistency_refutes"]
