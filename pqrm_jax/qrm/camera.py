@@ -205,18 +205,22 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     weights = jnp.asarray(3 ** np.arange(K), jnp.int32)
     target = _state_masks_to_atoms(target_states, atom_state)  # (T, O)
 
-    def evaluate(coef, target, box, alive, proven):
-        R = coef.shape[0]
-        cp, cn, cabs = jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0), jnp.abs(coef)
+    def evaluate(cpn, target, box, alive, proven):
+        R, QK = cpn.shape[0], cpn.shape[1] // 2
         a0, a1, b0, b1 = (box[..., i] for i in range(4))
-        ml, mh = _monomials(a0, b0), _monomials(a1, b1)  # (R, B, 9)
-        mc = _monomials(0.5 * (a0 + a1), 0.5 * (b0 + b1))
-        dot = lambda m, c: jnp.einsum("tbm,tqm->tbq", m, c)  # noqa: E731
-        lo = dot(ml, cp) + dot(mh, cn)
-        hi = dot(mh, cp) + dot(ml, cn)
-        tol = _EPS * dot(mh, cabs) + 1e-30
-        val = dot(mc, coef)
-        tol_c = _EPS * dot(mc, cabs) + 1e-30
+        nb = box.shape[1]
+        # monomials at the low corner, the high corner and the centre (all ≥ 0 on the box)
+        mono = jnp.concatenate([_monomials(a0, b0), _monomials(a1, b1),
+                                _monomials(0.5 * (a0 + a1), 0.5 * (b0 + b1))], 1)
+        # one batched product gives m·c⁺ and m·c⁻ for the three monomial sets
+        d = jnp.einsum("tbm,tqm->tbq", mono, cpn)  # (R, 3B, 2QK)
+        lp, ln = d[:, :nb, :QK], d[:, :nb, QK:]
+        hp, hn = d[:, nb:2 * nb, :QK], d[:, nb:2 * nb, QK:]
+        cp_, cn_ = d[:, 2 * nb:, :QK], d[:, 2 * nb:, QK:]
+        lo, hi = lp + hn, hp + ln
+        tol = _EPS * (hp - hn) + 1e-30  # m_hi · |c|
+        val = cp_ + cn_
+        tol_c = _EPS * (cp_ - cn_) + 1e-30  # m_centre · |c|
         cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0)).reshape(R, -1, O, K)
         cmask = jnp.where(cert == 1, pos, jnp.where(cert == -1, neg, amb))
         compat = _and_reduce(cmask, 3)  # (R, B, O)
@@ -264,7 +268,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     def rounds(rows, st, stop):
         """Refine rows until round ``stop`` or until no row has a useful box. A row without
         useful boxes has no live box left after the split: it is final."""
-        coef, target = rows
+        cpn, target = rows
 
         def cond(c):
             it, _, alive, _ = c
@@ -272,7 +276,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
 
         def body(c):
             it, box, alive, proven = c
-            _, useful, proven = evaluate(coef, target, box, alive, proven)
+            _, useful, proven = evaluate(cpn, target, box, alive, proven)
             box, alive = split(box, useful)
             return it + 1, box, alive, proven
 
@@ -309,7 +313,8 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
     alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
     proven = jnp.zeros((T, O), jnp.uint32)
-    proven, remaining = stage((coef, target), (0, box, alive, proven), 0)
+    cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
+    proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
     all_atoms = jnp.uint32(spec.atom_full)
     sets = _atom_masks_to_states(possible & all_atoms, atom_state)
