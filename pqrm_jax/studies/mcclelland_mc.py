@@ -79,16 +79,22 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
     return np.asarray(out)
 
 
-def run_study(cfg: Config, out: Path, progress: bool = True) -> None:
+def run_study(cfg: Config, out: Path, progress: bool = True,
+              shard: tuple[int, int] = (0, 1)) -> None:
+    """Run (and resume) the study; ``shard=(i, k)`` does only the runs r with r % k == i, so
+    k processes (or machines sharing ``out``) can split it; every run is its own file."""
     from tqdm.auto import tqdm
 
     from pqrm_jax.qrm import pipeline as P
 
+    i_shard, k_shard = shard
     (out / "runs").mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
     todo = [(n, r) for n in cfg.ns for r in range(cfg.runs)
-            if not (out / "runs" / f"n{n}_r{r}.npz").exists()]
+            if r % k_shard == i_shard and not (out / "runs" / f"n{n}_r{r}.npz").exists()]
     for n, r in tqdm(todo, desc=NAME, disable=not progress):
+        if (out / "runs" / f"n{n}_r{r}.npz").exists():  # done meanwhile by another process
+            continue
         lm, poses = _layout(cfg, r)
         t0 = time.perf_counter()
         m, met = P.run_sequence(lm, poses, n, "edc", pool=cfg.pool, depth=cfg.depth)
@@ -98,7 +104,9 @@ def run_study(cfg: Config, out: Path, progress: bool = True) -> None:
         rec["wall"] = np.asarray(wall)
         if r < cfg.timed_runs:
             rec["update_time"] = _time_updates(cfg, lm, poses, n)
-        np.savez(out / "runs" / f"n{n}_r{r}.npz", **rec)
+        tmp = out / "runs" / f".n{n}_r{r}.tmp.npz"
+        np.savez(tmp, **rec)
+        tmp.replace(out / "runs" / f"n{n}_r{r}.npz")  # atomic: a killed run leaves no file
 
 
 def load(out: Path, cfg: Config) -> dict:
@@ -244,7 +252,16 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
     p.add_argument("--report-only", action="store_true")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--shard", default="0/1", metavar="I/K",
+                   help="only runs r with r %% K == I (split a study over K processes)")
     a = p.parse_args(argv)
+    try:
+        shard = tuple(int(x) for x in a.shard.split("/"))
+        if len(shard) != 2 or not 0 <= shard[0] < shard[1]:
+            raise ValueError
+    except ValueError:
+        print(f"--shard must be I/K with 0 <= I < K, got {a.shard!r}", file=sys.stderr)
+        return 2
     cfg = Config(**REDUCED) if a.reduced else Config()
     for k in ("runs", "images"):
         if getattr(a, k) is not None:
@@ -256,7 +273,7 @@ def main(argv: list[str]) -> int:
         return 2
     out = Path(a.out)
     if not a.report_only:
-        run_study(cfg, out, progress=not a.no_progress)
+        run_study(cfg, out, progress=not a.no_progress, shard=shard)
     summary = report(out, cfg)
     for n, s in summary.items():
         print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "
