@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from pqrm_jax.studies import fdc_design, mars_yard, mcclelland_mc
 
@@ -41,6 +42,9 @@ def test_mcclelland_mc_report_resume_and_shards(tmp_path):
     for name, rec in full.items():
         np.testing.assert_array_equal(rec["removed_pct"], sharded[name]["removed_pct"])
     assert mcclelland_mc.main(MCC + ["--out", str(b), "--shard", "2/2"]) == 2
+    # another configuration is refused rather than mixed into the stored runs
+    with pytest.raises(SystemExit, match="images"):
+        mcclelland_mc.main(MCC[:4] + ["7"] + MCC[5:] + ["--out", str(b)])
 
 
 def test_mars_yard_reduced(tmp_path):
@@ -52,6 +56,8 @@ def test_mars_yard_reduced(tmp_path):
     assert tr["truth_kept"] is True or all(np.asarray(tr["truth_kept"]))
     removed = np.asarray(tr["removed_pct"])
     assert np.all(np.diff(removed) >= -1e-6) and removed[-1] > removed[0]
+    with pytest.raises(SystemExit, match="another configuration"):  # the full preset
+        mars_yard.main(["--runs", "1", "--out", str(tmp_path), "--no-progress"])
 
 
 def test_fdc_design_reduced(tmp_path):

@@ -28,6 +28,10 @@ def test_reduced_study_runs_and_resumes(tmp_path):
     # a rerun finds everything done and adds nothing
     assert study.main(argv) == 0
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(lines)
+    # resuming with settings that change results is refused, nothing is appended
+    with pytest.raises(SystemExit, match="trials"):
+        study.main(argv[:4] + ["9"] + argv[5:])
+    assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(lines)
 
 
 @pytest.mark.slow

@@ -22,6 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._store import guard_config
+
 NAME = "mars-yard"
 HELP = "Mars-Yard-like traverse (M§VIII.C, Figs. 10-11) + RNG navigation (M§VII.B)"
 
@@ -181,7 +183,7 @@ def main(argv: list[str]) -> int:
         cfg.traverses = a.runs
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+    guard_config(out, dataclasses.asdict(cfg), selection=("traverses",))
     rows = []
     for i in tqdm(range(cfg.traverses), desc=NAME, disable=a.no_progress):
         f = out / f"traverse_{i}.json"

@@ -28,6 +28,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from ._store import guard_config
+
 NAME = "mcclelland-mc"
 HELP = "McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7): n nearest of 30 landmarks"
 
@@ -89,7 +91,7 @@ def run_study(cfg: Config, out: Path, progress: bool = True,
 
     i_shard, k_shard = shard
     (out / "runs").mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+    guard_config(out, dataclasses.asdict(cfg), selection=("runs", "ns", "timed_runs"))
     todo = [(n, r) for n in cfg.ns for r in range(cfg.runs)
             if r % k_shard == i_shard and not (out / "runs" / f"n{n}_r{r}.npz").exists()]
     for n, r in tqdm(todo, desc=NAME, disable=not progress):

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._store import guard_config
+
 NAME = "serge"
 HELP = "SERGE salient regions: 5-fold CV on well-separated, hallway and lab scenes (P§3.4)"
 
@@ -100,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"reduced": args.reduced, "folds": args.folds, "folds_run": folds_run,
             "grid": n_grid, "seed": args.seed, "trials": args.trials,
             "devices": str(jax.devices())}
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    guard_config(out, meta, selection=("folds_run", "devices"), name="meta.json")
     folds_cache: dict = {}
     with res_path.open("a") as fh:
         for d, f, sweep, mu, sigma in tqdm(tasks, desc="serge study", unit="solve"):
