@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .cells import Problem
-from .potential import SAL_FLOOR, SIGMA_MIN
+from .potential import SAL_FLOOR, log_psi1
 from .search import SergeResult, _compact, _inputs
 
 _F32 = np.float32
@@ -49,18 +49,6 @@ def _hash_uniform_np(seed: np.uint32, counter: int, mix: np.ndarray) -> np.ndarr
     x *= np.uint32(0x846CA68B)
     x ^= x >> np.uint32(16)
     return (x >> np.uint32(8)).astype(_F32) * _F32(1.0 / (1 << 24))
-
-
-def _log_psi1_table(mu: float, sigma: float, k_max: int, n: int) -> np.ndarray:
-    """float32 log ψ1(c) for c = 0..n (eq. 3.5, normalised over 1..k_max; as potential.py)."""
-    s = max(_F32(sigma), _F32(SIGMA_MIN))
-    mu = _F32(mu)
-    ks = np.arange(1, k_max + 1, dtype=_F32)
-    terms = -((ks - mu) ** 2) / (_F32(2) * s**2)
-    m = terms.max()
-    log_beta = m + np.log(np.sum(np.exp(terms - m)))
-    c = np.arange(n + 1, dtype=_F32)
-    return (-((c - mu) ** 2) / (_F32(2) * s**2) - log_beta).astype(_F32)
 
 
 def _trial_np(lab0, mt0, adj0, lb0, bmask, alive0, lp1, seed, mix):
@@ -162,7 +150,9 @@ def serge_reference(
     lb0 = lab0[belief_region]
     bmask = act[belief_region]
     labs0 = np.where(act, lab0, -1)
-    lp1 = _log_psi1_table(mu, sigma, int(bmask.sum()), r0)
+    # log ψ1(c) for c = 0..R0 (eq. 3.5), the program's own float32 values, evaluated once
+    lp1 = np.asarray(log_psi1(jnp.arange(r0 + 1), _F32(mu), _F32(sigma), int(bmask.sum()),
+                              int(bmask.size)), _F32)
     mix = np.arange(r0, dtype=np.uint32) * np.uint32(0x85EBCA6B)
 
     outs = [_trial_np(labs0, mt0, a0, lb0, bmask, alive0, lp1, s, mix) for s in seeds]
