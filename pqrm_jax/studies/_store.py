@@ -7,7 +7,7 @@ from pathlib import Path
 
 
 def guard_config(out: Path, cfg: dict, selection: tuple[str, ...] = (),
-                 name: str = "config.json") -> dict:
+                 name: str = "config.json", advice: str = "use another --out") -> dict:
     """Write ``cfg`` to ``out/name``, or check it against the one already there.
 
     Fields in ``selection`` only choose *which* results are computed (run counts, the n or
@@ -24,7 +24,7 @@ def guard_config(out: Path, cfg: dict, selection: tuple[str, ...] = (),
     >>> guard_config(d, {"images": 20, "ns": [6]}, ("ns",))  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    SystemExit: ... another configuration (images: 50 there, 20 asked); use another --out
+    SystemExit: ... a different config (images: 50 there, 20 asked); use another --out
     """
     cfg = json.loads(json.dumps(cfg))
     path = out / name
@@ -34,13 +34,12 @@ def guard_config(out: Path, cfg: dict, selection: tuple[str, ...] = (),
         try:
             have = json.loads(path.read_text())
         except json.JSONDecodeError as e:
-            raise SystemExit(f"{path} is corrupt ({e}); use another --out") from None
+            raise SystemExit(f"{path} is corrupt ({e}); {advice}") from None
         diff = sorted(k for k in set(have) | set(cfg)
                       if k not in selection and have.get(k) != cfg.get(k))
         if diff:
             what = ", ".join(f"{k}: {have.get(k)!r} there, {cfg.get(k)!r} asked" for k in diff)
-            raise SystemExit(f"{out} holds results of another configuration ({what}); "
-                             "use another --out")
+            raise SystemExit(f"{out} holds a study with a different config ({what}); {advice}")
         for k in selection:
             a, b = have.get(k), cfg.get(k)
             if isinstance(a, list) and isinstance(b, list):

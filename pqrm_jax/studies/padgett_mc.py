@@ -38,6 +38,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._store import guard_config
+
 NAME = "padgett-mc"
 HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 
@@ -383,16 +385,7 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
     """Run (or resume) the study into ``out``; returns the level summaries."""
     from tqdm.auto import tqdm
 
-    out.mkdir(parents=True, exist_ok=True)
-    cfg_path = out / "config.json"
-    want = cfg.to_json()
-    if cfg_path.exists():
-        have = json.loads(cfg_path.read_text())
-        if have != json.loads(json.dumps(want)):
-            raise SystemExit(f"{out} holds a study with a different config; use another --out "
-                             f"or --fresh")
-    else:
-        cfg_path.write_text(json.dumps(want, indent=2))
+    guard_config(out, cfg.to_json(), advice="use another --out or --fresh")
     done = _load_done(out)
     # rewrite levels.jsonl without a torn tail
     with open(out / "levels.jsonl", "w") as f:
