@@ -139,14 +139,13 @@ def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
 
     # Fig 2.11 error rate and P(ML)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for i, rep in enumerate(reps):
+    for rep in reps:
         x, e = _series(lines, rep, "error_mean")
         _, pml = _series(lines, rep, "p_ml_mean")
         q = lines[0]["reps"][rep]["num_states"]
         (h,) = axes[0].plot(x, e, "o-", ms=3, label=LABELS.get(rep, rep))
         axes[0].axhline(1 - 1 / q, color=h.get_color(), ls=":", lw=0.8)
         axes[1].plot(x, pml, "o-", ms=3, label=LABELS.get(rep, rep))
-        del i
     axes[0].set_ylabel("mean ML error rate (dotted: random guess)")
     axes[1].set_ylabel("mean P(ML state)")
     for ax in axes:

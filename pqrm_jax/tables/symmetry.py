@@ -14,7 +14,9 @@ of A, B, C, D satisfy every unary and composition constraint of the *exact* tabl
 supersets of those tables (the feasible entries plus the undecided ones), if the
 path-consistency closure of the four-point network empties a relation, the problem is
 infeasible. Sound, cheap, batched; it does not decide everything (SPEC §11), and z3 settles
-the rest.
+the rest. The propagation is the one of :mod:`pqrm_jax.qrm.hypergraph`, written here over
+boolean atom sets and *candidate* tables that change while the build runs (the map's closure
+bakes a calculus's final state tables into uint32 masks of ≤ 32 states), batched over problems.
 """
 
 from __future__ import annotations
