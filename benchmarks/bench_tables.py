@@ -5,10 +5,11 @@ constraint-defined calculi, ``edc`` and ``dcc``, send to the branch-and-bound (t
 shipped calculi are merges of these). The builds run first with a recording solver, which
 also gives the build times; then, in the same process, on exactly the recorded batches:
 
-* **batched JAX** (``feasibility.solve``): all problems of a batch in one jit-compiled
-  work-queue program whose frontier of box rows holds the boxes of every problem in flight.
+* **batched JAX** (``feasibility.solve``): all problems of a batch in jit-compiled
+  work-queue programs whose frontier of box rows holds the boxes of every problem in flight;
+  on CPU the problems are dealt to one queue per usable core (``queues``), run side by side.
   Best of ``--repeat`` warm runs (``batched_first_call_s``: the build's own calls, compilation
-  included);
+  included). ``batched_one_queue_s`` / ``ratio_vs_numpy_one_queue``: the same on one queue;
 * **NumPy reference** (the team's usual reference, ``ratio_vs_numpy``):
   ``tables.reference.solve_reference``, the same algorithm in plain NumPy, one problem at a
   time, each round vectorised over that problem's boxes (best of ``--repeat`` runs too);
@@ -18,10 +19,10 @@ also gives the build times; then, in the same process, on exactly the recorded b
   kernels), not a speed-up over a plain implementation. Timed once on the first
   ``--single-problems`` problems of each batch and scaled linearly (marked in the JSON).
 
-Statuses are compared with the batched run (``status_agreement*``); they can differ only where
-a random witness probe found a solution in one run and not the other (the probe streams
-differ). ``--random N`` also times N random EDC compose problems (the earlier, smaller
-workload); ``--certify`` also times an EDC build with z3 confirmation of every refutation.
+Every solver draws the same probe points (at problem, round, box and coordinate), so the
+statuses must agree exactly (``status_agreement*``: 1.0). ``--random N`` also times N random
+EDC compose problems (the earlier, smaller workload); ``--certify`` also times an EDC build
+with z3 confirmation of every refutation.
 
 ``--one-core`` runs the whole process on one core (the NumPy reference's resources; ``cores``
 in the JSON).
@@ -48,7 +49,7 @@ from _timing import best_of  # benchmarks/_timing.py
 from pqrm_jax import calculi
 from pqrm_jax.tables import build
 from pqrm_jax.tables import problems as pb
-from pqrm_jax.tables.feasibility import ProblemBatch, solve, support_classes
+from pqrm_jax.tables.feasibility import ProblemBatch, default_parts, solve, support_classes
 from pqrm_jax.tables.reference import solve_reference
 
 OPS = ("left", "right", "inverse", "compose", "adjacency")
@@ -58,38 +59,46 @@ def _compare(batches: list[tuple[str, ProblemBatch, dict]], repeat: int,
              single: int) -> dict:
     """Time the batched solver, the NumPy reference and one-problem calls on the batches."""
     out = {"batches": [], "problems": 0, "batched_s": 0.0, "numpy_reference_s": 0.0,
-           "one_per_call_s": 0.0}
-    agree_np, agree_one, n_one = 0, 0, 0
+           "one_per_call_s": 0.0, "batched_one_queue_s": 0.0, "queues": default_parts()}
+    agree_np, agree_one, agree_q, n_one = 0, 0, 0, 0
     for name, batch, kw in batches:
         solve(batch, **kw)  # warm (compiled already when recorded from a build)
         t_b, sol = best_of(lambda batch=batch, kw=kw: solve(batch, **kw), repeat)
+        t_q, one_q = best_of(lambda batch=batch, kw=kw: solve(batch, **{**kw, "parts": 1}),
+                             repeat)
         t_r, ref = best_of(lambda batch=batch, kw=kw: solve_reference(
             batch, pool=kw["pool"], max_iters=kw["max_iters"]), repeat)
         m = batch.size if single <= 0 else min(single, batch.size)
         sub, cls = support_classes(batch)  # one compiled program for every single problem
         solve(sub.take(slice(0, 1)), classes=cls, **kw)  # compile it
         t_1, one = best_of(lambda sub=sub, cls=cls, kw=kw, m=m: [
-            solve(sub.take(slice(i, i + 1)), classes=cls, **kw).status[0]
-            for i in range(m)], 1)
+            solve(sub.take(slice(i, i + 1)), classes=cls, ids=[i], **{**kw, "parts": 1}
+                  ).status[0] for i in range(m)], 1)
         t_1s = t_1 * batch.size / m
         agree_np += int((ref.status == sol.status).sum())
+        agree_q += int((one_q.status == sol.status).sum())
         agree_one += int((np.asarray(one) == sol.status[:m]).sum())
         n_one += m
         out["batches"].append({"batch": name, "problems": batch.size,
                                "constraints": int(batch.A.shape[1]), "batched_s": t_b,
+                               "batched_one_queue_s": t_q,
                                "numpy_reference_s": t_r, "one_per_call_s": t_1s,
                                "one_per_call_measured": m, "rounds": sol.iterations})
         out["problems"] += batch.size
         out["batched_s"] += t_b
+        out["batched_one_queue_s"] += t_q
         out["numpy_reference_s"] += t_r
         out["one_per_call_s"] += t_1s
-        print(f"  {name}: {batch.size} problems, K={batch.A.shape[1]}: batched {t_b:.3f} s, "
+        print(f"  {name}: {batch.size} problems, K={batch.A.shape[1]}: batched {t_b:.3f} s "
+              f"(one queue {t_q:.3f} s), "
               f"NumPy {t_r:.2f} s ({t_r / t_b:.1f}x), one per call {t_1s:.2f} s"
               f"{'' if m == batch.size else f' (scaled from {m})'} ({t_1s / t_b:.1f}x)",
               flush=True)
     out["ratio_vs_numpy"] = out["numpy_reference_s"] / out["batched_s"]
     out["ratio_vs_one_per_call"] = out["one_per_call_s"] / out["batched_s"]
+    out["ratio_vs_numpy_one_queue"] = out["numpy_reference_s"] / out["batched_one_queue_s"]
     out["status_agreement_numpy"] = agree_np / out["problems"]
+    out["status_agreement_one_queue"] = agree_q / out["problems"]
     out["status_agreement_one_per_call"] = agree_one / n_one
     return out
 
@@ -136,10 +145,12 @@ def main() -> None:
     res["build_workload"] = _compare(batches, args.repeat, args.single_problems)
     res["build_workload"]["batched_first_call_s"] = first_call
     w = res["build_workload"]
-    print(f"all {w['problems']} problems: batched {w['batched_s']:.2f} s (first calls, "
-          f"compilation included: {first_call:.1f} s); NumPy reference "
-          f"{w['numpy_reference_s']:.1f} s -> {w['ratio_vs_numpy']:.1f}x; one problem per "
-          f"call {w['one_per_call_s']:.1f} s -> {w['ratio_vs_one_per_call']:.1f}x")
+    print(f"all {w['problems']} problems: batched {w['batched_s']:.2f} s on {w['queues']} "
+          f"queue(s) (first calls, compilation included: {first_call:.1f} s), one queue "
+          f"{w['batched_one_queue_s']:.2f} s; NumPy reference {w['numpy_reference_s']:.1f} s "
+          f"-> {w['ratio_vs_numpy']:.1f}x ({w['ratio_vs_numpy_one_queue']:.1f}x on one queue); "
+          f"one problem per call {w['one_per_call_s']:.1f} s -> "
+          f"{w['ratio_vs_one_per_call']:.1f}x")
     if args.random:
         print(f"{args.random} random EDC compose problems:")
         kw = {"pool": 32, "max_iters": 120}

@@ -11,10 +11,14 @@ Per round and box (the per-problem algorithm is exactly that of :mod:`.reference
   ``A_ii x_i² + b_i x_i`` is minimised/maximised exactly, vertex included) plus interval
   products for the cross terms (M§V's cases 1–3 are exact under this bound);
 * **prune** the box if some constraint cannot take its sign there (``> 0`` needs hi > 0,
-  ``< 0`` needs lo < 0, ``= 0`` needs lo ≤ 0 ≤ hi);
+  ``< 0`` needs lo < 0, ``= 0`` needs lo ≤ 0 ≤ hi). The solver puts every constraint in
+  one-sided form first (``s·q > 0``, an equality as ``q ≥ 0`` and ``−q ≥ 0``), where only
+  upper bounds are needed: negation is exact, so the test is the same to the bit;
 * **witness**: if the box centre or one of ``probes`` random points of a surviving box
   satisfies every constraint, the problem is feasible and the point is kept as its witness
-  (re-verified exactly by the caller);
+  (re-verified exactly by the caller). Probe points are drawn by a counter hash at (problem
+  id, round, box, coordinate), so they do not depend on the batching and the reference
+  draws the very same ones;
 * **branch**: surviving boxes are split in half along their longest edge while the pool has
   room; boxes narrower than ``min_width`` are no longer split.
 
@@ -24,10 +28,12 @@ problems hold 1–8 boxes; a per-problem pool of fixed capacity was ~17 % occupi
 rows start on a multiple of ``GROUP``, and its constraint table is gathered once per group of
 rows. Decided problems free their rows for the next ones of the queue; a problem whose
 children would not fit waits a round unchanged (rows are reserved so that the oldest problem
-can always grow to a full pool, so the queue never deadlocks). The last few problems run on
-a frontier of an eighth of the rows. ``benchmarks/bench_tables.py`` compares this program with
-the plain-NumPy per-problem reference :mod:`.reference` and with itself run one problem per
-call.
+can always grow to a full pool, so the queue never deadlocks). Only the rows in use are
+bounded and probed, in blocks. The last few problems run on a frontier of an eighth of the
+rows. On CPU the problems are dealt to one queue per core, run side by side in threads (one
+compiled program): XLA spreads these small per-round kernels badly over threads.
+``benchmarks/bench_tables.py`` compares this program with the plain-NumPy per-problem
+reference :mod:`.reference` and with itself run one problem per call.
 
 A problem is FEASIBLE (witness found), INFEASIBLE (no box left: no solution inside the box,
 up to the floating-point evaluation of dyadic boxes), or UNDECIDED (boxes left at the limit;
@@ -38,6 +44,8 @@ from __future__ import annotations
 
 import functools
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 
@@ -45,7 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._hashrng import hash_uniform
+from .._hashrng import hash_uniform_at
 
 FEASIBLE, INFEASIBLE, UNDECIDED = 1, 0, -1
 GROUP = 8  # frontier rows per constraint-table gather (a divisor of the pool size)
@@ -83,7 +91,7 @@ class Solution:
 def _tables(A, b, c, sign, active):
     """Per-problem coefficient table (P, 2·nv + npairs + 2, K), constraint axis minor: rows
     ``A_ii`` (nv), ``b_i`` (nv), ``2 A_ij`` for i < j (npairs), ``c``, sign. What a row group
-    of the frontier gathers (one packed gather; inactive constraints become ``0 = 0``)."""
+    of the frontier gathers (one packed gather; inactive constraints become ``0 ≥ 0``)."""
     nv = b.shape[-1]
     A = jnp.where(active[..., None, None], A, 0.0)
     b = jnp.where(active[..., None], b, 0.0)
@@ -101,18 +109,22 @@ def _unpack(T, nv):
                 c=row[-2], s=row[-1])
 
 
-def _bounds(T, l, u, cls):
-    """Lower/upper bounds of the constraints of one support class over every box: (G, R, k).
+def _upper(T, l, u, cls):
+    """Upper bounds of the (one-sided) constraints of one support class over every box:
+    (G, R, k).
 
     ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: (G, R, nv) boxes;
     ``cls`` = (offset, k, variables, pairs): the class's constraint columns and the variables
     and variable pairs they use (other terms are zero and skipped). Exact for the separable
     part (each ``A_ii x_i² + b_i x_i`` at both ends and the interior vertex), interval
-    products for the cross terms. Written as sums of terms, one per variable and pair
-    (XLA's CPU code for reductions over a middle axis is several times slower)."""
+    products for the cross terms. A constraint ``s·q > 0`` needs only the upper bound of
+    ``s·q``, which is exactly −(lower bound of q) for s = −1 (negation is exact), so the
+    pruning is that of :mod:`.reference` at half the arithmetic. Written as sums of terms, one
+    per variable and pair (XLA's CPU code for reductions over a middle axis is several times
+    slower)."""
     off, k, variables, pairs = cls
     col = slice(off, off + k)
-    lo = hi = T["c"][..., col]
+    hi = T["c"][..., col]
     for i in variables:
         a, bt = T["a"][i][..., col], T["b"][i][..., col]
         v = -bt / (2 * jnp.where(a == 0, 1.0, a))  # vertex of a x² + b x (if a ≠ 0)
@@ -121,7 +133,6 @@ def _bounds(T, l, u, cls):
         gl = a * L * L + bt * L
         gu = a * U * U + bt * U
         gvv = jnp.where((a != 0) & (v > L) & (v < U), a * v * v + bt * v, gl)
-        lo = lo + jnp.minimum(jnp.minimum(gl, gu), gvv)
         hi = hi + jnp.maximum(jnp.maximum(gl, gu), gvv)
     for p, i, j in pairs:
         q = (l[..., i] * l[..., j], l[..., i] * u[..., j], u[..., i] * l[..., j],
@@ -129,10 +140,8 @@ def _bounds(T, l, u, cls):
         plo = jnp.minimum(jnp.minimum(q[0], q[1]), jnp.minimum(q[2], q[3]))[..., None]
         phi = jnp.maximum(jnp.maximum(q[0], q[1]), jnp.maximum(q[2], q[3]))[..., None]
         coef = T["coef"][p][..., col]
-        pos, neg = jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)
-        lo = lo + pos * plo + neg * phi
-        hi = hi + pos * phi + neg * plo
-    return lo, hi
+        hi = hi + jnp.maximum(coef, 0.0) * phi + jnp.minimum(coef, 0.0) * plo
+    return hi
 
 
 def _values(T, x, cls):
@@ -149,21 +158,49 @@ def _values(T, x, cls):
     return val
 
 
-def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
-    """Reorder every problem's constraints by the set of variables they use.
+def one_sided(batch: ProblemBatch) -> ProblemBatch:
+    """The same problems with every constraint one-sided: ``sign(q) = s ≠ 0`` becomes
+    ``s·q > 0`` (sign 1: strict) and an equality ``q = 0`` the pair ``q ≥ 0``, ``−q ≥ 0``
+    (sign 0: non-strict; the negated copies are appended). In this form a constraint holds at
+    x iff ``sign(q(x)) ≥ sign`` and can hold in a box iff ``sign(upper bound) ≥ sign``."""
+    P, K, nv = batch.b.shape
+    s = np.where(batch.active & (batch.sign != 0), batch.sign, 1).astype(np.float64)
+    eq = batch.active & (batch.sign == 0)
+    E = int(eq.sum(1).max()) if eq.any() else 0
+    parts = [(batch.A * s[..., None, None], batch.b * s[..., None], batch.c * s,
+              (batch.active & (batch.sign != 0)).astype(np.int8), batch.active)]
+    if E:
+        rank = np.cumsum(eq, 1) - 1
+        idx = np.full((P, E), -1)
+        p_i, k_i = np.nonzero(eq)
+        idx[p_i, rank[p_i, k_i]] = k_i
+        take, pad, rows = np.maximum(idx, 0), idx < 0, np.arange(P)[:, None]
+        parts.append((np.where(pad[..., None, None], 0.0, -batch.A[rows, take]),
+                      np.where(pad[..., None], 0.0, -batch.b[rows, take]),
+                      np.where(pad, 0.0, -batch.c[rows, take]), np.zeros((P, E), np.int8),
+                      ~pad))
+    return ProblemBatch(*(np.concatenate(x, 1) for x in zip(*parts, strict=True)),
+                        batch.lo, batch.hi)
 
-    Returns the reordered batch (inactive ``0 = 0`` constraints pad each class to its largest
-    count over the batch) and the static class list ``(offset, k, variables, pairs)`` used by
-    :func:`_bounds` and :func:`_values` to skip the zero terms: an EDC compose problem has 24
-    constraints on C only, D only or both, and the classes halve the arithmetic. Falls back to
-    one dense class when padding would grow the constraint count by more than half."""
+
+def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
+    """Put the constraints in one-sided form (:func:`one_sided`) and reorder every problem's
+    constraints by the set of variables they use.
+
+    Returns the reordered one-sided batch (inactive ``0 ≥ 0`` constraints pad each class to
+    its largest count over the batch) and the static class list ``(offset, k, variables,
+    pairs)`` used by :func:`_upper` and :func:`_values` to skip the zero terms: an EDC
+    compose problem has 24 constraints on C only, D only or both, and the classes halve the
+    arithmetic. Falls back to one dense class when padding would grow the constraint count by
+    more than half."""
+    batch = one_sided(batch)
     P, K, nv = batch.b.shape
     diag = np.abs(np.diagonal(batch.A, axis1=-2, axis2=-1))
     used = (np.abs(batch.b) > 0) | (diag > 0) | (np.abs(batch.A).sum(-1) > 0)  # (P, K, nv)
     code = np.where(batch.active, (used * (1 << np.arange(nv))).sum(-1), 0)
-    codes = np.unique(code)
+    codes = np.unique(code[code != 0])  # inactive constraints (0 ≥ 0) need no class
     counts = {int(c): int((code == c).sum(1).max()) for c in codes}
-    if sum(counts.values()) > 1.5 * K:
+    if not counts or sum(counts.values()) > 1.5 * K:
         codes, counts = np.array([(1 << nv) - 1]), {(1 << nv) - 1: K}
         code = np.full_like(code, (1 << nv) - 1)
     triu = list(zip(*np.triu_indices(nv, 1), strict=True))
@@ -232,8 +269,45 @@ def _admit(st, lo0, hi0, n, pool, group):
                 nxt=st["nxt"] + k)
 
 
-def _round(T, st, seed, min_width, *, pool: int, probes: int, max_iters: int, group: int,
-           classes: tuple):
+def _evaluate(T, l, u, own, xs, used, *, classes: tuple, group: int, block: int):
+    """Prune and probe the boxes of the first ``used`` rows (the rest of the frontier is
+    free): ``keep`` (N,) where every constraint can hold in the box, ``good`` (M, N) where
+    probe point m of a kept box satisfies every constraint. Runs over blocks of ``block``
+    rows while they hold boxes, so a round costs what the rows in use need."""
+    N, nv = l.shape
+    M = xs.shape[0]
+    G = block // group
+
+    def run(r0):
+        lb, ub, ob = (jax.lax.dynamic_slice_in_dim(x, r0, block) for x in (l, u, own))
+        xb = jax.lax.dynamic_slice_in_dim(xs, r0, block, axis=1)
+        Tg = _unpack(T[jnp.maximum(ob.reshape(G, group).max(-1), 0)], nv)
+        lg, ug = lb.reshape(G, group, nv), ub.reshape(G, group, nv)
+
+        def can_hold(cls, col):  # each (one-sided) constraint can hold somewhere in the box
+            return jnp.sign(_upper(Tg, lg, ug, cls)) >= Tg["s"][..., col]
+
+        keep = (ob >= 0) & _all_hold(classes, can_hold).reshape(block)
+        xg = xb.reshape(M, G, group, nv)
+        good = keep[None] & _all_hold(
+            classes, lambda cls, col: jnp.sign(_values(Tg, xg, cls)) >= Tg["s"][..., col]
+        ).reshape(M, block)
+        return keep, good
+
+    if block == N:
+        return run(0)
+
+    def body(i, kg):
+        keep, good = run(i * block)
+        return (jax.lax.dynamic_update_slice_in_dim(kg[0], keep, i * block, 0),
+                jax.lax.dynamic_update_slice_in_dim(kg[1], good, i * block, 1))
+
+    return jax.lax.fori_loop(0, (used + block - 1) // block, body,
+                             (jnp.zeros(N, bool), jnp.zeros((M, N), bool)))
+
+
+def _round(T, st, ids, seed, min_width, *, pool: int, probes: int, max_iters: int, group: int,
+           classes: tuple, block: int):
     """One bound / prune / witness / branch round for every problem in flight.
 
     The frontier's rows hold the boxes of the problems in flight, grouped by problem and in
@@ -243,36 +317,29 @@ def _round(T, st, seed, min_width, *, pool: int, probes: int, max_iters: int, gr
     not fit the rows, waits for the next one unchanged (the oldest problem never waits)."""
     l, u, own = st["l"], st["u"], st["own"]
     N, nv = l.shape
-    G = N // group
     P = st["nbox"].shape[0]
     live = own >= 0
     o = jnp.where(live, own, 0)
     cur = st["nbox"]
     rows0 = _align(cur, group)  # rows each problem holds now
     start0 = jnp.cumsum(rows0) - rows0  # its first row
-    go = jnp.maximum(own.reshape(G, group).max(-1), 0)
-    Tg = _unpack(T[go], nv)
-    lg, ug = l.reshape(G, group, nv), u.reshape(G, group, nv)
-
-    def can_hold(cls, col):  # each constraint can take its sign somewhere in the box
-        blo, bhi = _bounds(Tg, lg, ug, cls)
-        return (jnp.sign(blo) <= Tg["s"][..., col]) & (jnp.sign(bhi) >= Tg["s"][..., col])
-
-    keep = live & _all_hold(classes, can_hold).reshape(N)
-    # witness probes: the centre and `probes` uniform points of every box (centres first)
-    t = hash_uniform(seed, st["it"].astype(jnp.uint32), probes * N * nv).astype(l.dtype)
-    t = t.reshape(probes, N, nv)
+    ppos = jnp.arange(N, dtype=jnp.int32) - start0[o]  # box position within its problem
+    # witness probes: the centre and `probes` uniform points of every box (centres first),
+    # drawn at (problem, round, box, probe, coordinate): the same in any batching
+    t = hash_uniform_at(seed, ids[o][None, :, None], st["age"][o][None, :, None],
+                        ppos[None, :, None],
+                        jnp.arange(probes * nv, dtype=jnp.int32).reshape(probes, 1, nv))
+    t = t.astype(l.dtype)
     xs = jnp.concatenate([0.5 * (l + u)[None], l[None] + t * (u - l)[None]], 0)
     M = probes + 1
-    xg = xs.reshape(M, G, group, nv)
-    good = keep[None] & _all_hold(
-        classes, lambda cls, col: jnp.sign(_values(Tg, xg, cls)) == Tg["s"][..., col]
-    ).reshape(M, N)
-    flat = jnp.arange(M * N, dtype=jnp.int32).reshape(M, N)
+    keep, good = _evaluate(T, l, u, own, xs, rows0.sum(), classes=classes, group=group,
+                           block=block)
+    # a problem's witness: its first good point in (probe, box) order, as in the reference
+    order = jnp.arange(M, dtype=jnp.int32)[:, None] * pool + ppos[None]
     seg = jnp.where(live, own, P)
-    first = jax.ops.segment_min(jnp.where(good, flat, M * N).min(0), seg, P + 1)[:P]
-    found = first < M * N
-    wit = xs.reshape(M * N, nv)[jnp.clip(first, 0, M * N - 1)]
+    first = jax.ops.segment_min(jnp.where(good, order, M * pool).min(0), seg, P + 1)[:P]
+    found = first < M * pool
+    wit = xs[jnp.minimum(first // pool, M - 1), jnp.clip(start0 + first % pool, 0, N - 1)]
     # survivors keep their order, split while the pool has room (children after them):
     # ranks within a problem from one running count per mask (rows of a problem are
     # contiguous, from start0)
@@ -304,7 +371,6 @@ def _round(T, st, seed, min_width, *, pool: int, probes: int, max_iters: int, gr
     start = jnp.cumsum(rows) - rows
     r_run = live & run[o]
     r_wait = live & cont[o] & ~run[o]
-    ppos = jnp.arange(N, dtype=jnp.int32) - start0[o]
     dest_a = jnp.where(r_run & keep, start[o] + kpos, jnp.where(r_wait, start[o] + ppos, N))
     dest_b = jnp.where(r_run & do_split, start[o] + n_keep[o] + spos, N)
     axis = jax.nn.one_hot(jnp.argmax(width, -1), nv, dtype=bool)
@@ -324,20 +390,21 @@ def _round(T, st, seed, min_width, *, pool: int, probes: int, max_iters: int, gr
                 witness=jnp.where(finish[:, None], wit, st["witness"]))
 
 
-def _stages(frontier: int, pool: int, n: int) -> tuple[int, ...]:
+def _stages(frontier: int, pool: int, n: int, block: int, tail: bool) -> tuple[int, ...]:
     """Row capacities of the successive while loops: the full frontier while the queue lasts,
     then one of an eighth once the problems left fit it with full pools (the last few hard
     problems then run on a small frontier). Each stage is compiled, so there are at most two,
     and the second only for a queue of more than four full frontiers of problems."""
     caps = [max(1, min(frontier // pool, n)) * pool]
-    if caps[0] // 8 >= 4 * pool and n > 4 * caps[0] // pool:
+    if tail and caps[0] // 8 >= 4 * pool and n > 4 * caps[0] // pool:
         caps.append(caps[0] // 8 // pool * pool)
-    return tuple(caps)
+    return tuple(c if c <= block else _align(c, block) for c in caps)
 
 
-@partial(jax.jit, static_argnames=("caps", "pool", "max_iters", "probes", "group", "classes"))
-def _solve(A, b, c, sign, active, lo0, hi0, min_width, seed, n, *, caps: tuple, pool: int,
-           max_iters: int, probes: int, group: int, classes: tuple):
+@partial(jax.jit, static_argnames=("caps", "pool", "max_iters", "probes", "group", "classes",
+                                   "block"))
+def _solve(A, b, c, sign, active, lo0, hi0, ids, min_width, seed, n, *, caps: tuple, pool: int,
+           max_iters: int, probes: int, group: int, classes: tuple, block: int):
     """Every problem through one frontier of box rows (a work queue of problems).
 
     Arrays are padded to a bucket size P; only the first ``n`` (traced) problems are queued.
@@ -354,8 +421,8 @@ def _solve(A, b, c, sign, active, lo0, hi0, min_width, seed, n, *, caps: tuple, 
     st = _admit(st, lo0, hi0, n, pool, group)
 
     def body(st):
-        st = _round(T, st, seed, min_width, pool=pool, probes=probes, max_iters=max_iters,
-                    group=group, classes=classes)
+        st = _round(T, st, ids, seed, min_width, pool=pool, probes=probes, max_iters=max_iters,
+                    group=group, classes=classes, block=min(block, st["l"].shape[0]))
         st = _admit(st, lo0, hi0, n, pool, group)
         return dict(st, it=st["it"] + 1)
 
@@ -375,21 +442,42 @@ def _solve(A, b, c, sign, active, lo0, hi0, min_width, seed, n, *, caps: tuple, 
     return st["status"], st["witness"], st["it"]
 
 
+def default_parts() -> int:
+    """Work queues :func:`solve` runs side by side: one per usable core on CPU (XLA's CPU
+    code spreads these small per-round kernels badly over threads, while separate programs
+    keep every core busy), one on an accelerator."""
+    return len(os.sched_getaffinity(0)) if jax.default_backend() == "cpu" else 1
+
+
 def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
           min_width: float = 2.0**-24, frontier: int = 2048, probes: int = 2, seed: int = 0,
-          chunk: int = 4096, progress: bool = False, desc: str = "feasibility",
-          classes: tuple | None = None) -> Solution:
-    """Solve every problem of ``batch`` in one jit-compiled work-queue program (float64).
+          chunk: int = 8192, progress: bool = False, desc: str = "feasibility",
+          classes: tuple | None = None, parts: int | None = None, block: int = 512,
+          tail: bool = True, ids: np.ndarray | None = None) -> Solution:
+    """Solve every problem of ``batch`` in jit-compiled work-queue programs (float64).
 
     The boxes of all problems in flight share one frontier of ``frontier`` rows; each problem
     keeps at most ``pool`` boxes and runs at most ``max_iters`` rounds. A decided problem
     frees its rows for the next ones of the queue, so easy problems never wait for hard ones
-    and the work per round follows the live boxes. ``chunk`` problems go to the device per
-    call (progress). ``classes``: a batch already reordered by :func:`support_classes` and
-    its class list (so that its problems can be solved one at a time by one compiled program);
-    by default every chunk is reordered here.
+    and the work per round follows the live boxes. The problems are dealt to ``parts`` queues
+    (default :func:`default_parts`) that run side by side in threads, one compiled program;
+    ``chunk`` problems go to the device per call (progress). Probe points are drawn at
+    (problem id, round, box, coordinate), with ``ids`` the problems' ids (default: their
+    positions), so verdicts and witnesses do not depend on ``parts``, ``chunk`` or which
+    problems share a batch. ``classes``: a batch already put in the form of
+    :func:`support_classes` and its class list (so that its problems can be solved one at a
+    time by one compiled program); by default every chunk is reordered here.
+
+    >>> from pqrm_jax import calculi
+    >>> from pqrm_jax.tables import problems as pb
+    >>> probs = pb.random_compose_problems(calculi.get("edc"), 8)
+    >>> sol = solve(pb.to_batch(probs, 8.0))
+    >>> sorted(set(sol.status.tolist())) <= [UNDECIDED, INFEASIBLE, FEASIBLE]
+    True
     """
     P = batch.size
+    ids = np.arange(P) if ids is None else np.asarray(ids)
+    parts = default_parts() if parts is None else parts
     status = np.full(P, UNDECIDED, np.int8)
     witness = np.zeros((P, batch.b.shape[-1]))
     iters = 0
@@ -399,24 +487,33 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
         from tqdm.auto import tqdm
 
         starts = tqdm(starts, desc=desc, unit="chunk", leave=False)
-    with jax.enable_x64(True):
+    with jax.enable_x64(True), ThreadPoolExecutor(max(1, parts)) as pool_ex:
         for s in starts:
             sub = batch.take(slice(s, s + chunk))
             sub, cls = support_classes(sub) if classes is None else (sub, classes)
             n = sub.size
-            bucket = 1 << (n - 1).bit_length()  # few distinct shapes → few compiles
-            if bucket > n:
-                sub = ProblemBatch(*(np.concatenate([x, np.repeat(x[-1:], bucket - n, 0)])
-                                     for x in (sub.A, sub.b, sub.c, sub.sign, sub.active,
-                                               sub.lo, sub.hi)))
-            st, wit, it = _solve(
-                jnp.asarray(sub.A, jnp.float64), jnp.asarray(sub.b, jnp.float64),
-                jnp.asarray(sub.c, jnp.float64), jnp.asarray(sub.sign, jnp.int32),
-                jnp.asarray(sub.active), jnp.asarray(sub.lo, jnp.float64),
-                jnp.asarray(sub.hi, jnp.float64), jnp.float64(min_width),
-                jnp.uint32(seed + s), jnp.int32(n), caps=_stages(frontier, pool, n),
-                pool=pool, group=group, max_iters=max_iters, probes=probes, classes=cls)
-            status[s:s + n] = np.asarray(st)[:n]
-            witness[s:s + n] = np.asarray(wit)[:n]
-            iters += int(it)
+            k = max(1, min(parts, n // max(1, frontier // pool)))  # each queue fills its rows
+            queues = [np.arange(q, n, k) for q in range(k)]  # dealt: hard ones spread out
+            m = len(queues[0])
+            bucket = 1 << (m - 1).bit_length()  # few distinct shapes → few compiles
+            static = dict(caps=_stages(frontier, pool, m, block, tail), pool=pool, group=group,
+                          max_iters=max_iters, probes=probes, classes=cls, block=block)
+
+            def run(idx, sub=sub, s=s, bucket=bucket, static=static):
+                part = sub.take(np.concatenate([idx, np.repeat(idx[-1:], bucket - len(idx))]))
+                with jax.enable_x64(True):  # thread-local: each queue's thread sets it
+                    out = _solve(
+                        jnp.asarray(part.A, jnp.float64), jnp.asarray(part.b, jnp.float64),
+                        jnp.asarray(part.c, jnp.float64), jnp.asarray(part.sign, jnp.int32),
+                        jnp.asarray(part.active), jnp.asarray(part.lo, jnp.float64),
+                        jnp.asarray(part.hi, jnp.float64),
+                        jnp.asarray(ids[s + idx].tolist() + [0] * (bucket - len(idx)), jnp.uint32),
+                        jnp.float64(min_width), jnp.uint32(seed), jnp.int32(len(idx)), **static)
+                return [np.asarray(x) for x in out]
+
+            results = [run(queues[0])] if k == 1 else list(pool_ex.map(run, queues))
+            for idx, (st, wit, it) in zip(queues, results, strict=True):
+                status[s + idx] = st[:len(idx)]
+                witness[s + idx] = wit[:len(idx)]
+                iters += int(it)
     return Solution(status, witness, iters)

@@ -8,16 +8,16 @@ round vectorised over that problem's boxes with NumPy (float64).
 
 It exists as the team-standard speed reference for ``benchmarks/bench_tables.py`` (speed is
 reported as a ratio against a plain NumPy implementation of the same algorithm) and as an
-independent cross-check of the JAX solver's verdicts. The witness probes use
-``numpy.random.default_rng(seed + i)`` for problem ``i``, so where a problem is decided only
-by a lucky random probe the two solvers may disagree (one FEASIBLE, the other UNDECIDED); a
-FEASIBLE vs INFEASIBLE conflict would be a bug.
+independent cross-check of the JAX solver's verdicts. The witness probes are drawn at
+(problem, round, box, coordinate) by the same counter hash (``_hashrng.hash_uniform_at``), so
+both solvers probe the same points and must return the same verdicts and witnesses.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .._hashrng import hash_uniform_at
 from .feasibility import FEASIBLE, INFEASIBLE, UNDECIDED, ProblemBatch, Solution
 
 __all__ = ["solve_reference", "solve_one"]
@@ -34,15 +34,15 @@ def _sign_ok(sign: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
               lo0: np.ndarray, hi0: np.ndarray, *, pool: int = 32, max_iters: int = 120,
-              min_width: float = 2.0**-24, probes: int = 2,
-              rng: np.random.Generator | None = None) -> tuple[int, np.ndarray, int]:
+              min_width: float = 2.0**-24, probes: int = 2, seed: int = 0,
+              pid: int = 0) -> tuple[int, np.ndarray, int]:
     """Branch-and-bound for one problem with K *active* constraints over nv variables.
 
     ``A`` (K, nv, nv) symmetric, ``b`` (K, nv), ``c`` (K,), ``sign`` (K,), box ``lo0``/``hi0``
     (nv,). Returns (status, witness (nv,), rounds). Each round is this problem's round of
-    ``feasibility._round`` (same bound, prune, probes, split and termination).
+    ``feasibility._round`` (same bound, prune, probes, split and termination); ``pid`` is the
+    problem's id in the probe stream.
     """
-    rng = np.random.default_rng(0) if rng is None else rng
     A = np.asarray(A, np.float64)
     b = np.asarray(b, np.float64)
     c = np.asarray(c, np.float64)
@@ -82,7 +82,10 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
         # prune
         keep = _sign_ok(sign, blo, bhi).all(-1)  # (B,)
         # witness probes: all centres first, then each probe for every box (as in _step)
-        t = rng.random((probes, B, nv))
+        t = hash_uniform_at(np.uint32(seed), np.uint32(pid), np.uint32(it - 1),
+                            np.arange(B, dtype=np.uint32)[None, :, None],
+                            np.arange(probes * nv, dtype=np.uint32).reshape(probes, 1, nv))
+        t = t.astype(np.float64)
         x = np.concatenate([(0.5 * (l + u))[None], l[None] + t * (u - l)[None]], 0)
         x = x.reshape(-1, nv)
         val = c + x @ b.T + (x[:, :, None] * x[:, None, :]).reshape(-1, nv * nv) @ A_t
@@ -117,7 +120,7 @@ def solve_reference(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120
                     min_width: float = 2.0**-24, probes: int = 2, seed: int = 0) -> Solution:
     """Solve the problems of ``batch`` one at a time (see :func:`solve_one`).
 
-    Problem ``i`` draws its probes from ``numpy.random.default_rng(seed + i)``.
+    Problem ``i`` draws its probes with id ``i`` (as :func:`.feasibility.solve` does).
     ``Solution.iterations`` is the total number of rounds over all problems.
     """
     P = batch.size
@@ -129,7 +132,7 @@ def solve_reference(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120
         st, w, it = solve_one(batch.A[i][act], batch.b[i][act], batch.c[i][act],
                               batch.sign[i][act], batch.lo[i], batch.hi[i], pool=pool,
                               max_iters=max_iters, min_width=min_width, probes=probes,
-                              rng=np.random.default_rng(seed + i))
+                              seed=seed, pid=i)
         status[i], witness[i] = st, w
         rounds += it
     return Solution(status, witness, rounds)
