@@ -1,12 +1,15 @@
 """The build pipeline's fast paths give exactly what their plain versions give (SPEC §2.3)."""
 
+from fractions import Fraction
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from pqrm_jax import calculi
-from pqrm_jax.tables import exact
+from pqrm_jax.calculi import Poly
+from pqrm_jax.tables import certify, exact
 from pqrm_jax.tables import problems as pb
 
 
@@ -45,3 +48,62 @@ def test_realised_equals_eager_atoms(name):
                                "bcd": "123", "abd": "013"}.items():
             want = exact._atoms_of(calc, lut, dou, tri, P[:, int(x)], P[:, int(y)], P[:, int(z)])
             np.testing.assert_array_equal(got[key], np.asarray(want))
+
+
+
+def _api_decide(constraints):
+    """z3 on the formula built term by term through its Python API (the plain way):
+    (verdict, exact model values where rational, else None)."""
+    import z3
+
+    xs = z3.Reals("x0 x1 x2 x3")
+    s = z3.SolverFor("QF_NRA")
+    for poly, sign in constraints:
+        e = z3.RealVal(0)
+        for mono, c in poly.terms.items():
+            t = z3.RealVal(f"{c.numerator}/{c.denominator}")
+            for x, k in zip(xs, mono, strict=True):
+                for _ in range(k):
+                    t = t * x
+            e = e + t
+        s.add(e > 0 if sign > 0 else (e < 0 if sign < 0 else e == 0))
+    res = s.check()
+    if res != z3.sat:
+        return str(res), None
+    vals = [s.model().eval(x, model_completion=True) for x in xs]
+    return str(res), [Fraction(v.numerator_as_long(), v.denominator_as_long())
+                      if z3.is_rational_value(v) else None for v in vals]
+
+
+@pytest.mark.parametrize("name", ["edc", "dcc"])
+def test_smtlib_decide_matches_api_formula(name):
+    calc = calculi.get(name)
+    probs = [pr.constraints for pr in pb.random_compose_problems(calc, 40, seed=3)]
+    got = certify.decide_many(probs, workers=1)
+    n_sat = 0
+    for cons, (verdict, wit) in zip(probs, got, strict=True):
+        want, model = _api_decide(cons)
+        assert verdict == want
+        if verdict == certify.SAT:
+            n_sat += 1
+            assert pb.verify(pb.Problem(cons), wit)
+            assert all(m is None or m == w for m, w in zip(model, wit, strict=True))
+    assert 0 < n_sat < len(probs)
+
+
+def test_smtlib_text_and_verdicts():
+    x0, x1 = (Poly.var(2, i) for i in range(2))
+    cons = [(x0 * x0 - Fraction(1, 3) * x1 + 2, 1), (x1 - 1, 0), (-x0, -1)]
+    assert certify.smtlib(cons).splitlines() == [
+        "(declare-fun x0 () Real)", "(declare-fun x1 () Real)",
+        "(assert (> (+ (* 1 x0 x0) (* (- (/ 1 3)) x1) 2) 0))",
+        "(assert (= (+ (* 1 x1) (- 1)) 0))", "(assert (< (* (- 1) x0) 0))"]
+    verdict, wit = certify.decide(cons)
+    assert verdict == certify.SAT and pb.verify(pb.Problem(cons), wit)
+    assert certify.decide([(x0 * x0 + 1, -1)]) == (certify.UNSAT, None)
+
+
+def test_decide_many_pool_equals_in_process():
+    probs = [pr.constraints for pr in
+             pb.random_compose_problems(calculi.get("edc"), certify.MIN_POOL_BATCH, seed=5)]
+    assert certify.decide_many(probs, workers=2) == certify.decide_many(probs, workers=1)

@@ -18,32 +18,40 @@ from ..calculi.poly import Poly
 SAT, UNSAT, UNKNOWN = "sat", "unsat", "unknown"
 
 
-def _z3_expr(poly: Poly, xs):
-    import z3
-
-    total = z3.RealVal(0)
-    for mono, c in poly.terms.items():
-        term = z3.RealVal(f"{c.numerator}/{c.denominator}")
-        for x, e in zip(xs, mono, strict=True):
-            for _ in range(e):
-                term = term * x
-        total = total + term
-    return total
+_OP = {1: ">", -1: "<", 0: "="}
 
 
-def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
-    """(verdict, witness or None) for a conjunction of exact polynomial sign constraints."""
-    import z3
+def _number(c: Fraction) -> str:
+    mag = str(abs(c.numerator)) if c.denominator == 1 else f"(/ {abs(c.numerator)} {c.denominator})"
+    return f"(- {mag})" if c < 0 else mag
 
+
+def _term(mono: tuple[int, ...], c: Fraction) -> str:
+    xs = [f"x{i}" for i, e in enumerate(mono) for _ in range(e)]
+    return f"(* {_number(c)} {' '.join(xs)})" if xs else _number(c)
+
+
+def smtlib(constraints: list[tuple[Poly, int]]) -> str:
+    """SMT-LIB 2 text of a conjunction of polynomial sign constraints over x0, x1, …
+
+    z3 parses it in C: about four times faster than building the terms through its Python
+    API, and the same formula (same verdicts and models)."""
     nv = constraints[0][0].nvars if constraints else 0
-    xs = z3.Reals(" ".join(f"x{i}" for i in range(nv))) if nv else []
-    if nv == 1:
-        xs = [xs] if not isinstance(xs, list) else xs
+    out = [f"(declare-fun x{i} () Real)" for i in range(nv)]
+    for poly, sign in constraints:
+        terms = [_term(m, c) for m, c in poly.terms.items()] or ["0"]
+        lhs = terms[0] if len(terms) == 1 else f"(+ {' '.join(terms)})"
+        out.append(f"(assert ({_OP[(sign > 0) - (sign < 0)]} {lhs} 0))")
+    return "\n".join(out)
+
+
+def decide_smtlib(text: str, nv: int, timeout_ms: int = 20000):
+    """(verdict, witness or None) for the SMT-LIB text of a conjunction over x0 … x{nv−1}."""
+    import z3
+
     s = z3.SolverFor("QF_NRA")
     s.set("timeout", timeout_ms)
-    for poly, sign in constraints:
-        e = _z3_expr(poly, xs)
-        s.add(e > 0 if sign > 0 else (e < 0 if sign < 0 else e == 0))
+    s.from_string(text)
     res = s.check()
     if res == z3.unsat:
         return UNSAT, None
@@ -51,8 +59,8 @@ def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
         return UNKNOWN, None
     model = s.model()
     wit = []
-    for x in xs:
-        v = model.eval(x, model_completion=True)
+    for i in range(nv):
+        v = model.eval(z3.Real(f"x{i}"), model_completion=True)
         if z3.is_rational_value(v):
             wit.append(Fraction(v.numerator_as_long(), v.denominator_as_long()))
         else:  # algebraic number
@@ -60,25 +68,46 @@ def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
     return SAT, wit
 
 
-def _decide_one(constraints):
-    return decide(constraints)
+def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
+    """(verdict, witness or None) for a conjunction of exact polynomial sign constraints."""
+    nv = constraints[0][0].nvars if constraints else 0
+    return decide_smtlib(smtlib(constraints), nv, timeout_ms)
+
+
+def _decide_one(job: tuple[str, int]):
+    return decide_smtlib(*job)
+
+
+#: below this many problems a batch is decided in-process: starting spawned workers (each
+#: imports the package, hence JAX) costs 1–2 s, the in-process work of a few hundred problems
+MIN_POOL_BATCH = 256
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask, e.g. under ``taskset``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def decide_many(problems: list, workers: int | None = None, progress: bool = False,
                 desc: str = "z3") -> list:
-    """``decide`` for many constraint lists, on all cores (spawned workers: JAX-safe)."""
-    workers = workers or min(os.cpu_count() or 1, 8)
-    if workers <= 1 or len(problems) < 16:  # below that, spawning costs more than it saves
-        it = problems
+    """``decide`` for many constraint lists, on the usable cores (spawned workers: JAX-safe;
+    they get the SMT-LIB text, not the polynomials)."""
+    workers = workers or min(usable_cpus(), 8)
+    jobs = [(smtlib(c), c[0][0].nvars if c else 0) for c in problems]
+    if workers <= 1 or len(jobs) < MIN_POOL_BATCH:
+        it = jobs
         if progress:
             from tqdm.auto import tqdm
 
             it = tqdm(it, desc=desc, leave=False)
-        return [decide(c) for c in it]
+        return [decide_smtlib(*job) for job in it]
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
-        it = ex.map(_decide_one, problems, chunksize=32)
+        it = ex.map(_decide_one, jobs, chunksize=32)
         if progress:
             from tqdm.auto import tqdm
 
-            it = tqdm(it, total=len(problems), desc=desc, leave=False)
+            it = tqdm(it, total=len(jobs), desc=desc, leave=False)
         return list(it)
