@@ -107,3 +107,12 @@ def test_decide_many_pool_equals_in_process():
     probs = [pr.constraints for pr in
              pb.random_compose_problems(calculi.get("edc"), certify.MIN_POOL_BATCH, seed=5)]
     assert certify.decide_many(probs, workers=2) == certify.decide_many(probs, workers=1)
+
+
+def test_adjacency_radius_is_the_decimal_written():
+    calc = calculi.get("edc")
+    atoms, _ = pb.atoms(calc)
+    p, q = atoms[0], atoms[1]
+    exact_r = pb.adjacency_problem(calc, p, q, Fraction(1, 100)).constraints
+    assert pb.adjacency_problem(calc, p, q, 1e-2).constraints == exact_r
+    assert all(c.denominator <= 10**4 for poly, _ in exact_r for c in poly.terms.values())
