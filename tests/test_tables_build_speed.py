@@ -116,3 +116,36 @@ def test_adjacency_radius_is_the_decimal_written():
     exact_r = pb.adjacency_problem(calc, p, q, Fraction(1, 100)).constraints
     assert pb.adjacency_problem(calc, p, q, 1e-2).constraints == exact_r
     assert all(c.denominator <= 10**4 for poly, _ in exact_r for c in poly.terms.values())
+
+
+def _fraction_signs(calc, X, Y, Z):
+    """exact_signs the plain way: f(u/n, v/n, m/n) in Fractions."""
+    X, Y, Z = ([Fraction(v) for v in P] for P in (X, Y, Z))
+    dx, dy, ex, ey = Y[0] - X[0], Y[1] - X[1], Z[0] - X[0], Z[1] - X[1]
+    n, m = dx * dx + dy * dy, ex * ex + ey * ey
+    if n == 0:
+        return "tri" if m == 0 else "dou"
+    u, v = ex * dy - ey * dx, ex * dx + ey * dy
+    return tuple((val > 0) - (val < 0) for val in
+                 (p.evaluate([u / n, v / n, m / n]) for p in calc.constraints))
+
+
+def test_integer_exact_signs_equal_fraction_evaluation():
+    from pqrm_jax.calculi import Calculus, alpha, beta, rho
+
+    odd = Calculus.from_rule(  # fractional coefficients and a circle off the axis
+        "odd_coeffs_t", [Fraction(2, 3) * alpha - Fraction(1, 7) * beta + Fraction(1, 5),
+                         Fraction(1, 3) - rho + Fraction(1, 2) * alpha],
+        lambda s: "".join("+" if x > 0 else "-" for x in s), ["++", "+-", "-+", "--"])
+    rng = np.random.default_rng(0)
+    for calc in (calculi.get("edc"), calculi.get("dcc"), odd):
+        for t in range(3000):
+            if t % 3 == 0:  # small integers: collinear, coincident and boundary cases
+                P = rng.integers(-2, 3, (3, 2)).tolist()
+            elif t % 3 == 1:
+                num, den = rng.integers(-9, 10, (3, 2)), rng.integers(1, 8, (3, 2))
+                P = [[Fraction(int(a), int(b)) for a, b in zip(r, s, strict=True)]
+                     for r, s in zip(num, den, strict=True)]
+            else:  # float32 samples, as the pre-pass draws them
+                P = rng.uniform(-5, 5, (3, 2)).astype(np.float32).astype(float).tolist()
+            assert exact.exact_signs(calc, *P) == _fraction_signs(calc, *P), (calc.name, P)

@@ -9,8 +9,9 @@ JAX pass; every hit it reports is then re-verified exactly before it is used as 
 from __future__ import annotations
 
 import itertools
+import math
 from fractions import Fraction
-from functools import partial
+from functools import lru_cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -19,11 +20,29 @@ import numpy as np
 from ..calculi.calculus import Calculus, _pattern_index
 
 
+@lru_cache(maxsize=64)
+def _integer_forms(calc: Calculus) -> tuple:
+    """Each constraint f as integer terms (c, i, j, k, l) of L·n^D f(u/n, v/n, m/n) =
+    Σ c·u^i v^j m^k n^l (D its degree, L > 0 the lcm of its coefficients' denominators)."""
+    out = []
+    for poly in calc.constraints:
+        top = poly.weighted_degree()
+        scale = math.lcm(*(c.denominator for c in poly.terms.values()))
+        out.append(tuple((int(c * scale), *e, top - sum(e)) for e, c in poly.terms.items()))
+    return tuple(out)
+
+
 def exact_signs(calc: Calculus, X, Y, Z):
-    """Signs of the calculus constraints for ``XY:Z`` (rationals), or 'dou'/'tri' if X=Y."""
-    X, Y, Z = ([Fraction(v) for v in P] for P in (X, Y, Z))
-    dx, dy = Y[0] - X[0], Y[1] - X[1]
-    ex, ey = Z[0] - X[0], Z[1] - X[1]
+    """Signs of the calculus constraints for ``XY:Z`` (rationals), or 'dou'/'tri' if X=Y.
+
+    Exact in integers: the coordinates are scaled to integers by their common denominator
+    (a similarity, so the relation is unchanged) and each constraint is evaluated in its
+    homogenised integer form, a positive multiple of n^D f(u/n, v/n, m/n)."""
+    q = [Fraction(v) for P in (X, Y, Z) for v in P]
+    den = math.lcm(*(f.denominator for f in q))
+    x0, y0, x1, y1, x2, y2 = (f.numerator * (den // f.denominator) for f in q)
+    dx, dy = x1 - x0, y1 - y0
+    ex, ey = x2 - x0, y2 - y0
     n = dx * dx + dy * dy
     m = ex * ex + ey * ey
     if n == 0:
@@ -31,8 +50,8 @@ def exact_signs(calc: Calculus, X, Y, Z):
     u = ex * dy - ey * dx
     v = ex * dx + ey * dy
     signs = []
-    for poly in calc.constraints:
-        val = poly.evaluate([u / n, v / n, m / n])
+    for terms in _integer_forms(calc):
+        val = sum(c * u**i * v**j * m**k * n**l for c, i, j, k, l in terms)
         signs.append((val > 0) - (val < 0))
     return tuple(signs)
 
