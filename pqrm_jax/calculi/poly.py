@@ -32,7 +32,7 @@ def _frac(x: Number) -> Fraction:
 class Poly:
     """Sparse polynomial ``{exponent tuple: Fraction}`` over ``nvars`` variables."""
 
-    __slots__ = ("nvars", "terms", "names", "_norm")
+    __slots__ = ("nvars", "terms", "names", "_norm", "_hash")
 
     def __init__(self, nvars: int, terms: dict | None = None, names: Sequence[str] | None = None):
         self.nvars = nvars
@@ -43,7 +43,9 @@ class Poly:
             if c != 0:
                 self.terms[tuple(mono)] = self.terms.get(tuple(mono), Fraction(0)) + c
         self.terms = {m: c for m, c in self.terms.items() if c != 0}
-        self._norm = None  # memo of normalized() (polys are never mutated after construction)
+        # memos of normalized() and hash (polys are never mutated after construction)
+        self._norm = None
+        self._hash = None
 
     # construction -------------------------------------------------------------------
     @classmethod
@@ -106,7 +108,9 @@ class Poly:
         return self.terms == other.terms
 
     def __hash__(self) -> int:
-        return hash(tuple(sorted(self.terms.items())))
+        if self._hash is None:
+            self._hash = hash(tuple(sorted(self.terms.items())))
+        return self._hash
 
     # inspection ---------------------------------------------------------------------
     @property

@@ -244,13 +244,16 @@ def to_batch(problems: list[Problem], box: float) -> ProblemBatch:
     sign = np.zeros((P, K), np.int8)
     active = np.zeros((P, K), bool)
     used = np.zeros((P, NV), bool)
+    forms: dict[int, tuple] = {}  # by id: problems share their polynomial objects
     for i, pr in enumerate(problems):
         for k, (poly, s) in enumerate(pr.constraints + pr.domain):
-            c[i, k], b[i, k], A[i, k] = poly.quadratic_form()
+            form = forms.get(id(poly))
+            if form is None:
+                form = forms[id(poly)] = (*poly.quadratic_form(), list(poly.variables()))
+            c[i, k], b[i, k], A[i, k], var = form
             sign[i, k] = s
             active[i, k] = True
-            for v in poly.variables():
-                used[i, v] = True
+            used[i, var] = True
     lo = np.where(used, -box, 0.0)
     hi = np.where(used, box, 0.0)
     return ProblemBatch(A, b, c, sign, active, lo, hi)
