@@ -46,13 +46,21 @@ def smtlib(constraints: list[tuple[Poly, int]]) -> str:
 
 
 def decide_smtlib(text: str, nv: int, timeout_ms: int = 20000):
-    """(verdict, witness or None) for the SMT-LIB text of a conjunction over x0 … x{nv−1}."""
+    """(verdict, witness or None) for the SMT-LIB text of a conjunction over x0 … x{nv−1}.
+
+    z3's ``qfnra-nlsat`` tactic (preprocessing, then nlsat) first; if it gives up, z3's full
+    QF_NRA strategy (further nlsat settings, then its SMT core). On the EDC and DCC builds the
+    tactic decides everything, with the same verdicts and models as QF_NRA, in about half
+    to two thirds of its time."""
     import z3
 
-    s = z3.SolverFor("QF_NRA")
-    s.set("timeout", timeout_ms)
-    s.from_string(text)
-    res = s.check()
+    for solver in (lambda: z3.Tactic("qfnra-nlsat").solver(), lambda: z3.SolverFor("QF_NRA")):
+        s = solver()
+        s.set("timeout", timeout_ms)
+        s.from_string(text)
+        res = s.check()
+        if res != z3.unknown:
+            break
     if res == z3.unsat:
         return UNSAT, None
     if res != z3.sat:
