@@ -149,3 +149,30 @@ def test_integer_exact_signs_equal_fraction_evaluation():
             else:  # float32 samples, as the pre-pass draws them
                 P = rng.uniform(-5, 5, (3, 2)).astype(np.float32).astype(float).tolist()
             assert exact.exact_signs(calc, *P) == _fraction_signs(calc, *P), (calc.name, P)
+
+
+@pytest.mark.parametrize(("base", "cols", "n"), [(20, 3, 100_000), (5, 2, 50), (300, 3, 1000),
+                                                 (7, 1, 0)])
+def test_first_rows_equals_unique(base, cols, n):
+    from pqrm_jax.tables import build
+
+    key = np.random.default_rng(base).integers(0, base, (n, cols))
+    code = np.zeros(n, np.int64)
+    for col in key.T:
+        code = code * base + col
+    np.testing.assert_array_equal(build._first_rows(key, base),
+                                  np.unique(code, return_index=True)[1])
+
+
+@pytest.mark.parametrize("name", ["edc", "dcc"])
+def test_compose_problem_equals_simplify_of_its_relations(name):
+    calc = calculi.get(name)
+    atoms, _ = pb.atoms(calc)
+    rng = np.random.default_rng(0)
+    for i, j, k in rng.integers(0, len(atoms), (1500, 3)):
+        p, q, r = atoms[i], atoms[j], atoms[k]
+        F = pb.frame(p)
+        A, B, C, D = F["A"], F["B"], F["C"], F["D"]
+        want = pb.simplify(pb.relation(calc, p, A, B, C) + pb.relation(calc, q, B, C, D)
+                           + pb.relation(calc, r, A, B, D))
+        assert pb.compose_problem(calc, p, q, r).constraints == want  # same list, in order

@@ -139,8 +139,8 @@ class Poly:
         if self._norm is None:
             lead = self.terms[max(self.terms)]
             s = 1 if lead > 0 else -1
-            self._norm = (Poly(self.nvars, {m: c / lead for m, c in self.terms.items()},
-                               self.names), s)
+            self._norm = (self, 1) if lead == 1 else (
+                Poly(self.nvars, {m: c / lead for m, c in self.terms.items()}, self.names), s)
         return self._norm
 
     def evaluate(self, x: Sequence[Number]) -> Fraction:

@@ -53,11 +53,18 @@ class Problem:
 
 def frame(atom_abc) -> dict[str, Point]:
     """Coordinates of A, B, C, D for a problem whose first relation AB:C is ``atom_abc``."""
+    return dict(_frame(atom_abc if atom_abc in ("dou", "tri") else "open"))
+
+
+@lru_cache(maxsize=4)
+def _frame(kind: str) -> dict[str, Point]:
+    """One set of point polynomials per frame kind: problems share them, so the relation
+    caches below hit by identity."""
     z, one = _const(0), _const(1)
     D = (_var(2), _var(3))
-    if atom_abc == "dou":
+    if kind == "dou":
         return {"A": (z, z), "B": (z, z), "C": (z, one), "D": D}
-    if atom_abc == "tri":
+    if kind == "tri":
         return {"A": (z, z), "B": (z, z), "C": (z, z), "D": D}
     return {"A": (z, z), "B": (z, one), "C": (_var(0), _var(1)), "D": D}
 
@@ -155,9 +162,29 @@ def compose_problem(calc: Calculus, p, q, r, box: float = 8.0) -> Problem:
     """Is there a configuration with AB:C ∈ p, BC:D ∈ q and AB:D ∈ r? (M§III.B)"""
     F = frame(p)
     A, B, C, D = F["A"], F["B"], F["C"], F["D"]
-    cons = relation(calc, p, A, B, C) + relation(calc, q, B, C, D) + relation(calc, r, A, B, D)
+    parts = (_simplified(calc, p, A, B, C), _simplified(calc, q, B, C, D),
+             _simplified(calc, r, A, B, D))
+    cons = None if None in parts else _merge(parts)
     domain = list(_compose_domain(p if isinstance(p, str) else "open", box))
-    return Problem(simplify(cons), ("compose", p, q, r), domain)
+    return Problem(cons, ("compose", p, q, r), domain)
+
+
+@lru_cache(maxsize=65536)
+def _simplified(calc: Calculus, atom, X: Point, Y: Point, Z: Point) -> tuple | None:
+    """``simplify(relation(…))``, once per part of the compose problems."""
+    out = simplify(relation(calc, atom, X, Y, Z))
+    return None if out is None else tuple(out)
+
+
+def _merge(parts) -> list[tuple[Poly, int]] | None:
+    """``simplify`` of concatenated simplified parts (no constants left, boundaries already
+    normalized): the same list, first occurrences in order; None on a sign conflict."""
+    kept: dict[Poly, int] = {}
+    for part in parts:
+        for poly, s in part:
+            if kept.setdefault(poly, s) != s:
+                return None
+    return list(kept.items())
 
 
 
