@@ -180,11 +180,16 @@ def _tag(tag) -> list:
 
 
 def _first_rows(key: np.ndarray, base: int) -> np.ndarray:
-    """Index of the first occurrence of every distinct row of a small-int array (N, c)."""
+    """Index of the first occurrence of every distinct row of an int array (N, c) with values
+    in [0, base), in increasing order of the rows (as base-``base`` numbers)."""
     code = np.zeros(len(key), np.int64)
     for col in key.T:
         code = code * base + col
-    return np.unique(code, return_index=True)[1]
+    if base ** key.shape[1] > 1 << 22:  # too many codes for a dense table: sort
+        return np.unique(code, return_index=True)[1]
+    first = np.full(base ** key.shape[1], len(code))
+    np.minimum.at(first, code, np.arange(len(code)))
+    return first[first < len(code)]
 
 
 def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
