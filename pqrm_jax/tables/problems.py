@@ -202,11 +202,13 @@ def random_compose_problems(calc: Calculus, n: int, seed: int = 0) -> list[Probl
             probs.append(pr)
     return probs
 
-def _disk_inside(calc: Calculus, atom, X: Point, r: float) -> list[tuple[Poly, int]]:
+@lru_cache(maxsize=4096)
+def _disk_inside(calc: Calculus, atom, X: Point, r: Fraction) -> tuple[tuple[Poly, int], ...]:
     """The disk of radius r around X (canonical frame) lies inside the open atom.
 
     Needs line or circle constraints (weighted degree one in α, β, ρ): a line's signed
-    distance must exceed r, a circle's centre distance must clear its radius by r.
+    distance must exceed r, a circle's centre distance must clear its radius by r. Cached:
+    each atom's disk serves all its pairs.
     """
     import math
 
@@ -233,8 +235,8 @@ def _disk_inside(calc: Calculus, atom, X: Point, r: float) -> list[tuple[Poly, i
         elif R > r:
             out.append((d2 - (R - r) ** 2, -1))
         else:
-            return [(_const(-1), 1)]
-    return out
+            return ((_const(-1), 1),)
+    return tuple(out)
 
 
 def _short_rational(x: float | Fraction) -> Fraction:
@@ -255,10 +257,18 @@ def adjacency_problem(calc: Calculus, p, q, r: float) -> Problem:
     decides the contact cases about ten times faster with short rationals.
     """
     r = _short_rational(r)
-    C, D = (_var(0), _var(1)), (_var(2), _var(3))
-    gap = (C[0] - D[0]) ** 2 + (C[1] - D[1]) ** 2 - (8 * r) ** 2
-    cons = _disk_inside(calc, p, C, r) + _disk_inside(calc, q, D, r) + [(gap, -1)]
+    F = _frame("open")
+    C, D = F["C"], F["D"]
+    cons = [*_disk_inside(calc, p, C, r), *_disk_inside(calc, q, D, r), (_gap(r), -1)]
     return Problem(simplify(cons), ("adjacent", p, q))
+
+
+@lru_cache(maxsize=16)
+def _gap(r: Fraction) -> Poly:
+    """|C − D|² − (8r)²."""
+    F = _frame("open")
+    (xc, yc), (xd, yd) = F["C"], F["D"]
+    return (xc - xd) ** 2 + (yc - yd) ** 2 - (8 * r) ** 2
 
 
 def to_batch(problems: list[Problem], box: float) -> ProblemBatch:
