@@ -191,14 +191,20 @@ def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
     its largest count over the batch) and the static class list ``(offset, k, variables,
     pairs)`` used by :func:`_upper` and :func:`_values` to skip the zero terms: an EDC
     compose problem has 24 constraints on C only, D only or both, and the classes halve the
-    arithmetic. Falls back to one dense class when padding would grow the constraint count by
-    more than half."""
+    arithmetic. A class whose variables are another's but one joins that class (fewer kernels
+    for a few zero terms). Falls back to one dense class when padding would grow the
+    constraint count by more than half."""
     batch = one_sided(batch)
     P, K, nv = batch.b.shape
     diag = np.abs(np.diagonal(batch.A, axis1=-2, axis2=-1))
     used = (np.abs(batch.b) > 0) | (diag > 0) | (np.abs(batch.A).sum(-1) > 0)  # (P, K, nv)
     code = np.where(batch.active, (used * (1 << np.arange(nv))).sum(-1), 0)
     codes = np.unique(code[code != 0])  # inactive constraints (0 ≥ 0) need no class
+    for c in codes:  # fewer, wider classes: one more variable's (zero) terms beat a class
+        sup = [d for d in codes if d & c == c and bin(d ^ c).count("1") == 1]
+        if sup:
+            code = np.where(code == c, min(sup), code)
+    codes = np.unique(code[code != 0])
     counts = {int(c): int((code == c).sum(1).max()) for c in codes}
     if not counts or sum(counts.values()) > 1.5 * K:
         codes, counts = np.array([(1 << nv) - 1]), {(1 << nv) - 1: K}
