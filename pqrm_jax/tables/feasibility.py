@@ -28,10 +28,9 @@ problems hold 1–8 boxes; a per-problem pool of fixed capacity was ~17 % occupi
 rows start on a multiple of ``GROUP``, and its constraint table is gathered once per group of
 rows. Decided problems free their rows for the next ones of the queue; a problem whose
 children would not fit waits a round unchanged (rows are reserved so that the oldest problem
-can always grow to a full pool, so the queue never deadlocks). Only the rows in use are
-bounded and probed, in blocks. The last few problems run on a frontier of an eighth of the
-rows. On CPU the problems are dealt to one queue per core, run side by side in threads (one
-compiled program): XLA spreads these small per-round kernels badly over threads.
+can always grow to a full pool, so the queue never deadlocks). On CPU the problems are dealt
+to one queue per core, run side by side in threads (one compiled program): XLA spreads these small
+per-round kernels badly over threads.
 ``benchmarks/bench_tables.py`` compares this program with the plain-NumPy per-problem
 reference :mod:`.reference` and with itself run one problem per call.
 
@@ -275,45 +274,29 @@ def _admit(st, lo0, hi0, n, pool, group):
                 nxt=st["nxt"] + k)
 
 
-def _evaluate(T, l, u, own, xs, used, *, classes: tuple, group: int, block: int):
-    """Prune and probe the boxes of the first ``used`` rows (the rest of the frontier is
-    free): ``keep`` (N,) where every constraint can hold in the box, ``good`` (M, N) where
-    probe point m of a kept box satisfies every constraint. Runs over blocks of ``block``
-    rows while they hold boxes, so a round costs what the rows in use need."""
+def _evaluate(T, l, u, own, xs, *, classes: tuple, group: int):
+    """Prune and probe every row of the frontier: ``keep`` (N,) where every constraint can
+    hold in the box, ``good`` (M, N) where probe point m of a kept box satisfies every
+    constraint. Each row group's problem table is gathered once."""
     N, nv = l.shape
     M = xs.shape[0]
-    G = block // group
+    G = N // group
+    Tg = _unpack(T[jnp.maximum(own.reshape(G, group).max(-1), 0)], nv)
+    lg, ug = l.reshape(G, group, nv), u.reshape(G, group, nv)
 
-    def run(r0):
-        lb, ub, ob = (jax.lax.dynamic_slice_in_dim(x, r0, block) for x in (l, u, own))
-        xb = jax.lax.dynamic_slice_in_dim(xs, r0, block, axis=1)
-        Tg = _unpack(T[jnp.maximum(ob.reshape(G, group).max(-1), 0)], nv)
-        lg, ug = lb.reshape(G, group, nv), ub.reshape(G, group, nv)
+    def can_hold(cls, col):  # each (one-sided) constraint can hold somewhere in the box
+        return jnp.sign(_upper(Tg, lg, ug, cls)) >= Tg["s"][..., col]
 
-        def can_hold(cls, col):  # each (one-sided) constraint can hold somewhere in the box
-            return jnp.sign(_upper(Tg, lg, ug, cls)) >= Tg["s"][..., col]
-
-        keep = (ob >= 0) & _all_hold(classes, can_hold).reshape(block)
-        xg = xb.reshape(M, G, group, nv)
-        good = keep[None] & _all_hold(
-            classes, lambda cls, col: jnp.sign(_values(Tg, xg, cls)) >= Tg["s"][..., col]
-        ).reshape(M, block)
-        return keep, good
-
-    if block == N:
-        return run(0)
-
-    def body(i, kg):
-        keep, good = run(i * block)
-        return (jax.lax.dynamic_update_slice_in_dim(kg[0], keep, i * block, 0),
-                jax.lax.dynamic_update_slice_in_dim(kg[1], good, i * block, 1))
-
-    return jax.lax.fori_loop(0, (used + block - 1) // block, body,
-                             (jnp.zeros(N, bool), jnp.zeros((M, N), bool)))
+    keep = (own >= 0) & _all_hold(classes, can_hold).reshape(N)
+    xg = xs.reshape(M, G, group, nv)
+    good = keep[None] & _all_hold(
+        classes, lambda cls, col: jnp.sign(_values(Tg, xg, cls)) >= Tg["s"][..., col]
+    ).reshape(M, N)
+    return keep, good
 
 
 def _round(T, st, ids, seed, min_width, *, pool: int, probes: int, max_iters: int, group: int,
-           classes: tuple, block: int):
+           classes: tuple):
     """One bound / prune / witness / branch round for every problem in flight.
 
     The frontier's rows hold the boxes of the problems in flight, grouped by problem and in
@@ -338,8 +321,7 @@ def _round(T, st, ids, seed, min_width, *, pool: int, probes: int, max_iters: in
     t = t.astype(l.dtype)
     xs = jnp.concatenate([0.5 * (l + u)[None], l[None] + t * (u - l)[None]], 0)
     M = probes + 1
-    keep, good = _evaluate(T, l, u, own, xs, rows0.sum(), classes=classes, group=group,
-                           block=block)
+    keep, good = _evaluate(T, l, u, own, xs, classes=classes, group=group)
     # a problem's witness: its first good point in (probe, box) order, as in the reference
     order = jnp.arange(M, dtype=jnp.int32)[:, None] * pool + ppos[None]
     seg = jnp.where(live, own, P)
@@ -396,55 +378,30 @@ def _round(T, st, ids, seed, min_width, *, pool: int, probes: int, max_iters: in
                 witness=jnp.where(finish[:, None], wit, st["witness"]))
 
 
-def _stages(frontier: int, pool: int, n: int, block: int, tail: bool) -> tuple[int, ...]:
-    """Row capacities of the successive while loops: the full frontier while the queue lasts,
-    then one of an eighth once the problems left fit it with full pools (the last few hard
-    problems then run on a small frontier). Each stage is compiled, so there are at most two,
-    and the second only for a queue of more than four full frontiers of problems."""
-    caps = [max(1, min(frontier // pool, n)) * pool]
-    if tail and caps[0] // 8 >= 4 * pool and n > 4 * caps[0] // pool:
-        caps.append(caps[0] // 8 // pool * pool)
-    return tuple(c if c <= block else _align(c, block) for c in caps)
-
-
-@partial(jax.jit, static_argnames=("caps", "pool", "max_iters", "probes", "group", "classes",
-                                   "block"))
-def _solve(A, b, c, sign, active, lo0, hi0, ids, min_width, seed, n, *, caps: tuple, pool: int,
-           max_iters: int, probes: int, group: int, classes: tuple, block: int):
-    """Every problem through one frontier of box rows (a work queue of problems).
+@partial(jax.jit, static_argnames=("rows", "pool", "max_iters", "probes", "group", "classes"))
+def _solve(A, b, c, sign, active, lo0, hi0, ids, min_width, seed, n, *, rows: int, pool: int,
+           max_iters: int, probes: int, group: int, classes: tuple):
+    """Every problem through one frontier of ``rows`` box rows (a work queue of problems).
 
     Arrays are padded to a bucket size P; only the first ``n`` (traced) problems are queued.
     """
     P, _, nv = b.shape
     dtype = lo0.dtype
     T = _tables(A, b, c, sign, active)
-    N0 = caps[0]
-    st = dict(l=jnp.zeros((N0, nv), dtype), u=jnp.zeros((N0, nv), dtype),
-              own=jnp.full(N0, -1, jnp.int32), inflight=jnp.zeros(P, bool),
+    st = dict(l=jnp.zeros((rows, nv), dtype), u=jnp.zeros((rows, nv), dtype),
+              own=jnp.full(rows, -1, jnp.int32), inflight=jnp.zeros(P, bool),
               nbox=jnp.zeros(P, jnp.int32), age=jnp.zeros(P, jnp.int32),
               status=jnp.full(P, UNDECIDED, jnp.int32), witness=jnp.zeros((P, nv), dtype),
               nxt=jnp.int32(0), it=jnp.int32(0))
-    st = _admit(st, lo0, hi0, n, pool, group)
 
     def body(st):
         st = _round(T, st, ids, seed, min_width, pool=pool, probes=probes, max_iters=max_iters,
-                    group=group, classes=classes, block=min(block, st["l"].shape[0]))
+                    group=group, classes=classes)
         st = _admit(st, lo0, hi0, n, pool, group)
         return dict(st, it=st["it"] + 1)
 
-    for i, N in enumerate(caps):
-        if i:
-            st = dict(st, l=st["l"][:N], u=st["u"][:N], own=st["own"][:N])
-        if i + 1 < len(caps):
-            nxt_cap = caps[i + 1]
-
-            def cond(st, nxt_cap=nxt_cap):  # go on until the rest fits full pools there
-                fl = st["inflight"]
-                return fl.any() & ((st["nxt"] < n) | (fl.sum() * pool > nxt_cap))
-        else:
-            def cond(st):
-                return st["inflight"].any()
-        st = jax.lax.while_loop(cond, body, st)
+    st = jax.lax.while_loop(lambda st: st["inflight"].any(), body,
+                            _admit(st, lo0, hi0, n, pool, group))
     return st["status"], st["witness"], st["it"]
 
 
@@ -456,10 +413,10 @@ def default_parts() -> int:
 
 
 def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
-          min_width: float = 2.0**-24, frontier: int = 2048, probes: int = 2, seed: int = 0,
+          min_width: float = 2.0**-24, frontier: int = 1024, probes: int = 2, seed: int = 0,
           chunk: int = 8192, progress: bool = False, desc: str = "feasibility",
-          classes: tuple | None = None, parts: int | None = None, block: int = 512,
-          tail: bool = True, ids: np.ndarray | None = None) -> Solution:
+          classes: tuple | None = None, parts: int | None = None,
+          ids: np.ndarray | None = None) -> Solution:
     """Solve every problem of ``batch`` in jit-compiled work-queue programs (float64).
 
     The boxes of all problems in flight share one frontier of ``frontier`` rows; each problem
@@ -502,8 +459,9 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
             queues = [np.arange(q, n, k) for q in range(k)]  # dealt: hard ones spread out
             m = len(queues[0])
             bucket = 1 << (m - 1).bit_length()  # few distinct shapes → few compiles
-            static = dict(caps=_stages(frontier, pool, m, block, tail), pool=pool, group=group,
-                          max_iters=max_iters, probes=probes, classes=cls, block=block)
+            static = dict(rows=max(1, min(frontier // pool, m)) * pool,  # what a queue uses
+                          pool=pool, group=group, max_iters=max_iters, probes=probes,
+                          classes=cls)
 
             def run(idx, sub=sub, s=s, bucket=bucket, static=static):
                 part = sub.take(np.concatenate([idx, np.repeat(idx[-1:], bucket - len(idx))]))
