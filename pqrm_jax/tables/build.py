@@ -58,6 +58,26 @@ class _Decider:
                       "open": 0, "bnb_seconds": 0.0, "z3_seconds": 0.0,
                       "z3_confirmed_infeasible": 0, "z3_overturned": 0,
                       "mirror_copies": 0, "pc_infeasible": 0}
+        self.presolved: dict = {}  # problem tag → (status, witness) from a joint B&B call
+
+    def _bnb(self, problems: list[pb.Problem], desc: str) -> None:
+        """One B&B call for problems not decided yet (verdicts kept by tag)."""
+        todo = [pr for pr in problems if pr.tag not in self.presolved]
+        if not todo:
+            return
+        t0 = time.perf_counter()
+        sol = self.solver(pb.to_batch(todo, self.box), pool=self.pool,
+                          max_iters=self.max_iters, progress=self.progress, desc=desc)
+        self.stats["bnb_seconds"] += time.perf_counter() - t0
+        for pr, st, x in zip(todo, sol.status, sol.witness, strict=True):
+            self.presolved[pr.tag] = (int(st), x)
+
+    def presolve(self, problems: list[pb.Problem]) -> None:
+        """Branch-and-bound, in one batch, the problems that several later :meth:`run` calls
+        will need (one compiled program instead of one per batch shape); ``run`` then takes
+        their verdicts from here. Verdicts do not depend on the batching (probe points are
+        drawn per problem)."""
+        self._bnb([pr for pr in problems if not pr.trivially_infeasible], "branch-and-bound")
 
     def run(self, name: str, problems: list[pb.Problem], known: dict[int, list],
             refine=None) -> tuple:
@@ -76,13 +96,12 @@ class _Decider:
         todo = [i for i in range(n) if i not in known and not problems[i].trivially_infeasible]
         self.stats["trivial"] += sum(problems[i].trivially_infeasible for i in range(n))
         if todo:
-            t0 = time.perf_counter()
-            sol = self.solver(pb.to_batch([problems[i] for i in todo], self.box), pool=self.pool,
-                        max_iters=self.max_iters, progress=self.progress, desc=name)
-            self.stats["bnb_seconds"] += time.perf_counter() - t0
+            self._bnb([problems[i] for i in todo], name)
+            status = [self.presolved[problems[i].tag][0] for i in todo]
             leftover = []
-            for i, st, x in zip(todo, sol.status, sol.witness, strict=True):
+            for i, st in zip(todo, status, strict=True):
                 pr = problems[i]
+                x = self.presolved[pr.tag][1]
                 if st == FEASIBLE and pb.verify(pr, x):
                     feas[i] = True
                     wit[i] = _coords(pb.frame(pr.tag[1]), x)
@@ -94,8 +113,7 @@ class _Decider:
                         continue
                 else:
                     leftover.append(i)
-            bnb_infeasible = {i for i, st in zip(todo, sol.status, strict=True)
-                              if st == INFEASIBLE}
+            bnb_infeasible = {i for i, st in zip(todo, status, strict=True) if st == INFEASIBLE}
             self.stats["bnb_undecided"] += len(set(leftover) - bnb_infeasible)
             if refine is not None:
                 und = np.zeros(n, bool)
@@ -138,18 +156,25 @@ class _Decider:
         return feas, wit
 
 
-def _run_mirrored(dec: _Decider, name: str, keys: list[tuple], make, tag,
-                  known: dict[int, list], sigma: list[int] | None, *, unordered: bool = False,
-                  refine=None) -> tuple:
-    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`); the other
-    takes the verdict and the reflected witness (and a copy of any certification record).
-    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag."""
+def _mirror_plan(keys: list[tuple], known: dict[int, list], sigma, unordered: bool) -> tuple:
+    """(representative of each key, the representatives, their positions, known witnesses of
+    the representatives) for :func:`_run_mirrored`."""
     rep = symmetry.representatives(keys, sigma, unordered)
     reps = [n for n in range(len(keys)) if rep[n] == n]
     pos = {n: r for r, n in enumerate(reps)}
     known_r: dict[int, list] = {}
     for n, w in sorted(known.items(), key=lambda kv: kv[0] == rep[kv[0]]):  # own last
         known_r[pos[rep[n]]] = w if n == rep[n] else symmetry.mirror_witness(w)
+    return rep, reps, pos, known_r
+
+
+def _run_mirrored(dec: _Decider, name: str, keys: list[tuple], make, tag,
+                  known: dict[int, list], sigma: list[int] | None, *, unordered: bool = False,
+                  refine=None) -> tuple:
+    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`); the other
+    takes the verdict and the reflected witness (and a copy of any certification record).
+    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag."""
+    rep, reps, pos, known_r = _mirror_plan(keys, known, sigma, unordered)
     full_of = np.array([pos[rep[n]] for n in range(len(keys))], np.int64)
     refine_r = None
     if refine is not None:
@@ -257,6 +282,7 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
     unary_atoms = {op: np.zeros((na, na), bool) for op in UNARY}
     unary_wit: dict[str, list] = {}
     rel_names = {"left": ("B", "C", "A"), "right": ("C", "A", "B"), "inverse": ("B", "A", "C")}
+    jobs = {}  # name → (keys, make(n), tag(n), known, unordered): problems to decide
     for op in UNARY:
         keys, known = [], {}
         for i in live:
@@ -266,19 +292,10 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                 if cfg is not None and _verified(calc, atoms, cfg,
                                                  [(("A", "B", "C"), i), (rel_names[op], j)]):
                     known[len(keys) - 1] = [list(map(float, p)) for p in cfg[:3]]
-        feas, wit = _run_mirrored(
-            dec, op, keys,
+        jobs[op] = (
+            keys,
             lambda n, op=op, keys=keys: pb.unary_problem(calc, op, *(atoms[x] for x in keys[n])),
-            lambda n, op=op, keys=keys: (op, *(atoms[x] for x in keys[n])), known, sigma)
-        for n, (i, j) in enumerate(keys):
-            if feas[n]:
-                unary_atoms[op][i, j] = True
-                si, sj = astate[i], astate[j]
-                unary[op][si, sj] = True
-                unary_wit.setdefault(f"{op}|{calc.states[si]}|{calc.states[sj]}", wit[n][:3])
-
-    compose = np.zeros((Q, Q, Q), bool)
-    comp_wit: dict[str, list] = {}
+            lambda n, op=op, keys=keys: (op, *(atoms[x] for x in keys[n])), known, False)
     keys, known = [], {}
     for i in live:
         for j in live:
@@ -289,6 +306,40 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                         calc, atoms, cfg,
                         [(("A", "B", "C"), i), (("B", "C", "D"), j), (("A", "B", "D"), k)]):
                     known[len(keys) - 1] = [list(map(float, p)) for p in cfg]
+    jobs["compose"] = (keys, lambda n, keys=keys: pb.compose_problem(
+        calc, *(atoms[x] for x in keys[n]), box),
+        lambda n, keys=keys: ("compose", *(atoms[x] for x in keys[n])), known, False)
+    nondeg = [i for i in live if isinstance(atoms[i], tuple)]
+    if not calc.boundary_inclusive:
+        keys = [(a, b) for a in nondeg for b in nondeg if a < b and astate[a] != astate[b]]
+        jobs["adjacency"] = (keys, lambda n, keys=keys: pb.adjacency_problem(
+            calc, *(atoms[x] for x in keys[n]), adjacency_radius),
+            lambda n, keys=keys: ("adjacent", *(atoms[x] for x in keys[n])), {}, True)
+    # every B&B problem of the build in one batch (the verdicts do not depend on the batching)
+    made: dict[tuple, pb.Problem] = {}
+    for name, (keys, make, _, known, unordered) in jobs.items():
+        _, reps, pos, known_r = _mirror_plan(keys, known, sigma, unordered)
+        made.update({(name, n): make(n) for n in reps if pos[n] not in known_r})
+    dec.presolve(list(made.values()))
+
+    def decide(name, refine=None):
+        keys, make, tag, known, unordered = jobs[name]
+        return _run_mirrored(dec, name, keys, lambda n: made.get((name, n)) or make(n), tag,
+                             known, sigma, unordered=unordered, refine=refine)
+
+    for op in UNARY:
+        keys = jobs[op][0]
+        feas, wit = decide(op)
+        for n, (i, j) in enumerate(keys):
+            if feas[n]:
+                unary_atoms[op][i, j] = True
+                si, sj = astate[i], astate[j]
+                unary[op][si, sj] = True
+                unary_wit.setdefault(f"{op}|{calc.states[si]}|{calc.states[sj]}", wit[n][:3])
+
+    compose = np.zeros((Q, Q, Q), bool)
+    comp_wit: dict[str, list] = {}
+    keys = jobs["compose"][0]
     refine = None
     if not calc.boundary_inclusive and all(isinstance(a, tuple) for a in atoms):
         K = np.asarray(keys, np.int64).reshape(-1, 3)
@@ -307,10 +358,7 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                 refuted[idx[r]] = True
                 T[tuple(K[idx[r]].T)] = False
 
-    feas, wit = _run_mirrored(
-        dec, "compose", keys,
-        lambda n: pb.compose_problem(calc, *(atoms[x] for x in keys[n]), box),
-        lambda n: ("compose", *(atoms[x] for x in keys[n])), known, sigma, refine=refine)
+    feas, wit = decide("compose", refine)
     for n, (i, j, k) in enumerate(keys):
         if feas[n]:
             s = (astate[i], astate[j], astate[k])
@@ -318,15 +366,11 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
             comp_wit.setdefault("|".join(calc.states[x] for x in s), wit[n])
 
     adjacency = np.zeros((Q, Q), bool)
-    nondeg = [i for i in live if isinstance(atoms[i], tuple)]
     if calc.boundary_inclusive:
         adjacency |= _face_adjacency(calc, atoms, astate, nondeg)
     else:
-        keys = [(a, b) for a in nondeg for b in nondeg if a < b and astate[a] != astate[b]]
-        feas, _ = _run_mirrored(
-            dec, "adjacency", keys,
-            lambda n: pb.adjacency_problem(calc, *(atoms[x] for x in keys[n]), adjacency_radius),
-            lambda n: ("adjacent", *(atoms[x] for x in keys[n])), {}, sigma, unordered=True)
+        keys = jobs["adjacency"][0]
+        feas, _ = decide("adjacency")
         for n, (a, b) in enumerate(keys):
             if feas[n]:
                 adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True
