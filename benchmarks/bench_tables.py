@@ -47,9 +47,10 @@ import numpy as np
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
+from pqrm_jax._parallel import default_queues
 from pqrm_jax.tables import build
 from pqrm_jax.tables import problems as pb
-from pqrm_jax.tables.feasibility import ProblemBatch, default_parts, solve, support_classes
+from pqrm_jax.tables.feasibility import ProblemBatch, solve, support_classes
 from pqrm_jax.tables.reference import solve_reference
 
 OPS = ("left", "right", "inverse", "compose", "adjacency")
@@ -59,7 +60,7 @@ def _compare(batches: list[tuple[str, ProblemBatch, dict]], repeat: int,
              single: int) -> dict:
     """Time the batched solver, the NumPy reference and one-problem calls on the batches."""
     out = {"batches": [], "problems": 0, "batched_s": 0.0, "numpy_reference_s": 0.0,
-           "one_per_call_s": 0.0, "batched_one_queue_s": 0.0, "queues": default_parts()}
+           "one_per_call_s": 0.0, "batched_one_queue_s": 0.0, "queues": default_queues()}
     agree_np, agree_one, agree_q, n_one = 0, 0, 0, 0
     for name, batch, kw in batches:
         solve(batch, **kw)  # warm (compiled already when recorded from a build)

@@ -8,11 +8,11 @@ as a float approximation) or UNSAT. It is also the independent oracle of the tes
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ProcessPoolExecutor
 from fractions import Fraction
 from multiprocessing import get_context
 
+from .._parallel import usable_cpus
 from ..calculi.poly import Poly
 
 SAT, UNSAT, UNKNOWN = "sat", "unsat", "unknown"
@@ -89,14 +89,6 @@ def _decide_one(job: tuple[str, int]):
 #: below this many problems a batch is decided in-process: starting spawned workers (each
 #: imports the package, hence JAX) costs 1–2 s, the in-process work of a few hundred problems
 MIN_POOL_BATCH = 256
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (its affinity mask, e.g. under ``taskset``)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def decide_many(problems: list, workers: int | None = None, progress: bool = False,

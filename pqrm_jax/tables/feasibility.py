@@ -43,8 +43,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 
@@ -53,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._hashrng import hash_uniform_at
+from .._parallel import default_queues, side_by_side
 
 FEASIBLE, INFEASIBLE, UNDECIDED = 1, 0, -1
 GROUP = 8  # frontier rows per constraint-table gather (a divisor of the pool size)
@@ -88,14 +87,19 @@ class Solution:
 
 
 def _tables(A, b, c, sign, active):
-    """Per-problem coefficient table (P, 2·nv + npairs + 2, K), constraint axis minor: rows
-    ``A_ii`` (nv), ``b_i`` (nv), ``2 A_ij`` for i < j (npairs), ``c``, sign. What a row group
-    of the frontier gathers (one packed gather; inactive constraints become ``0 ≥ 0``)."""
+    """Per-problem coefficient table (P, 4·nv + npairs + 2, K), constraint axis minor: rows
+    ``A_ii`` (nv), ``b_i`` (nv), the vertex ``v_i = −b_i / 2A_ii`` of each univariate part
+    (nv; +inf where A_ii = 0) and its value ``A_ii v_i² + b_i v_i`` there (nv), ``2 A_ij`` for
+    i < j (npairs), ``c``, sign. What a row group of the frontier gathers (one packed gather;
+    inactive constraints become ``0 ≥ 0``)."""
     nv = b.shape[-1]
     A = jnp.where(active[..., None, None], A, 0.0)
     b = jnp.where(active[..., None], b, 0.0)
     ii, jj = np.triu_indices(nv, 1)
-    rows = [jnp.diagonal(A, axis1=-2, axis2=-1), b, 2 * A[:, :, ii, jj],
+    a = jnp.diagonal(A, axis1=-2, axis2=-1)
+    v = -b / (2 * jnp.where(a == 0, 1.0, a))
+    gv = a * v * v + b * v
+    rows = [a, b, jnp.where(a == 0, jnp.inf, v), jnp.where(a == 0, 0.0, gv), 2 * A[:, :, ii, jj],
             jnp.where(active, c, 0.0)[..., None], jnp.where(active, sign, 0)[..., None]]
     return jnp.swapaxes(jnp.concatenate([r.astype(A.dtype) for r in rows], -1), 1, 2)
 
@@ -104,8 +108,8 @@ def _unpack(T, nv):
     """(G, F, K) group tables → dict of (G, 1, K) rows (broadcast over a group's boxes)."""
     npairs = nv * (nv - 1) // 2
     row = [T[:, f, None, :] for f in range(T.shape[1])]
-    return dict(a=row[:nv], b=row[nv:2 * nv], coef=row[2 * nv:2 * nv + npairs],
-                c=row[-2], s=row[-1])
+    return dict(a=row[:nv], b=row[nv:2 * nv], v=row[2 * nv:3 * nv], gv=row[3 * nv:4 * nv],
+                coef=row[4 * nv:4 * nv + npairs], c=row[-2], s=row[-1])
 
 
 def _upper(T, l, u, cls):
@@ -125,13 +129,12 @@ def _upper(T, l, u, cls):
     col = slice(off, off + k)
     hi = T["c"][..., col]
     for i in variables:
-        a, bt = T["a"][i][..., col], T["b"][i][..., col]
-        v = -bt / (2 * jnp.where(a == 0, 1.0, a))  # vertex of a x² + b x (if a ≠ 0)
+        a, bt, v = T["a"][i][..., col], T["b"][i][..., col], T["v"][i][..., col]
         L = l[..., i, None]
         U = u[..., i, None]
         gl = a * L * L + bt * L
         gu = a * U * U + bt * U
-        gvv = jnp.where((a != 0) & (v > L) & (v < U), a * v * v + bt * v, gl)
+        gvv = jnp.where((v > L) & (v < U), T["gv"][i][..., col], gl)  # v = inf if a = 0
         hi = hi + jnp.maximum(jnp.maximum(gl, gu), gvv)
     for p, i, j in pairs:
         q = (l[..., i] * l[..., j], l[..., i] * u[..., j], u[..., i] * l[..., j],
@@ -405,13 +408,6 @@ def _solve(A, b, c, sign, active, lo0, hi0, ids, min_width, seed, n, *, rows: in
     return st["status"], st["witness"], st["it"]
 
 
-def default_parts() -> int:
-    """Work queues :func:`solve` runs side by side: one per usable core on CPU (XLA's CPU
-    code spreads these small per-round kernels badly over threads, while separate programs
-    keep every core busy), one on an accelerator."""
-    return len(os.sched_getaffinity(0)) if jax.default_backend() == "cpu" else 1
-
-
 def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
           min_width: float = 2.0**-24, frontier: int = 1024, probes: int = 2, seed: int = 0,
           chunk: int = 8192, progress: bool = False, desc: str = "feasibility",
@@ -423,8 +419,9 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
     keeps at most ``pool`` boxes and runs at most ``max_iters`` rounds. A decided problem
     frees its rows for the next ones of the queue, so easy problems never wait for hard ones
     and the work per round follows the live boxes. The problems are dealt to ``parts`` queues
-    (default :func:`default_parts`) that run side by side in threads, one compiled program;
-    ``chunk`` problems go to the device per call (progress). Probe points are drawn at
+    (default: one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`) run side
+    by side in threads by one compiled program; ``chunk`` problems go to the device per call
+    (progress). Probe points are drawn at
     (problem id, round, box, coordinate), with ``ids`` the problems' ids (default: their
     positions), so verdicts and witnesses do not depend on ``parts``, ``chunk`` or which
     problems share a batch. ``classes``: a batch already put in the form of
@@ -440,7 +437,7 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
     """
     P = batch.size
     ids = np.arange(P) if ids is None else np.asarray(ids)
-    parts = default_parts() if parts is None else parts
+    parts = default_queues() if parts is None else parts
     status = np.full(P, UNDECIDED, np.int8)
     witness = np.zeros((P, batch.b.shape[-1]))
     iters = 0
@@ -450,7 +447,7 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
         from tqdm.auto import tqdm
 
         starts = tqdm(starts, desc=desc, unit="chunk", leave=False)
-    with jax.enable_x64(True), ThreadPoolExecutor(max(1, parts)) as pool_ex:
+    with jax.enable_x64(True):
         for s in starts:
             sub = batch.take(slice(s, s + chunk))
             sub, cls = support_classes(sub) if classes is None else (sub, classes)
@@ -465,17 +462,16 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
 
             def run(idx, sub=sub, s=s, bucket=bucket, static=static):
                 part = sub.take(np.concatenate([idx, np.repeat(idx[-1:], bucket - len(idx))]))
-                with jax.enable_x64(True):  # thread-local: each queue's thread sets it
-                    out = _solve(
-                        jnp.asarray(part.A, jnp.float64), jnp.asarray(part.b, jnp.float64),
-                        jnp.asarray(part.c, jnp.float64), jnp.asarray(part.sign, jnp.int32),
-                        jnp.asarray(part.active), jnp.asarray(part.lo, jnp.float64),
-                        jnp.asarray(part.hi, jnp.float64),
-                        jnp.asarray(ids[s + idx].tolist() + [0] * (bucket - len(idx)), jnp.uint32),
-                        jnp.float64(min_width), jnp.uint32(seed), jnp.int32(len(idx)), **static)
+                out = _solve(
+                    jnp.asarray(part.A, jnp.float64), jnp.asarray(part.b, jnp.float64),
+                    jnp.asarray(part.c, jnp.float64), jnp.asarray(part.sign, jnp.int32),
+                    jnp.asarray(part.active), jnp.asarray(part.lo, jnp.float64),
+                    jnp.asarray(part.hi, jnp.float64),
+                    jnp.asarray(ids[s + idx].tolist() + [0] * (bucket - len(idx)), jnp.uint32),
+                    jnp.float64(min_width), jnp.uint32(seed), jnp.int32(len(idx)), **static)
                 return [np.asarray(x) for x in out]
 
-            results = [run(queues[0])] if k == 1 else list(pool_ex.map(run, queues))
+            results = side_by_side(run, queues)
             for idx, (st, wit, it) in zip(queues, results, strict=True):
                 status[s + idx] = st[:len(idx)]
                 witness[s + idx] = wit[:len(idx)]
