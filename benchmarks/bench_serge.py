@@ -28,9 +28,10 @@ same trials (same keys) in the same process.
 Also reports the time per SERGE solve (T = 100·K trials, P§3.3) and of the relaxed optimiser.
 
 ``--one-core`` runs the whole process on one core, the resources of the NumPy reference
-(``cores`` in the JSON). With XLA's default thread pool on a 2-core CPU the batched program is
-slower (≈ 1.0 s vs ≈ 0.6 s for T = 5501): XLA splits its many tiny per-step kernels over both
-threads and the synchronisation costs more than it gains.
+(``cores`` in the JSON). On more cores the batched run deals its blocks to one queue per core
+(``queues``), run side by side: one program over both cores' XLA threads is slower than on one
+core (≈ 1.0 s vs ≈ 0.6 s for T = 5501 on 2 cores), as XLA splits its many tiny per-step
+kernels over both threads and the synchronisation costs more than it gains.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ import jax
 import numpy as np
 from _timing import best_of  # benchmarks/_timing.py
 
+from pqrm_jax._parallel import default_queues
 from pqrm_jax.serge import Grid, initial_cells, scenes, serge, serge_sequential
 from pqrm_jax.serge.reference import serge_reference
 from pqrm_jax.serge.relaxed import relaxed_serge
@@ -125,7 +127,7 @@ def main(argv=None) -> int:
         "numpy_reference_best_log_psi": rn.log_psi,
         "relaxed_s": t_rel, "relaxed_log_psi": rr.result.log_psi,
         "relaxed_n_regions": rr.result.n_regions, "devices": str(jax.devices()),
-        "cores": len(os.sched_getaffinity(0)),
+        "cores": len(os.sched_getaffinity(0)), "queues": default_queues(),
     }
     for k, v in out.items():
         print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")

@@ -15,7 +15,9 @@ every trial of the block has converged; the same step under a per-trial while lo
 :func:`serge_sequential`'s trial. (A ``vmap`` of the per-trial while loop would select every
 trial's whole state at every step — most of the time.) The key-independent start (region
 masses, adjacency, the pair-gain cache below) is computed once and shared by all trials. The
-best trial by log ψ is kept (Alg. 2 lines 28–32).
+best trial by log ψ is kept (Alg. 2 lines 28–32). On CPU the blocks are dealt to one queue per
+usable core, run side by side (:mod:`pqrm_jax._parallel`); a trial depends only on its key, so
+the result does not depend on the number of queues.
 
 Incremental potential. Only the beliefs assigned to ``C_n`` or ``C_m`` change saliency under
 a merge, so the gain of merging n into m is ``G[n, m] = Σ_{k: L_k ∈ {n, m}} [log(M_kn + M_km)
@@ -44,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._hashrng import hash_uniform
+from .._parallel import default_queues, side_by_side
 from .cells import Problem
 from .potential import SAL_FLOOR, check_params, log_psi1
 
@@ -394,11 +397,13 @@ def serge(
     # its own key, so only the first t are run, in vmapped blocks of WIDTH trials
     keys = jax.random.split(key, tt)[:t]
     width = min(WIDTH, t)
-    tp = math.ceil(t / width) * width
+    q = max(1, min(default_queues(), t // width))  # blocks dealt to side-by-side queues
+    tp = math.ceil(t / (width * q)) * width * q
     if tp > t:
         keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], tp - t, axis=0)])
-    lab, count, lp, l1, l3, it = _trials_batched(*args, keys, width)
-    lab, lp, l1, l3, it = (np.asarray(x)[:t] for x in (lab, lp, l1, l3, it))
+    outs = side_by_side(lambda kq: [np.asarray(x) for x in _trials_batched(*args, kq, width)],
+                        [keys[i * tp // q:(i + 1) * tp // q] for i in range(q)])
+    lab, _, lp, l1, l3, it = (np.concatenate(x)[:t] for x in zip(*outs, strict=True))
     best = int(np.argmax(lp))
     return _compact(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
 
