@@ -82,7 +82,7 @@ class ProblemBatch:
 @dataclass
 class Solution:
     status: np.ndarray  # (P,) FEASIBLE / INFEASIBLE / UNDECIDED
-    witness: np.ndarray  # (P, nv) box centre that satisfied all constraints (FEASIBLE only)
+    witness: np.ndarray  # (P, nv) the probe point that satisfied all constraints (FEASIBLE only)
     iterations: int
 
 
