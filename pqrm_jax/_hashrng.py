@@ -8,16 +8,27 @@ import jax.numpy as jnp
 import numpy as np
 
 
+def mix32(x):
+    """The hash's finaliser (an avalanche of xor-shifts and odd multiplies) on uint32 arrays,
+    NumPy or JAX (uint32 arithmetic wraps)."""
+    with np.errstate(over="ignore"):  # NumPy scalars warn on the wrap
+        x = x ^ (x >> 16)
+        x = x * np.uint32(0x7FEB352D)
+        x = x ^ (x >> 15)
+        x = x * np.uint32(0x846CA68B)
+        return x ^ (x >> 16)
+
+
+def to_unit(x):
+    """uint32 hashes → float32 uniforms in [0, 1) (their top 24 bits)."""
+    return (x >> 8).astype(np.float32) * np.float32(1.0 / (1 << 24))
+
+
 def hash_uniform(seed: jax.Array, counter: jax.Array, n: int) -> jax.Array:
     """n float32 uniforms in [0, 1) (24-bit) from a uint32 ``seed`` and ``counter``."""
     x = seed ^ (counter * jnp.uint32(0x9E3779B9)) ^ (jnp.arange(n, dtype=jnp.uint32)
                                                      * jnp.uint32(0x85EBCA6B))
-    x = x ^ (x >> 16)
-    x = x * jnp.uint32(0x7FEB352D)
-    x = x ^ (x >> 15)
-    x = x * jnp.uint32(0x846CA68B)
-    x = x ^ (x >> 16)
-    return (x >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+    return to_unit(mix32(x))
 
 
 def hash_uniform_at(seed, *keys):
@@ -27,13 +38,8 @@ def hash_uniform_at(seed, *keys):
     x = seed
     with np.errstate(over="ignore"):  # uint32 arithmetic wraps (NumPy scalars warn)
         for key, mult in zip(keys, _MULTS, strict=False):
-            x = x ^ (key.astype(np.uint32) * mult)
-            x = x ^ (x >> 16)
-            x = x * np.uint32(0x7FEB352D)
-            x = x ^ (x >> 15)
-            x = x * np.uint32(0x846CA68B)
-            x = x ^ (x >> 16)
-    return (x >> 8).astype(np.float32) * np.float32(1.0 / (1 << 24))
+            x = mix32(x ^ (key.astype(np.uint32) * mult))
+    return to_unit(x)
 
 
 _MULTS = tuple(np.uint32(m) for m in (0x9E3779B9, 0x85EBCA6B, 0xC2B2AE35, 0x27D4EB2F,

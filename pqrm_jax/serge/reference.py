@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._hashrng import mix32, to_unit
 from .cells import Problem
 from .potential import SAL_FLOOR, log_psi1
 from .search import SergeResult, _compact, _inputs
@@ -42,13 +43,8 @@ _FLOOR = _F32(SAL_FLOOR)
 
 def _hash_uniform_np(seed: np.uint32, counter: int, mix: np.ndarray) -> np.ndarray:
     """NumPy twin of ``_hashrng.hash_uniform``; ``mix`` = ``arange(n, uint32) * 0x85EBCA6B``."""
-    x = mix ^ np.uint32((int(seed) ^ (int(counter) * 0x9E3779B9)) & 0xFFFFFFFF)
-    x ^= x >> np.uint32(16)
-    x *= np.uint32(0x7FEB352D)
-    x ^= x >> np.uint32(15)
-    x *= np.uint32(0x846CA68B)
-    x ^= x >> np.uint32(16)
-    return (x >> np.uint32(8)).astype(_F32) * _F32(1.0 / (1 << 24))
+    return to_unit(mix32(mix ^ np.uint32((int(seed) ^ (int(counter) * 0x9E3779B9))
+                                         & 0xFFFFFFFF)))
 
 
 def _trial_np(lab0, mt0, adj0, lb0, bmask, alive0, lp1, seed, mix):

@@ -97,11 +97,10 @@ class _Decider:
         self.stats["trivial"] += sum(problems[i].trivially_infeasible for i in range(n))
         if todo:
             self._bnb([problems[i] for i in todo], name)
-            status = [self.presolved[problems[i].tag][0] for i in todo]
+            status, xs = zip(*(self.presolved[problems[i].tag] for i in todo), strict=True)
             leftover = []
-            for i, st in zip(todo, status, strict=True):
+            for i, st, x in zip(todo, status, xs, strict=True):
                 pr = problems[i]
-                x = self.presolved[pr.tag][1]
                 if st == FEASIBLE and pb.verify(pr, x):
                     feas[i] = True
                     wit[i] = _coords(pb.frame(pr.tag[1]), x)

@@ -421,12 +421,11 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
     and the work per round follows the live boxes. The problems are dealt to ``parts`` queues
     (default: one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`) run side
     by side in threads by one compiled program; ``chunk`` problems go to the device per call
-    (progress). Probe points are drawn at
-    (problem id, round, box, coordinate), with ``ids`` the problems' ids (default: their
-    positions), so verdicts and witnesses do not depend on ``parts``, ``chunk`` or which
-    problems share a batch. ``classes``: a batch already put in the form of
-    :func:`support_classes` and its class list (so that its problems can be solved one at a
-    time by one compiled program); by default every chunk is reordered here.
+    (progress). Probe points are drawn at (problem id, round, box, coordinate), with ``ids``
+    the problems' ids (default: their positions), so verdicts and witnesses do not depend on
+    ``parts``, ``chunk`` or which problems share a batch. ``classes``: a batch already put in
+    the form of :func:`support_classes` and its class list (so that its problems can be solved
+    one at a time by one compiled program); by default every chunk is reordered here.
 
     >>> from pqrm_jax import calculi
     >>> from pqrm_jax.tables import problems as pb

@@ -81,7 +81,7 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
             bhi = bhi + phi @ pos_t + plo @ neg_t
         # prune
         keep = _sign_ok(sign, blo, bhi).all(-1)  # (B,)
-        # witness probes: all centres first, then each probe for every box (as in _step)
+        # witness probes: all centres first, then each probe for every box (as _round)
         t = hash_uniform_at(np.uint32(seed), np.uint32(pid), np.uint32(it - 1),
                             np.arange(B, dtype=np.uint32)[None, :, None],
                             np.arange(probes * nv, dtype=np.uint32).reshape(probes, 1, nv))
