@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-import sim
+from pqrm_jax import sim
 from pqrm_jax.qrm import camera as C
 from pqrm_jax.qrm import hypergraph as H
 from pqrm_jax.qrm import pipeline as P

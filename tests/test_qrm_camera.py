@@ -162,7 +162,7 @@ def test_measure_image_and_bad_input():
     import jax
     import jax.numpy as jnp
 
-    import sim
+    from pqrm_jax import sim
 
     lm = sim.uniform_landmarks(jax.random.key(0), 8)
     cam = sim.camera(jnp.array([50.0, 50.0, 0.3]), lm, sim.SensorParams(max_range=1e3))

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import sim
+from pqrm_jax import sim
 from pqrm_jax.qrm import association as A
 from pqrm_jax.qrm import camera as C
 from pqrm_jax.qrm import hypergraph as H

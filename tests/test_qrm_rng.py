@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-import sim
+from pqrm_jax import sim
 from pqrm_jax.qrm import hypergraph as H
 from pqrm_jax.qrm import navigation as NAV
 from pqrm_jax.qrm import pipeline as P

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import sim
-from sim import lidar, rover, sensors, trajectories, world
+from pqrm_jax import sim
+from pqrm_jax.sim import lidar, rover, sensors, trajectories, world
 
 KEY = jax.random.key(0)
 
@@ -455,3 +455,15 @@ def test_docstring_examples():
     for mod in (world, rover, sensors, trajectories, lidar):
         result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert result.failed == 0, mod.__name__
+
+
+def test_top_level_sim_shim_aliases_the_package():
+    import importlib
+    import warnings
+
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        shim = importlib.import_module("sim")
+        shim_world = importlib.import_module("sim.world")
+    assert shim_world is world
+    assert shim.uniform_landmarks is sim.uniform_landmarks

@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import sim
-from sim.rover import RoverParams, RoverState, _step
+from pqrm_jax import sim
+from pqrm_jax.sim.rover import RoverParams, RoverState, _step
 
 from .rng import RNGEstimate
 

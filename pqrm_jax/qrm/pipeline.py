@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import sim
+from pqrm_jax import sim
 
 from ..calculi import Calculus
 from .camera import _measure_image
@@ -148,7 +148,8 @@ def run_sequence(
 ) -> tuple[QRMMap, Metrics]:
     """Map a layout from a sequence of imaging poses (T, 3); per-image metrics (T, ...).
 
-    >>> import jax, sim
+    >>> import jax
+    from pqrm_jax import sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 8)
     >>> poses = sim.random_imaging_points(jax.random.key(1), 4)
     >>> m, met = run_sequence(lm, poses, n=8)

@@ -45,7 +45,7 @@ REDUCED = dict(nav_pairs=48, traverses=2)
 
 
 def _world(cfg: Config, i: int):
-    import sim
+    from pqrm_jax import sim
 
     k = jax.random.fold_in(jax.random.key(cfg.seed), i)
     k1, k2 = jax.random.split(k)
@@ -83,7 +83,7 @@ def run_traverse(cfg: Config, i: int) -> dict:
 
 
 def run_navigation(cfg: Config, lm, m, key) -> dict:
-    import sim
+    from pqrm_jax import sim
     from pqrm_jax.qrm import hypergraph as H
     from pqrm_jax.qrm import navigation as NAV
     from pqrm_jax.qrm import rng as R

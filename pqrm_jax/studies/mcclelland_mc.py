@@ -51,7 +51,7 @@ REDUCED = dict(runs=3, images=20, ns=(6, 12, 18, 30), timed_runs=1)
 
 
 def _layout(cfg: Config, run: int):
-    import sim
+    from pqrm_jax import sim
 
     k = jax.random.fold_in(jax.random.key(cfg.seed), run)
     k1, k2 = jax.random.split(k)

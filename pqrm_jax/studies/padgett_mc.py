@@ -111,8 +111,7 @@ def _distance_matrices(reps) -> dict[str, np.ndarray | None]:
 
 
 def _setup(cfg: Config):
-    import sim.trajectories
-    from pqrm_jax import pqrm
+    from pqrm_jax import pqrm, sim
 
     pq = pqrm.mapper(cfg.representations, cfg.num_landmarks, cfg.num_samples)
     half = cfg.world_size / 2
@@ -123,8 +122,7 @@ def _setup(cfg: Config):
 
 def _run_inputs(cfg: Config, poses, key, sigma_r):
     """One run's world, sensor and per-step keys (as in the original per-run function)."""
-    import sim.sensors
-    import sim.world
+    from pqrm_jax import sim
 
     k_world, k_steps = jax.random.split(key)
     lm = sim.world.uniform_landmarks(k_world, cfg.num_landmarks,
@@ -136,7 +134,7 @@ def _run_inputs(cfg: Config, poses, key, sigma_r):
 
 
 def _observe_step(k, pose, lm, params):
-    import sim.sensors
+    from pqrm_jax import sim
 
     k_obs, k_map = jax.random.split(k)
     obs = sim.sensors.observe(k_obs, pose, lm, params)

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from sim._validate import (
+from pqrm_jax.sim._validate import (
     as_float,
     check_count,
     check_finite,
@@ -32,7 +32,14 @@ from sim._validate import (
     check_shape,
     wrap_angle,
 )
-from sim.rover import RoverParams, RoverState, _as_state, _check_params, _step, clip_control
+from pqrm_jax.sim.rover import (
+    RoverParams,
+    RoverState,
+    _as_state,
+    _check_params,
+    _step,
+    clip_control,
+)
 
 __all__ = [
     "perimeter_loop",
@@ -278,7 +285,7 @@ def follow_waypoints(
     A waypoint counts as reached when the rover is within ``tol`` of it; the controller then
     moves on to the next one, and the rover stops (zero control) after the last.
 
-    >>> from sim.rover import reset
+    >>> from pqrm_jax.sim.rover import reset
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> square = jnp.array([[5.0, 0.0], [5.0, 5.0], [0.0, 5.0], [0.0, 0.0]])
     >>> res = follow_waypoints(s, square, RoverParams(), n_steps=600)

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from sim._validate import check_count, check_nonneg, check_positive
+from pqrm_jax.sim._validate import check_count, check_nonneg, check_positive
 
 __all__ = [
     "uniform_landmarks",

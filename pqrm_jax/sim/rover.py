@@ -24,7 +24,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from sim._validate import (
+from pqrm_jax.sim._validate import (
     as_float,
     check_finite,
     check_nonneg,

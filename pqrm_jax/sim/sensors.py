@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from sim._validate import as_float, check_finite, check_nonneg, check_shape
+from pqrm_jax.sim._validate import as_float, check_finite, check_nonneg, check_shape
 
 __all__ = ["SensorParams", "Observation", "CameraObservation", "observe", "camera",
            "relative_positions", "visibility"]

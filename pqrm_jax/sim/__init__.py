@@ -1,0 +1,61 @@
+"""``sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+
+Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
+boundary, ``vmap``-able over runs:
+
+* :mod:`sim.world` -- landmark worlds (uniform, clustered, hallway, corridor grid).
+* :mod:`sim.rover` -- unicycle rover: ``reset`` / ``step`` / ``rollout`` (``lax.scan``).
+* :mod:`sim.sensors` -- relative-position sensor (range, field of view, occlusion, Gaussian
+  noise) and camera measurement (bearings + range ordering).
+* :mod:`sim.lidar` -- lidar ray casting into an occupancy grid.
+* :mod:`sim.trajectories` -- perimeter loop, random imaging points, traverses, waypoint
+  controller.
+
+Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
+
+    import jax, sim
+    lm = sim.uniform_landmarks(jax.random.key(0), 30)           # 100 m x 100 m square
+    poses = sim.perimeter_loop()                                # a pose every 16 degrees
+    keys = jax.random.split(jax.random.key(1), poses.shape[0])
+    obs = jax.vmap(sim.observe, (0, 0, None, None))(keys, poses, lm,
+                                                    sim.SensorParams(max_range=60.0, sigma=1.0))
+"""
+
+from pqrm_jax.sim import lidar, rover, sensors, trajectories, world
+from pqrm_jax.sim.lidar import LidarParams, LidarScan, lidar_scan, rasterize_discs
+from pqrm_jax.sim.rover import RoverParams, RoverState, clip_control, reset, rollout, step
+from pqrm_jax.sim.sensors import (
+    CameraObservation,
+    Observation,
+    SensorParams,
+    camera,
+    observe,
+    relative_positions,
+    visibility,
+)
+from pqrm_jax.sim.trajectories import (
+    ControllerGains,
+    FollowResult,
+    follow_waypoints,
+    perimeter_loop,
+    random_imaging_points,
+    traverse,
+    waypoint_controller,
+)
+from pqrm_jax.sim.world import (
+    clustered_landmarks,
+    corridor_grid_landmarks,
+    hallway_landmarks,
+    uniform_landmarks,
+)
+
+__all__ = [
+    "world", "rover", "sensors", "trajectories", "lidar",
+    "uniform_landmarks", "clustered_landmarks", "hallway_landmarks", "corridor_grid_landmarks",
+    "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control",
+    "SensorParams", "Observation", "CameraObservation", "observe", "camera",
+    "relative_positions", "visibility",
+    "LidarParams", "LidarScan", "lidar_scan", "rasterize_discs",
+    "perimeter_loop", "random_imaging_points", "traverse",
+    "ControllerGains", "FollowResult", "waypoint_controller", "follow_waypoints",
+]
