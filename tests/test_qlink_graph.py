@@ -124,3 +124,35 @@ def test_bad_input():
         lg.plan_pairs(g, el, [missing], [int(el.ids[0, 0])])
     with pytest.raises(ValueError, match="not in the map"):
         lg.plan_pairs(g, el, [int(el.ids[0, 0])], [-3])
+
+
+def test_neg_log_success_costs_give_max_product_paths():
+    from pqrm_jax.qlink import costs
+
+    rng = np.random.default_rng(7)
+    for _ in range(2):
+        lm = jnp.asarray(rng.uniform(0, 30, (7, 2)), jnp.float32)
+        el = _random_elements(rng, 7, 8)
+        el = qel.exact_elements(lm, np.asarray(el.ids))
+        g = costs.edge_costs(el, 1, "neg_log_success")
+        assert np.all(g.cost[g.adjacency] >= 0)
+        G = lg.to_networkx(g, el)
+        inc = qel.incidence(el)
+        pairs = np.array(list(itertools.permutations(np.flatnonzero(inc.any(1)), 2)))
+        plan = lg.plan_pairs(g, el, pairs[:, 0], pairs[:, 1])
+        pe = np.exp(-g.cost).tolist()
+        e = len(el.ids)
+        best_uv = np.eye(e)   # max product over all simple paths u -> v (enumeration)
+        for u, v in itertools.permutations(range(e), 2):
+            for p in nx.all_simple_paths(G, u, v):
+                prod = 1.0
+                for a, b in itertools.pairwise(p):
+                    prod *= pe[a][b]
+                best_uv[u, v] = max(best_uv[u, v], prod)
+        for k, (s, t) in enumerate(pairs):
+            best = best_uv[np.ix_(inc[s], inc[t])].max()
+            if best == 0.0:
+                assert not bool(plan.reachable[k])
+                continue
+            np.testing.assert_allclose(costs.path_success(g, plan.path[k]), best, rtol=1e-4)
+            np.testing.assert_allclose(np.exp(-float(plan.cost[k])), best, rtol=1e-4)

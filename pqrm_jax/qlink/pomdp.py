@@ -47,8 +47,8 @@ import numpy as np
 from .. import calculi
 
 __all__ = ["SearchPOMDP", "search_model", "edge_adjacency", "solve_exact", "open_loop_plan",
-           "greedy_sequence", "hazards", "success_probability", "expected_commands",
-           "sequence_value", "DEFAULT_DETECTION"]
+           "greedy_sequence", "open_loop_best", "hazards", "success_probability",
+           "expected_commands", "sequence_value", "DEFAULT_DETECTION"]
 
 DEFAULT_DETECTION = (0.95, 0.2, 0.02)
 """Detection probability (same state, adjacent state, opposite state) when none is estimated."""
@@ -203,6 +203,15 @@ def sequence_value(model: SearchPOMDP, belief: jax.Array, seq: jax.Array) -> jax
 def _chain_ok(feasible, q_r, seqs):
     prev = jnp.concatenate([jnp.full((seqs.shape[0], 1), q_r), seqs[:, :-1]], axis=1)
     return jnp.all(feasible[prev, seqs], axis=1)
+
+
+def open_loop_best(model: SearchPOMDP, q_r: jax.Array, belief: jax.Array):
+    """Traceable single-belief :func:`open_loop_plan`: ``(value, seq [τ])`` (``p_move = 1``).
+
+    For use inside ``jit``/``vmap``/``while_loop`` (the executive re-plans online with it).
+    """
+    seqs = jnp.asarray(_sequences(model.detect.shape[0], int(model.horizon)))
+    return _open_loop(model, seqs, q_r, belief)
 
 
 def _open_loop(model, seqs, q_r, belief):
