@@ -31,7 +31,8 @@ import numpy as np
 from .elements import MapElements, check_elements, incidence
 
 __all__ = ["LinkGraph", "Plan", "link_graph", "shared_counts", "bfs_distances",
-           "shortest_costs", "plan_pairs", "to_networkx", "path_cost"]
+           "shortest_costs", "plan_pairs", "to_networkx", "path_cost", "goal_distances",
+           "plan_from"]
 
 
 class LinkGraph(NamedTuple):
@@ -278,3 +279,67 @@ def path_cost(graph: LinkGraph, path: np.ndarray) -> float:
     """Σ C_ij along one ``path`` (element indices, ``-1`` padded); ``inf`` if not a path."""
     p = [int(x) for x in np.asarray(path) if x >= 0]
     return float(sum(graph.cost[a, b] for a, b in zip(p[:-1], p[1:], strict=True)))
+
+
+def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> jax.Array:
+    """Cost-to-go ``[G, E]`` from every element to the elements holding each goal landmark.
+
+    Computed once per world and goal (reverse search on the transposed costs), so a robot can
+    plan from whatever elements it has in view (P §4.3.2: "The robot defines its start as M_1
+    since it has a set of reference landmarks from M_1 in view"). ``inf`` = unreachable.
+    """
+    inc = incidence(elements)
+    goals = np.asarray(goals, np.int64)
+    tgt = jnp.asarray(inc[goals])
+    if bool(np.all(graph.cost[graph.adjacency] == 1.0)):
+        hops = np.asarray(bfs_distances(graph.adjacency.T, tgt))
+        return jnp.asarray(np.where(hops < 0, np.inf, hops), jnp.float32)
+    return shortest_costs(jnp.asarray(graph.cost.T, jnp.float32), tgt)
+
+
+@partial(jax.jit, static_argnames=("max_len",))
+def _forward(to_go, cost, rows, cands, *, max_len):
+    def one(row, cand):
+        d = to_go[row]
+        ds = jnp.where(cand >= 0, d[jnp.maximum(cand, 0)], jnp.inf)
+        u0 = jnp.maximum(cand[jnp.argmin(ds)], 0).astype(jnp.int32)
+        best = jnp.min(ds)
+        ok = jnp.isfinite(best)
+
+        def body(k, c):
+            path, u, done = c
+            path = path.at[k].set(jnp.where(done, -1, u))
+            at_goal = d[u] <= 0
+            cand_cost = cost[u] + d
+            v = jnp.argmin(jnp.where(jnp.arange(d.shape[0]) == u, jnp.inf, cand_cost))
+            return path, jnp.where(done | at_goal, u, v).astype(jnp.int32), done | at_goal
+
+        path, _, _ = jax.lax.fori_loop(0, max_len, body,
+                                       (jnp.full(max_len, -1, jnp.int32), u0, ~ok))
+        return ok, jnp.sum(path >= 0).astype(jnp.int32), path, best
+
+    return jax.vmap(one)(rows, cands)
+
+
+def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int) -> Plan:
+    """Paths from per-trial candidate start elements down a cost-to-go table.
+
+    Args:
+        graph: the Link Graph.
+        to_go: ``[G, E]`` rows of :func:`goal_distances`.
+        rows: ``[B]`` row of ``to_go`` (the goal) of each trial.
+        candidates: ``[B, C]`` element indices the robot may start from (``-1`` padded); the
+            one with the least cost-to-go is ``M_1``.
+        max_len: path array width (≥ the longest path).
+
+    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
+    >>> g = link_graph(el, 2)
+    >>> p = plan_from(g, goal_distances(g, el, [4]), jnp.array([0]), jnp.array([[0, -1]]), 4)
+    >>> p.n_elements.tolist(), p.path.tolist()
+    ([3], [[0, 1, 2, -1]])
+    """
+    cost = np.where(graph.adjacency, graph.cost, np.inf).astype(np.float32)
+    ok, n, path, best = _forward(jnp.asarray(to_go, jnp.float32), jnp.asarray(cost),
+                                 jnp.asarray(rows, jnp.int32), jnp.asarray(candidates, jnp.int32),
+                                 max_len=int(max_len))
+    return Plan(ok, jnp.where(ok, n, 0), path, best)
