@@ -65,6 +65,8 @@ class NavParams(NamedTuple):
     circle_margin: circle radius = ``circle_margin · R′`` (keeps the centre in range despite
         rounding).
     start_offset: start pose distance from the start landmark.
+    circle_only: 1.0 = skip the QSR search and circle a reference that is a link landmark
+        whenever there is one (the strategy of Prop. 2, P §4.3.4); 0.0 = Q-Link's QSR search.
     """
 
     map_range: float
@@ -75,6 +77,7 @@ class NavParams(NamedTuple):
     turn_per_step: float = 0.5
     circle_margin: float = 0.999
     start_offset: float = 1.0
+    circle_only: float = 0.0
 
 
 class NavResult(NamedTuple):
@@ -184,6 +187,12 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs,
         cand = in_next & not_ref
         link_tr = jnp.where(jnp.any(cand), lc[jnp.argmax(cand)], lc[jnp.argmax(in_next)])
         link = jnp.where(goal_stage, goal, link_tr).astype(jnp.int32)
+        # circle-only strategy (Prop. 2): circle a reference that is also in L_j (or any
+        # reference at the goal: the goal lies within 2R of it)
+        ref_in = jnp.where(goal_stage, jnp.array([True, True]),
+                           (s.refs[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1))
+        use_circle = (params.circle_only > 0.5) & jnp.any(ref_in)
+        link = jnp.where(use_circle, s.refs[jnp.argmax(ref_in)], link).astype(jnp.int32)
         link_is_ref = (link == s.refs[0]) | (link == s.refs[1])
         order = ordering_index(lc, s.refs[0], s.refs[1])
         belief = probs[cur, order]
@@ -253,7 +262,7 @@ def start_poses(keys, landmarks, starts, offset):
 
 def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
              params: NavParams, model: _pomdp.SearchPOMDP | None = None,
-             poses=None, budget=None) -> NavResult:
+             poses=None, budget=None, chunk: int = 64) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
@@ -267,6 +276,7 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
         model: the search POMDP (``p_move = 1``); default :func:`pomdp.search_model`.
         poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
         budget: optional ``[B]`` step budgets (default :func:`step_budget`).
+        chunk: trials per compiled batch (``vmap`` width); results do not depend on it.
 
     Raises:
         ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
@@ -295,11 +305,28 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
         raise ValueError("start poses contain NaN or inf values")
     budget = step_budget(n_elements, params) if budget is None else np.asarray(budget)
     p = NavParams(*(float(x) for x in params))
-    return _navigate(keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
-                     jnp.asarray(paths, jnp.int32), jnp.asarray(n_elements),
-                     jnp.asarray(budget, jnp.int32), poses, landmarks,
-                     jnp.asarray(elements.ids), jnp.asarray(elements.probs),
-                     model.feasible, model.detect, p, horizon=int(model.horizon))
+    paths = np.asarray(paths, np.int32)
+    width = max(16, -(-paths.shape[1] // 16) * 16)        # fixed widths: fewer recompiles
+    paths = np.pad(paths, ((0, 0), (0, width - paths.shape[1])), constant_values=-1)
+    args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
+            jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
+    const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(elements.probs),
+             model.feasible, model.detect, p)
+    return _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon)), args, chunk)
+
+
+def _chunked(fn, args, chunk):
+    """Run ``fn`` over fixed-size chunks of the leading axis (the last one padded), so every
+    batch size reuses one compiled program and results do not depend on the batch."""
+    b = args[0].shape[0]
+    outs = []
+    for i in range(0, b, chunk):
+        part = [a[i:i + chunk] for a in args]
+        m = part[0].shape[0]
+        if m < chunk:
+            part = [jnp.concatenate([x, jnp.repeat(x[:1], chunk - m, axis=0)]) for x in part]
+        outs.append(jax.tree.map(lambda x, m=m: x[:m], fn(*part)))
+    return jax.tree.map(lambda *x: jnp.concatenate(x), *outs)
 
 
 def replan_inputs(result: NavResult, landmarks, elements: MapElements, graph, goals, paths,
@@ -409,7 +436,8 @@ def _localize(keys, starts, poses, nbrs, memb, budget, landmarks, params):
         keys, starts, poses, nbrs, memb, budget)
 
 
-def localize(keys, landmarks, starts, poses, tables, params: NavParams, budget=None):
+def localize(keys, landmarks, starts, poses, tables, params: NavParams, budget=None,
+             chunk: int = 64):
     """Initial localisation (P §4.3.2): from the start pose, circle the start landmark at R′
     until two landmarks of an element holding it are in view at once.
 
@@ -423,9 +451,10 @@ def localize(keys, landmarks, starts, poses, tables, params: NavParams, budget=N
         budget = np.full(starts.shape, int(np.ceil(4 * (2 * np.pi + 1) * params.nav_range
                                                    / params.ds)) + 256, np.int32)
     p = NavParams(*(float(x) for x in params))
-    return _localize(jnp.asarray(keys), jnp.asarray(starts, jnp.int32),
-                     jnp.asarray(poses), jnp.asarray(nbrs[starts]), jnp.asarray(memb[starts]),
-                     jnp.asarray(budget, jnp.int32), jnp.asarray(landmarks), p)
+    lm = jnp.asarray(landmarks)
+    args = [jnp.asarray(keys), jnp.asarray(starts, jnp.int32), jnp.asarray(poses),
+            jnp.asarray(nbrs[starts]), jnp.asarray(memb[starts]), jnp.asarray(budget, jnp.int32)]
+    return _chunked(lambda *a: _localize(*a, lm, p), args, chunk)
 
 
 class PairResult(NamedTuple):
@@ -447,7 +476,7 @@ class PairResult(NamedTuple):
 
 def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
                    starts, goals, params: NavParams,
-                   model: _pomdp.SearchPOMDP | None = None) -> PairResult:
+                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
     Args:
@@ -455,7 +484,7 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
             Link Graph. to_go: ``[G, E]`` :func:`~pqrm_jax.qlink.linkgraph.goal_distances`.
         goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
         tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
-        params: :class:`NavParams`; model: the search POMDP.
+        params: :class:`NavParams`; model: the search POMDP; chunk: trials per compiled batch.
     """
     from .linkgraph import plan_from
 
@@ -470,7 +499,8 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
     poses = start_poses(keys, jnp.asarray(landmarks), starts, params.start_offset)
     if not np.all(np.isfinite(np.asarray(poses))):
         raise ValueError("start poses contain NaN or inf values")
-    pose1, len1, _, st1, in_view = localize(keys, landmarks, starts, poses, tables, params)
+    pose1, len1, _, st1, in_view = localize(keys, landmarks, starts, poses, tables, params,
+                                            chunk=chunk)
     cands = np.where(np.asarray(in_view), cand[starts], -1)
     max_len = int(np.nanmax(np.where(np.isfinite(np.asarray(to_go)), np.asarray(to_go), 0))) + 2
     plan = plan_from(graph, to_go, goal_row[goals], cands, max_len)
@@ -478,7 +508,7 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
     reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
     n = np.where(reach, np.asarray(plan.n_elements), 1)
     res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
-                   starts, goals, plan.path, n, params, model, poses=pose1)
+                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk)
     status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)
