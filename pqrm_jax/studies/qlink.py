@@ -262,6 +262,12 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
     from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
+    todo = [(b, name) for b in cfg.betas for name, _, occ in settings(cfg)
+            if b == cfg.betas[0] or occ == 0]
+    done_all = all((out / "trials" / f"w{w:02d}_b{b}_{n.replace(' ', '_')}.csv").exists()
+                   for b, n in todo)
+    if done_all and (out / f"world_{w:02d}.json").exists():     # resume: nothing left
+        return json.loads((out / f"world_{w:02d}.json").read_text())
     t0 = time.time()
     lm, el = build_world(cfg, w)
     t_map = time.time() - t0
