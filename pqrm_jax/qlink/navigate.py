@@ -308,11 +308,17 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     paths = np.asarray(paths, np.int32)
     width = max(16, -(-paths.shape[1] // 16) * 16)        # fixed widths: fewer recompiles
     paths = np.pad(paths, ((0, 0), (0, width - paths.shape[1])), constant_values=-1)
+    # similar trials share a chunk (a vmapped while_loop runs until its longest lane ends);
+    # the order is undone below, so results do not depend on it
+    order = np.argsort(n_elements, kind="stable")
+    inv = np.argsort(order)
     args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
             jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
+    args = [x[jnp.asarray(order)] for x in args]
     const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(elements.probs),
              model.feasible, model.detect, p)
-    return _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon)), args, chunk)
+    res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon)), args, chunk)
+    return jax.tree.map(lambda x: x[jnp.asarray(inv)], res)
 
 
 def _chunked(fn, args, chunk):

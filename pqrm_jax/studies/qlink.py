@@ -95,12 +95,12 @@ class Config:
     start_offset: float = 1.0
     nav_sigma: float = 0.3
     max_pairs: int = 0
-    chunk: int = 256
+    chunk: int = 32
     seed: int = 0
 
 
 REDUCED = dict(worlds=(0,), landmarks=50, size=100.0, max_pairs=64, betas=(2, 1),
-               sensor_fracs=(1.0, 0.8), occluder_sizes=(0.5,), chunk=64)
+               sensor_fracs=(1.0, 0.8), occluder_sizes=(0.5,), chunk=32)
 
 
 def settings(cfg: Config) -> list[tuple[str, float, float]]:
