@@ -87,6 +87,8 @@ class NavResult(NamedTuple):
     hops: transitions completed (localisation into M_1 counts as the first).
     k: index on the path of the element the robot is localised in (−1 = none).
     pose: ``[B, 3]`` final pose. refs: ``[B, 2]`` final references.
+    trace: ``[B, T, 2]`` positions after each of the first T steps (NaN after the end; T = 0
+        unless ``record`` is given).
     """
 
     status: jax.Array
@@ -96,6 +98,7 @@ class NavResult(NamedTuple):
     k: jax.Array
     pose: jax.Array
     refs: jax.Array
+    trace: jax.Array
 
 
 class _S(NamedTuple):
@@ -113,6 +116,7 @@ class _S(NamedTuple):
     motion: tr.Motion
     status: jax.Array
     hops: jax.Array
+    trace: jax.Array
 
 
 def _sel(cond, a, b):
@@ -128,7 +132,7 @@ def step_budget(n_elements, params: NavParams, factor: float = 5.0, turns: int =
 
 
 def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs, model,
-           params: NavParams):
+           params: NavParams, record: int = 0):
     quad = calculi.get("quadrant")
     dt = 1.0
     v_max, w_max = params.ds, params.turn_per_step
@@ -149,7 +153,8 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs,
               seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
               e_xy=s_xy,
               motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
-              status=jnp.int32(RUNNING), hops=jnp.int32(0))
+              status=jnp.int32(RUNNING), hops=jnp.int32(0),
+              trace=jnp.full((record, 2), jnp.nan, fdt))
 
     def body(s: _S) -> _S:
         pos = s.pose[:2]
@@ -232,20 +237,23 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs,
                         _sel(see_e, s_circ,
                              _sel(s.phase == PLAN, s_plan, s_moved))))
         out = out._replace(steps=s.steps + 1)
+        if record:
+            out = out._replace(trace=out.trace.at[jnp.minimum(s.steps, record - 1)].set(
+                jnp.where(s.steps < record, out.pose[:2], out.trace[record - 1])))
         over = (out.status == RUNNING) & (out.steps >= budget)
         return out._replace(status=jnp.where(over, BUDGET, out.status))
 
     final = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)
     return NavResult(final.status, final.length, final.steps, final.hops, final.k, final.pose,
-                     final.refs)
+                     final.refs, final.trace)
 
 
-@partial(jax.jit, static_argnames=("horizon",))
+@partial(jax.jit, static_argnames=("horizon", "record"))
 def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids, probs,
-              feasible, detect, params, *, horizon):
+              feasible, detect, params, *, horizon, record=0):
     model = _pomdp.SearchPOMDP(feasible, detect, 1.0, horizon)
     return jax.vmap(lambda k, s, g, p, nn, b, sp: _trial(
-        k, s, g, p, nn, b, sp, landmarks, ids, probs, model, params))(
+        k, s, g, p, nn, b, sp, landmarks, ids, probs, model, params, record))(
         keys, starts, goals, paths, n, budget, start_poses)
 
 
@@ -262,7 +270,7 @@ def start_poses(keys, landmarks, starts, offset):
 
 def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
              params: NavParams, model: _pomdp.SearchPOMDP | None = None,
-             poses=None, budget=None, chunk: int = 64) -> NavResult:
+             poses=None, budget=None, chunk: int = 64, record: int = 0) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
@@ -277,6 +285,7 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
         poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
         budget: optional ``[B]`` step budgets (default :func:`step_budget`).
         chunk: trials per compiled batch (``vmap`` width); results do not depend on it.
+        record: keep the first ``record`` positions of every trial (for plots).
 
     Raises:
         ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
@@ -317,7 +326,8 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     args = [x[jnp.asarray(order)] for x in args]
     const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(elements.probs),
              model.feasible, model.detect, p)
-    res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon)), args, chunk)
+    res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon),
+                                        record=int(record)), args, chunk)
     return jax.tree.map(lambda x: x[jnp.asarray(inv)], res)
 
 
@@ -482,7 +492,8 @@ class PairResult(NamedTuple):
 
 def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
                    starts, goals, params: NavParams,
-                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64) -> PairResult:
+                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
+                   record: int = 0) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
     Args:
@@ -514,7 +525,8 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
     reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
     n = np.where(reach, np.asarray(plan.n_elements), 1)
     res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
-                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk)
+                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk,
+                   record=record)
     status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)
