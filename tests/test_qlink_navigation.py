@@ -198,3 +198,28 @@ def test_unreachable_goal_is_reported_not_failed():
                            np.arange(8), nav.start_tables(el), [0, 0], [3, 7], p)
     assert r.reachable.tolist() == [True, False]
     assert int(r.status[0]) == nav.SUCCESS and int(r.n_elements[1]) == 0
+
+
+@pytest.mark.slow
+def test_contingency_replanning_resumes_failed_trials(world):
+    w = world
+    p = nav.NavParams(map_range=R, nav_range=0.6 * R, sigma=0.0, ds=R / 40, start_offset=R / 20)
+    s, t = w["pairs"][:, 0], w["pairs"][:, 1]
+    plan = lg.plan_pairs(w["g"], w["el"], s, t)
+    first = nav.navigate(w["keys"], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p)
+    idx, paths, n = nav.replan_inputs(first, w["lm"], w["el"], w["g"], t, plan.path, p)
+    st = np.asarray(first.status)
+    assert idx.size and set(st[idx]) <= {nav.LINK_NOT_FOUND, nav.REFS_NOT_FOUND}
+    ids = np.asarray(w["el"].ids)
+    for j, i in enumerate(idx):
+        vis = np.asarray(sim.disc_visibility(first.pose[i, :2], w["lm"], p.nav_range, 0.0))
+        assert vis[ids[paths[j, 0]]].sum() >= 2            # starts from an element in view
+        assert t[i] in ids[paths[j, n[j] - 1]]              # ends at the goal
+        k = int(first.k[i])
+        failed = (int(plan.path[i, max(k, 0)]), int(plan.path[i, k + 1]))
+        assert failed not in set(zip(paths[j, :-1].tolist(), paths[j, 1:].tolist(),
+                                     strict=True))
+    start_lm = ids[paths[:, 0], 0]
+    again = nav.navigate(w["keys"][idx], w["lm"], w["el"], start_lm, t[idx], paths, n, p,
+                         poses=first.pose[idx])
+    assert (np.asarray(again.status) != nav.RUNNING).all()
