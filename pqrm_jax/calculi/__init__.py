@@ -17,7 +17,7 @@ from .poly import Poly, alpha, beta, circle, line, rho
 
 __all__ = [
     "BOUNDARY", "DEGENERATE", "INVALID", "Calculus", "Poly", "alpha", "beta", "rho", "line",
-    "circle", "get", "names", "register",
+    "circle", "get", "is_builtin", "names", "register",
 ]
 
 _BUILDERS: dict[str, Callable[[], Calculus]] = {
@@ -40,6 +40,11 @@ PADGETT_REPRESENTATIONS = ("edc", "edc_lune", "triple_cross", "double_cross", "s
 def names() -> tuple[str, ...]:
     """Names of the built-in and registered calculi."""
     return tuple(dict.fromkeys([*_BUILDERS, *_CACHE]))
+
+
+def is_builtin(name: str) -> bool:
+    """Whether ``name`` is one of the calculi shipped with the package (tables in package data)."""
+    return name in _BUILDERS
 
 
 def get(name: str) -> Calculus:

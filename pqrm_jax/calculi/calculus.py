@@ -310,19 +310,29 @@ class Calculus:
     # operators (computed lazily by pqrm_jax.tables) ----------------------------------------
     @property
     def tables(self):
-        """Exact operator tables (unary, compose, adjacency), loaded from cache or built."""
-        from ..tables import load_tables
+        """Exact operator tables (unary, compose, adjacency), loaded from cache or built.
+
+        A lazy accessor into :func:`pqrm_jax.tables.store.load_tables`: the first access of a
+        user calculus without a cached file runs the exact build (seconds to minutes).
+        """
+        from ..tables.store import load_tables
 
         return load_tables(self)
 
     @property
     def adjacency(self) -> np.ndarray:
-        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1)."""
+        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1).
+
+        Read from :attr:`tables`, so the first access may build them.
+        """
         return self.tables.adjacency
 
     @property
     def neighbor_distance(self) -> np.ndarray:
-        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph."""
+        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph.
+
+        Read from :attr:`tables`, so the first access may build them.
+        """
         return self.tables.neighbor_distance
 
 
