@@ -113,12 +113,12 @@ def test_witnesses_reverify_exactly(name):
 
 def _algebraic_witness_keys(calc, t) -> set[str]:
     """'S1|S2|S3' keys of compose entries whose z3 witness is not exactly representable."""
-    from pqrm_jax.calculi.calculus import _pattern_index
+    from pqrm_jax.calculi.calculus import pattern_index
 
     def label(atom):
         if isinstance(atom, str):
             return atom
-        return calc.states[calc.sign_table[_pattern_index(atom)]]
+        return calc.states[calc.sign_table[pattern_index(atom)]]
 
     return {"|".join(label(a) for a in u["tag"][1:]) for u in t.undecided
             if u["problem"] == "compose" and u.get("exact_witness") is False}

@@ -96,7 +96,7 @@ def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax
 def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
     """(T,) true state of ``AB:C`` for each triplet (i, j, k) of world landmarks (M, 2)."""
     tri = jnp.asarray(triplets)
-    return calc._classify(landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]])
+    return calc.classify(landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]])
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:

@@ -169,7 +169,7 @@ def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
-def _apply(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
+def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
     n = m.rel.shape[0]
     meas = jnp.full_like(m.rel, spec.full)
     tri = jnp.where(valid[:, None], triples, n)  # out of range → dropped
@@ -213,7 +213,7 @@ def apply_relations(
         valid = jnp.ones(triples.shape[:1], bool)
     if not isinstance(triples, jax.core.Tracer):
         _check_ids(np.asarray(triples)[np.asarray(valid)], m.rel.shape[0])
-    return _apply(spec, m, triples, sets, jnp.asarray(valid), max_sweeps=max_sweeps)
+    return apply_relations_kernel(spec, m, triples, sets, jnp.asarray(valid), max_sweeps=max_sweeps)
 
 
 def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSpec = "edc",
