@@ -33,10 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .poly import Poly, as_constraint
-
-BOUNDARY = -1
-DEGENERATE = -2
-INVALID = -3
+from .protocol import BOUNDARY, DEGENERATE, INVALID
 
 SignRule = Callable[[tuple[int, ...]], "str | None"]
 

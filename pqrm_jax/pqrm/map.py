@@ -47,6 +47,7 @@ from .measurement import (
     is_edc,
     key_to_edc_state,
     root_counts,
+    root_identity,
     root_of,
     sample_bank,
 )
@@ -284,7 +285,7 @@ def mapper(
     names = [c.name for c in cals]
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate representations: {names}")
-    roots = {root_of(c).definition_hash for c in cals}
+    roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("all representations of one map must be merges of one root calculus "
                          "(one sampling pass serves them all)")

@@ -78,14 +78,21 @@ _BAND_OFFSET = (0, 2, 5, 8)
 
 
 def root_of(calc: Calculus) -> Calculus:
-    """The finest calculus that ``calc`` is a (chain of) merge(s) of."""
-    while calc.parent is not None:
+    """The finest calculus that ``calc`` is a (chain of) merge(s) of (no ``parent``: itself)."""
+    while getattr(calc, "parent", None) is not None:
         calc = calc.parent
     return calc
 
 
+def root_identity(calc: Calculus) -> str | int:
+    """What makes two calculi share one root: its ``definition_hash``, else the object itself."""
+    root = root_of(calc)
+    return getattr(root, "definition_hash", None) or id(root)
+
+
 def is_edc(calc: Calculus) -> bool:
-    return calc.definition_hash == calculi.get("edc").definition_hash
+    """Whether ``calc`` is the EDC itself (it gets the fused sampling kernel)."""
+    return getattr(calc, "definition_hash", None) == calculi.get("edc").definition_hash
 
 
 @cache
@@ -111,7 +118,7 @@ def aggregation_matrix(calc: Calculus) -> np.ndarray:
     """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
-    while c.parent is not None:
+    while getattr(c, "parent", None) is not None:
         fine_to = fine_to[np.asarray(c.parent_map)]
         c = c.parent
     mat = np.zeros((c.num_states, calc.num_states), np.float32)
@@ -365,7 +372,7 @@ def multi_state_probabilities(
     (['edc', 'lr'], [[0.0, 1.0]])
     """
     cals = [calculi.get(c) for c in calculi_]
-    roots = {root_of(c).definition_hash for c in cals}
+    roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("multi_state_probabilities needs calculi that share one root calculus")
     fine = fine_counts(key, cals[0], means, sigma, num_samples, chunk_triplets=chunk_triplets)
