@@ -7,8 +7,7 @@ import pytest
 
 from pqrm_jax import calculi, pqrm
 from pqrm_jax.calculi import BOUNDARY, DEGENERATE, INVALID, TernaryCalculus
-from pqrm_jax.serge import Grid, SergeCalculus
-from pqrm_jax.serge import qsr
+from pqrm_jax.serge import Grid, SergeCalculus, qsr
 
 
 def learned_lr(name="lr_learned_t"):
