@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import calculi
 from ..calculi import Calculus
+from ..triplets import ordered_triplets  # the rows layout (re-exported as pqrm.ordered_triplets)
 from .measurement import (
     aggregation_matrix,
     counts_to_probabilities,
@@ -53,16 +54,6 @@ from .measurement import (
 )
 
 __all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed"]
-
-
-def ordered_triplets(num_landmarks: int) -> np.ndarray:
-    """(M(M−1)(M−2), 3) int32: every ordered triplet (i, j, k) of distinct landmark ids."""
-    if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
-        raise ValueError(f"a PQRM map needs at least three landmarks, got {num_landmarks!r}")
-    m = int(num_landmarks)
-    i, j, k = np.meshgrid(np.arange(m), np.arange(m), np.arange(m), indexing="ij")
-    keep = (i != j) & (i != k) & (j != k)
-    return np.stack([i[keep], j[keep], k[keep]], axis=-1).astype(np.int32)
 
 
 class MapState(NamedTuple):

@@ -22,6 +22,7 @@ import numpy as np
 from pqrm_jax import sim
 
 from ..calculi import Calculus
+from ..triplets import cyclic_mask
 from .camera import measure_image_kernel
 from .hypergraph import QRMMap, apply_relations_kernel, empty_map, true_relations
 from .rng import rng_estimate_kernel
@@ -43,19 +44,11 @@ class Metrics(NamedTuple):
     first_proven: jax.Array  # (Q+1,) same histogram counting only states with a witness
 
 
-def _cyclic_mask(n):
-    i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
-    # one representative per cyclic class of each unordered triple: i < j < k and the two
-    # rotations (j, k, i), (k, i, j) of it
-    inc = (i < j) & (j < k)
-    return inc | np.transpose(inc, (2, 0, 1)) | np.transpose(inc, (1, 2, 0))
-
-
 @partial(jax.jit, static_argnames="spec")
 def _metrics(spec: QRMSpec, m: QRMMap, truth):
     n = m.rel.shape[0]
     q = spec.num_states
-    cyc = jnp.asarray(_cyclic_mask(n))
+    cyc = jnp.asarray(cyclic_mask(n))
     open_ = popcount(m.rel)
     n_rel = cyc.sum()
     removed = jnp.sum(jnp.where(cyc, q - open_, 0)) / (n_rel * (q - 1)) * 100
