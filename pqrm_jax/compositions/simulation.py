@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import triplets as _triplets
+from .. import triplets as layouts
 from .propagation import DEFAULT_EPS, DEFAULT_PATH_WEIGHT, propagate
 
 __all__ = ["sample_compose_tensor", "random_world", "true_states", "measure_map", "score",
@@ -75,7 +75,7 @@ def true_states(calc, pos) -> np.ndarray:
 
     The dense layout of :func:`pqrm_jax.triplets.true_states` (repeated entries as classified).
     """
-    return np.asarray(_triplets.true_states(calc, pos, "dense", mask_repeated=False))
+    return np.asarray(layouts.true_states(calc, pos, "dense", mask_repeated=False))
 
 
 def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 256):

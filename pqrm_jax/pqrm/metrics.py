@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import triplets as _triplets
+from .. import triplets as layouts
 from ..calculi import Calculus
 
 __all__ = [
@@ -99,7 +99,7 @@ def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
 
     The rows layout of :func:`pqrm_jax.triplets.true_states`.
     """
-    return _triplets.true_states(calc, landmarks, "rows", triplets=triplets)
+    return layouts.true_states(calc, landmarks, "rows", triplets=triplets)
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:
