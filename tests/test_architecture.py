@@ -94,3 +94,29 @@ def test_every_face_declares_all(path):
     m = importlib.import_module(mod)
     missing = [n for n in m.__all__ if not hasattr(m, n)]
     assert not missing, f"{mod}.__all__ lists missing names {missing}"
+
+
+def test_top_level_gives_lazy_access_to_every_subpackage():
+    import subprocess
+    import sys
+
+    code = ("import sys, pqrm_jax; assert 'pqrm_jax.qrm' not in sys.modules; "
+            "assert pqrm_jax.qrm.mapper and pqrm_jax.sim.camera and pqrm_jax.tables.load_tables;"
+            " assert pqrm_jax.triplets.ordered_triplets and pqrm_jax.serge.SergeCalculus;"
+            " print(pqrm_jax.__version__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip()
+    import pqrm_jax
+
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        pqrm_jax.nope  # noqa: B018
+    subdirs = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
+    assert subdirs <= set(pqrm_jax.__all__), subdirs - set(pqrm_jax.__all__)
+
+
+def test_registry_knows_its_builtins():
+    from pqrm_jax import calculi
+
+    assert calculi.is_builtin("edc") and calculi.is_builtin("lr_full")
+    assert not calculi.is_builtin("my_lr")

@@ -95,7 +95,7 @@ def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, t
         at_goal_cell = (target == g) & (nearest == g)
         # bearing-only drive to the next landmark; last leg: drive to END (local planner)
         rel = jnp.where(at_goal_cell, goal, landmarks[jnp.maximum(target, 0)]) - state.pose[:2]
-        err = sim._validate.wrap_angle(jnp.arctan2(rel[1], rel[0]) - state.pose[2])
+        err = sim.wrap_angle(jnp.arctan2(rel[1], rel[0]) - state.pose[2])
         dist_goal = jnp.sqrt(jnp.sum((goal - state.pose[:2]) ** 2))
         done = at_goal_cell & (dist_goal < tol)
         visible_target = cam.visible[jnp.maximum(target, 0)] | at_goal_cell
