@@ -15,6 +15,7 @@ import logging
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from pqrm_jax import calculi, pqrm, qrm, sim
 from pqrm_jax import serge as sg
@@ -72,6 +73,16 @@ def test_pqrm_mapper_update_compiles_once():
         s2 = pq.update(s1, k1, pos1, vis1, 0.75)
         jax.block_until_ready(s2)
     assert again == []
+
+
+@pytest.mark.slow
+def test_pqrm_mapper_update_batch_compiles_once():
+    pq = pqrm.mapper(("edc", "lr"), num_landmarks=5, num_samples=32)
+    st = pq.init()
+    vis = jnp.array([True, True, True, True, False])
+    vis1 = jnp.array([False, True, True, True, True])
+    pos0 = jax.random.uniform(jax.random.key(0), (5, 2)) * 10
+    k0, k1 = jax.random.key(2), jax.random.key(3)
     r = 3
     keys = jax.random.split(k0, r)
     states = jax.tree_util.tree_map(lambda x: jnp.stack([x] * r), st)
@@ -100,14 +111,22 @@ def test_camera_kernel_compiles_once():
     sensor = sim.SensorParams(max_range=1e6)
     cam0 = sim.camera(jnp.array([50.0, 50.0, 0.0]), lm, sensor)
     cam1 = sim.camera(jnp.array([20.0, 70.0, 1.0]), lm, sensor)
-    target = qrm.true_map(lm).rel
-    target1 = jax.block_until_ready(target ^ 1)
     jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
                                             pool=8, depth=6))
     with count_compiles() as again:
         jax.block_until_ready(qrm.measure_image(cam1.bearings, cam1.range_rank, cam1.visible,
                                                 n=6, pool=8, depth=6))
     assert again == []
+
+
+@pytest.mark.slow
+def test_camera_kernel_with_target_map_compiles_once():
+    lm = sim.uniform_landmarks(jax.random.key(0), 7)
+    sensor = sim.SensorParams(max_range=1e6)
+    cam0 = sim.camera(jnp.array([50.0, 50.0, 0.0]), lm, sensor)
+    cam1 = sim.camera(jnp.array([20.0, 70.0, 1.0]), lm, sensor)
+    target = qrm.true_map(lm).rel
+    target1 = jax.block_until_ready(target ^ 1)
     jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
                                             target_map=target, pool=8, depth=6))
     with count_compiles() as again:
