@@ -17,7 +17,8 @@ def _rate(rows):
     return 100.0 * fail / len(reach), len(reach)
 
 
-def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall_s) -> None:
+def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall_s,
+                 examples=()) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -148,7 +149,12 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
               "Ours follows the thesis's own \"typically … π/2 R … and at worst another R\" "
               "per transition, so it is well below 1.6 km at large |P| (a scale mismatch we "
               "cannot resolve from the text).", "",
-              "![Fig. 4.7](fig4_7_length_vs_elements.png)", "", "## Worlds", ""]
+              "![Fig. 4.7](fig4_7_length_vs_elements.png)", ""]
+    if examples:
+        lines += [f"## Example trajectories (world {worlds[0]}, re-driven with the same keys)",
+                  ""] + [f"- {e}" for e in examples] + [
+                  "", "![examples](example_trajectories.png)", ""]
+    lines += ["## Worlds", ""]
     for w, info in summary.items():
         lines.append(f"- world {w}: {info}")
     lines += ["", "Every knob and its reason: `config.json`. Raw rows: `trials.csv` "

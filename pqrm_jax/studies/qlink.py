@@ -251,8 +251,10 @@ def main(argv: list[str]) -> int:
     for f in sorted((out / "trials").glob("w*.csv")):
         rows += _read_csv(f)
     _atomic_write(out / "trials.csv", _csv(rows))
+    examples = example_trajectories(cfg, out, rows)
     from ._qlink_report import write_report
-    write_report(out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg), time.time() - t0)
+    write_report(out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg), time.time() - t0,
+                 examples)
     print(f"wrote {out / 'report.md'} ({len(rows)} trials, {time.time() - t0:.0f} s)")
     return 0
 
@@ -307,3 +309,83 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
             info["setting_s"][f"b{beta} {name}"] = round(time.time() - t1, 1)
     _atomic_write(out / f"world_{w:02d}.json", json.dumps(info, indent=1))
     return info
+
+
+def example_trajectories(cfg: Config, out: Path, rows: list[dict]) -> list[str]:
+    """Re-drive up to three trials of the first world with pose recording (same per-trial keys,
+    so the same outcome) and plot them over the map, in the style of P Fig. 4.9."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pqrm_jax.qlink import elements as qel
+    from pqrm_jax.qlink import linkgraph as lg
+    from pqrm_jax.qlink import navigate as nav
+
+    w, beta = cfg.worlds[0], cfg.betas[0]
+    mine = [r for r in rows if int(r["world"]) == w and int(r["beta"]) == beta
+            and r["reachable"] == "1"]
+    picks = []
+    ok = [r for r in mine if r["setting"] == "R" and r["success"] == "1"]
+    if ok:
+        picks.append(max(ok, key=lambda r: int(r["n_elements"])))
+    low = [r for r in mine if r["setting"] != "R" and "occ" not in r["setting"]
+           and r["success"] == "0"]
+    if low:
+        picks.append(low[0])
+    occ = [r for r in mine if "occ" in r["setting"]]
+    if occ:
+        picks.append(max(occ, key=lambda r: float(r["length_m"])))
+    if not picks:
+        return []
+    z = np.load(out / f"world_{w:02d}.npz")
+    lm = jnp.asarray(z["positions"])
+    el = qel.MapElements(jnp.asarray(z["element_ids"]), jnp.asarray(z["element_probs"]),
+                         int(lm.shape[0]))
+    detect = None if np.isnan(z["detection"]).any() else z["detection"]
+    g = lg.link_graph(el, beta)
+    lms = np.flatnonzero(qel.incidence(el).any(1))
+    goal_row = np.full(el.num_landmarks, -1, np.int64)
+    goal_row[lms] = np.arange(len(lms))
+    to_go = lg.goal_distances(g, el, lms)
+    world = (lm, el, g, to_go, goal_row, nav.start_tables(el), None, detect)
+    fig, axes = plt.subplots(1, len(picks), figsize=(5 * len(picks), 5), squeeze=False)
+    notes = []
+    for ax, r in zip(axes[0], picks, strict=True):
+        name = r["setting"]
+        frac, size = next((f, o) for n, f, o in settings(cfg) if n == name)
+        pair = np.array([[int(r["start"]), int(r["goal"])]])
+        res = _drive(cfg, w, beta, name, frac, size, world, pair, record=6000)
+        tr = np.asarray(res.nav.trace[0])
+        ax.plot(*np.asarray(lm).T, "k.", ms=2)
+        ax.plot(tr[:, 0], tr[:, 1], "C0-", lw=0.8)
+        ax.plot(*np.asarray(lm[pair[0, 0]]), "g^", ms=8)
+        ax.plot(*np.asarray(lm[pair[0, 1]]), "r*", ms=10)
+        outcome = nav.FAILURE_REASONS[int(res.status[0])]
+        ax.set(aspect="equal", title=f"{name}: {outcome}, |P| = {int(res.n_elements[0])}")
+        notes.append(f"{name}, {pair[0].tolist()}: {outcome} (trials.csv: {r['reason']}), "
+                     f"{float(res.length[0]):.0f} m")
+    fig.tight_layout()
+    fig.savefig(out / "example_trajectories.png", dpi=110)
+    plt.close(fig)
+    return notes
+
+
+def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
+    from pqrm_jax.qlink import navigate as nav
+    from pqrm_jax.qlink import pomdp
+
+    lm, el, g, to_go, goal_row, tables, _, detect = world
+    params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
+                           occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
+                           turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
+                           start_offset=cfg.start_offset)
+    model = pomdp.search_model("quadrant", horizon=cfg.horizon, detect=detect)
+    sid = zlib.crc32(f"{beta}/{name}".encode()) & 0x7FFFFFFF
+    base = jax.random.fold_in(jax.random.fold_in(jax.random.key(cfg.seed), w), sid)
+    pid = jnp.asarray(pairs[:, 0] * cfg.landmarks + pairs[:, 1], jnp.uint32)
+    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(pid)
+    return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
+                              pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
+                              record=record)
