@@ -42,7 +42,7 @@ from .elements import MapElements, ordering_index
 
 __all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
            "step_budget", "replan_inputs", "localize", "start_tables", "start_poses",
-           "PairResult", "navigate_pairs"]
+           "PairResult", "navigate_pairs", "qsr_plans"]
 
 RUNNING, SUCCESS = 0, 1
 LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
@@ -119,6 +119,18 @@ class _S(NamedTuple):
     trace: jax.Array
 
 
+def qsr_plans(elements: MapElements, model: _pomdp.SearchPOMDP) -> jax.Array:
+    """``[E, 6, Q, τ]`` the exact search-POMDP command sequence for every element, ordering
+    (references A, B; link C) and robot state — solved once, batched over all of them
+    (:func:`pqrm_jax.qlink.pomdp.open_loop_plan`), looked up by the executive."""
+    probs = jnp.asarray(elements.probs)
+    e, o, q = probs.shape
+    b = jnp.repeat(probs.reshape(e * o, q), q, axis=0)
+    qr = jnp.tile(jnp.arange(q, dtype=jnp.int32), e * o)
+    _, seq = _pomdp.open_loop_plan(model, qr, b)
+    return seq.reshape(e, o, q, -1).astype(jnp.int32)
+
+
 def _sel(cond, a, b):
     return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
 
@@ -131,7 +143,7 @@ def step_budget(n_elements, params: NavParams, factor: float = 5.0, turns: int =
             + turns * n).astype(np.int32)
 
 
-def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs, model,
+def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, plans, model,
            params: NavParams, record: int = 0):
     quad = calculi.get("quadrant")
     dt = 1.0
@@ -200,10 +212,9 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs,
         link = jnp.where(use_circle, s.refs[jnp.argmax(ref_in)], link).astype(jnp.int32)
         link_is_ref = (link == s.refs[0]) | (link == s.refs[1])
         order = ordering_index(lc, s.refs[0], s.refs[1])
-        belief = probs[cur, order]
         a_xy, b_xy = s.refs_xy[0], s.refs_xy[1]
         q_r = jnp.maximum(quad.classify(a_xy, b_xy, pos), 0).astype(jnp.int32)
-        _, seq = _pomdp.open_loop_best(model, q_r, belief)
+        seq = plans[cur, order, q_r]          # the exact POMDP plan for this entry state
         centre, lo = tr.quadrant_wedge(a_xy, b_xy, seq[0])
         ref_pos = jnp.where(link == s.refs[0], a_xy, b_xy)
         s_plan_arc = s._replace(phase=jnp.int32(ARC), seq=seq.astype(jnp.int32),
@@ -249,11 +260,11 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, probs,
 
 
 @partial(jax.jit, static_argnames=("horizon", "record"))
-def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids, probs,
+def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids, plans,
               feasible, detect, params, *, horizon, record=0):
     model = _pomdp.SearchPOMDP(feasible, detect, 1.0, horizon)
     return jax.vmap(lambda k, s, g, p, nn, b, sp: _trial(
-        k, s, g, p, nn, b, sp, landmarks, ids, probs, model, params, record))(
+        k, s, g, p, nn, b, sp, landmarks, ids, plans, model, params, record))(
         keys, starts, goals, paths, n, budget, start_poses)
 
 
@@ -270,7 +281,8 @@ def start_poses(keys, landmarks, starts, offset):
 
 def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
              params: NavParams, model: _pomdp.SearchPOMDP | None = None,
-             poses=None, budget=None, chunk: int = 64, record: int = 0) -> NavResult:
+             poses=None, budget=None, chunk: int = 64, record: int = 0,
+             plans=None) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
@@ -286,6 +298,7 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
         budget: optional ``[B]`` step budgets (default :func:`step_budget`).
         chunk: trials per compiled batch (``vmap`` width); results do not depend on it.
         record: keep the first ``record`` positions of every trial (for plots).
+        plans: optional :func:`qsr_plans` table (computed when not given).
 
     Raises:
         ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
@@ -324,7 +337,9 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
             jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
     args = [x[jnp.asarray(order)] for x in args]
-    const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(elements.probs),
+    if plans is None:
+        plans = qsr_plans(elements, model)
+    const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(plans),
              model.feasible, model.detect, p)
     res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon),
                                         record=int(record)), args, chunk)
@@ -493,7 +508,7 @@ class PairResult(NamedTuple):
 def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
                    starts, goals, params: NavParams,
                    model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
-                   record: int = 0) -> PairResult:
+                   record: int = 0, plans=None) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
     Args:
@@ -526,7 +541,7 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
     n = np.where(reach, np.asarray(plan.n_elements), 1)
     res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
                    starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk,
-                   record=record)
+                   record=record, plans=plans)
     status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)

@@ -95,7 +95,7 @@ class Config:
     start_offset: float = 1.0
     nav_sigma: float = 0.3
     max_pairs: int = 0
-    chunk: int = 32
+    chunk: int = 128
     seed: int = 0
 
 
@@ -169,7 +169,7 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
     from pqrm_jax.qlink import navigate as nav
     from pqrm_jax.qlink import pomdp
 
-    lm, el, g, to_go, goal_row, tables, pairs, detect = world
+    lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
     params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
                            occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
                            turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
@@ -191,7 +191,7 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
                   leave=False):
         sl = slice(i, i + block)
         r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                               pairs[sl, 1], params, model, chunk=cfg.chunk)
+                               pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans)
         for j in range(len(r.status)):
             k = i + j
             st = int(r.status[j])
@@ -288,6 +288,10 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
                  element_probs=np.asarray(el.probs), betas=np.asarray(cfg.betas),
                  detection=np.asarray(detect if detect is not None else np.nan))
         _atomic_write(npz, buf.getvalue())
+    from pqrm_jax.qlink import pomdp
+
+    plans = nav.qsr_plans(el, pomdp.search_model("quadrant", horizon=cfg.horizon,
+                                                 detect=detect))
     info = {"elements": int(el.ids.shape[0]), "mapped_landmarks": int(len(lms)),
             "pairs": int(len(pairs)), "map_s": round(t_map, 1),
             "detection": None if detect is None else np.round(detect, 3).tolist(),
@@ -295,7 +299,7 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
     for beta in cfg.betas:
         g = lg.link_graph(el, beta)
         to_go = lg.goal_distances(g, el, lms)
-        world = (lm, el, g, to_go, goal_row, tables, pairs, detect)
+        world = (lm, el, g, to_go, goal_row, tables, pairs, detect, plans)
         info[f"edges_beta{beta}"] = int(g.adjacency.sum() // 2)
         for name, frac, occ in settings(cfg):
             if beta != cfg.betas[0] and occ > 0:
@@ -349,7 +353,11 @@ def example_trajectories(cfg: Config, out: Path, rows: list[dict]) -> list[str]:
     goal_row = np.full(el.num_landmarks, -1, np.int64)
     goal_row[lms] = np.arange(len(lms))
     to_go = lg.goal_distances(g, el, lms)
-    world = (lm, el, g, to_go, goal_row, nav.start_tables(el), None, detect)
+    from pqrm_jax.qlink import pomdp
+
+    plans = nav.qsr_plans(el, pomdp.search_model("quadrant", horizon=cfg.horizon,
+                                                 detect=detect))
+    world = (lm, el, g, to_go, goal_row, nav.start_tables(el), None, detect, plans)
     fig, axes = plt.subplots(1, len(picks), figsize=(5 * len(picks), 5), squeeze=False)
     notes = []
     for ax, r in zip(axes[0], picks, strict=True):
@@ -376,7 +384,7 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     from pqrm_jax.qlink import navigate as nav
     from pqrm_jax.qlink import pomdp
 
-    lm, el, g, to_go, goal_row, tables, _, detect = world
+    lm, el, g, to_go, goal_row, tables, _, detect, plans = world
     params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
                            occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
                            turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
@@ -388,4 +396,4 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(pid)
     return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
                               pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
-                              record=record)
+                              record=record, plans=plans)
