@@ -41,7 +41,7 @@ def _random_model(rng, horizon, p_move):
     return base, np.asarray(base.feasible), d
 
 
-@pytest.mark.parametrize("horizon", [1, 2, 3, 4])
+@pytest.mark.parametrize("horizon", [1, 2, 3, pytest.param(4, marks=pytest.mark.slow)])
 def test_exact_matches_brute_force(horizon):
     rng = np.random.default_rng(horizon)
     n = 12 if horizon < 4 else 5
