@@ -65,8 +65,7 @@ def main() -> None:
 
     nav.navigate_pairs(keys[:1], *args, pairs[:1, 0], pairs[:1, 1], p, chunk=1,
                        plans=plans)                                                  # compile
-    nav.navigate_pairs(keys[:CHUNK], *args, pairs[:CHUNK, 0], pairs[:CHUNK, 1], p,
-                       chunk=CHUNK, plans=plans)                                     # compile
+    batched()                                                                        # compile
     t0 = time.perf_counter()
     res_b = batched()
     t_b = time.perf_counter() - t0
