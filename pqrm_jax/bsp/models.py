@@ -56,7 +56,7 @@ import numpy as np
 from .. import calculi
 from ..tables import CacheError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # bump whenever the sampling code changes (part of the cache key)
 LINK_TYPES = ("BA", "AC", "CA", "BC", "CB")
 UNARY_TYPES = ("left", "right", "inverse")
 TABLES = ("T", "AZ", "K", "G2", "GA", "GB", "U", "D2")
@@ -351,10 +351,12 @@ def build_models(params: ModelParams | None = None) -> Models:
             out[k] = 0.5 * (v + v.T)  # the same expectation both ways: average the two
         elif k == "AZ":
             out[k] = v / n  # P(visible & ẑ): denominator is every sample of the cell
+        elif k == "G2":  # |X1 - X2| is symmetric in the two states: pool both orders
+            out[k] = _normalise(v + v.transpose(1, 0, 2, 3))
         else:
             out[k] = _normalise(v)
     counts = {"T": np.full((nb, Q), n), "AZ": np.full((Q, Q, nb), n),
-              "K": np.full((5, Q, Q), n), "G2": np.full((Q, Q, nb), n),
+              "K": np.full((5, Q, Q), n), "G2": np.full((Q, Q, nb), 2 * n),
               "GA": np.full((Q, nb), n), "GB": np.full((Q, nb), n), "U": np.full((3, Q), n),
               "D2": np.full((Q, Q), n)}
     mid = (np.arange(nb) + 0.5) * w
