@@ -1,0 +1,184 @@
+"""Belief-tree planner over qualitative and link actions (Z §4.1.2, §4.2, eqs. 4.3–4.14, 4.29–4.30).
+
+The objective of eq. 4.3 has no goal term and links depend on the observed β, so an open-loop
+sequence is ill-defined (decision Z-11). The planner is an expectimax tree to depth ``L``:
+
+    V(F, p, ℓ) = h(F)                                                   if ℓ = L
+    V(F, p, ℓ) = min_{a ∈ Acts} [ c(p, a) + Σ_β w_β · ( 0 if β = τ* else
+                                   min_{F' ∈ {F, (i,k), (j,k)}} V(F', ψ(p, a, β, ẑ, F'), ℓ+1) ) ]
+
+* ``Acts`` — the ``n_actions`` target states with the largest progress score
+  ``Σ_k P(β = ij:k | a) · g_k`` (``g = 1`` for the goal, ``1/(2 + hops)`` otherwise);
+* β — the ``n_beta`` observable candidates containing F (Z §4.2.3 heuristic) with the largest
+  ``P(β | a)``, renormalised over those kept (the thesis renormalises over the available
+  candidates, eq. 4.14; decision Z-24);
+* ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, decision Z-6); the
+  key is a function of (level, frame, a, β) only, so pruned and full trees and any chunking of
+  lanes draw the same measurement for the same branch;
+* ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
+  eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
+  on ẑ (law of total expectation);
+* ``h(F) = c̄ · (hops(F) + 1)`` from the frame graph, ``λ = 1000 c̄`` when no path (so the tree
+  maximises the probability of reaching the goal first, then minimises cost).
+
+All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
+(no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .belief import LINK_K
+from .graph import INF, FrameGraph
+from .models import Models
+
+
+class PlannerParams(NamedTuple):
+    """Static planner settings (module docstring)."""
+
+    depth: int = 2
+    n_actions: int = 4
+    n_beta: int = 3
+    cost: int = 1
+    lam: float = 1000.0
+
+
+class Plan(NamedTuple):
+    """Planner output: root value, the first action, whether a plan exists, first-level info.
+
+    ``ks`` (n_actions, n_beta) candidates kept for each first-level action, ``links``
+    (n_actions, n_beta) their best link option, ``q`` (n_actions,) action values.
+    """
+
+    value: jax.Array
+    action: jax.Array
+    exists: jax.Array
+    actions: jax.Array
+    ks: jax.Array
+    links: jax.Array
+    q: jax.Array
+
+
+def cbar(models: Models, D1, cost: int) -> jax.Array:
+    """Mean one-step cost used by the leaf heuristic."""
+    if cost == 1:
+        return jnp.mean(D1)
+    return jnp.mean(models.D2) * models.mid[models.num_bins // 2]
+
+
+def step_costs(models: Models, D1, sf, p, cost: int) -> jax.Array:
+    """(Q,) eq. 4.29 (cost 1) or eq. 4.30 (cost 2) for every action from robot belief ``p``."""
+    if cost == 1:
+        Tf = jnp.einsum("b,bas->as", sf, models.T)
+        return Tf @ (D1.T @ p)
+    return jnp.einsum("b,b,bas,s->a", sf, models.mid, models.T, models.D2.T @ p)
+
+
+class _Level(NamedTuple):
+    cost: jax.Array  # [N, na]
+    acts: jax.Array  # [N, na]
+    ks: jax.Array  # [N, na, nb]
+    w: jax.Array  # [N, na, nb]
+    goal: jax.Array  # [N, na, nb]
+    anyobs: jax.Array  # [N, na]
+    frames: jax.Array  # [N, na, nb, 3, 2]
+    robots: jax.Array  # [N, na, nb, 3, Q]
+
+
+def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame, p,
+                pp: PlannerParams):
+    L = trip.shape[0]
+    Q = models.num_states
+    i, j = frame[0], frame[1]
+    sf = scale[i, j]
+    costs = step_costs(models, D1, sf, p, pp.cost)
+    wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
+    idx = jnp.arange(L)
+    gsum = goal.sum()
+    third = gsum - i - j
+    isg = fg.goal_obs[i, j] & (idx == third)
+    hk = jnp.minimum(fg.hops[i], fg.hops[j])
+    g = jnp.where(isg, 1.0, jnp.where(hk < INF, 1.0 / (2.0 + hk), 0.0))
+    score = wt @ g + 1e-6 * (wt.sum(1))
+    _, acts = jax.lax.top_k(score, pp.n_actions)
+    wa = wt[acts]  # [na, L]
+    wk, ks = jax.lax.top_k(wa, pp.n_beta)  # [na, nb]
+    tot = wk.sum(-1, keepdims=True)
+    anyobs = tot[:, 0] > 0
+    w = wk / jnp.where(tot > 0, tot, 1.0)
+    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
+
+    def branch(a, k):
+        kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
+        k1, k2 = jax.random.split(kk)
+        jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
+        flat = jw.reshape(-1)
+        cell = jax.random.categorical(k1, jnp.log(jnp.maximum(flat, 1e-30)))
+        x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
+            cell % models.num_bins
+        zrow = models.AZ[x, t, b]
+        z = jax.random.categorical(k2, jnp.log(jnp.maximum(zrow, 1e-30)))
+        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ[..., z])
+        s = J.sum()
+        J = J / jnp.where(s > 0, s, 1.0)
+        stay = J.sum(1)
+        ac = jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]])
+        bc = jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])
+        frames = jnp.stack([jnp.stack([i, j]), jnp.stack([i, k]), jnp.stack([j, k])])
+        return frames, jnp.stack([stay, ac, bc])
+
+    fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
+    return _Level(cost=costs[acts], acts=acts, ks=ks, w=w,
+                  goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs, frames=fr, robots=rb)
+
+
+def leaf_values(fg: FrameGraph, frames, cb, lam) -> jax.Array:
+    """h(F) for frames [..., 2]."""
+    h = fg.hops[frames[..., 0], frames[..., 1]]
+    return jnp.where(h < INF, cb * (h + 1.0), lam * cb)
+
+
+@partial(jax.jit, static_argnames=("pp",))
+def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, key,
+         pp: PlannerParams = PlannerParams()) -> Plan:
+    """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
+
+    Args:
+        models: offline tables. D1: (Q, Q) neighbour distance (eq. 4.29).
+        trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
+        fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
+        frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
+    """
+    if pp.depth < 1:
+        raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
+    cb = cbar(models, D1, pp.cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    expand = jax.vmap(lambda f, p, lv: _expand_one(models, D1, trip, scale, fg, goal, key, lv,
+                                                   f, p, pp), (0, 0, None))
+    frames, robots = frame[None], robot[None]
+    levels = []
+    for lv in range(pp.depth):
+        out = expand(frames, robots, lv)
+        levels.append((frames, out))
+        frames = out.frames.reshape(-1, 2)
+        robots = out.robots.reshape(-1, robot.shape[-1])
+    values = leaf_values(fg, frames, cb, lam)
+    q = None
+    for parent_frames, out in reversed(levels):
+        n = parent_frames.shape[0]
+        v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
+        vb = jnp.where(out.goal, 0.0, v.min(-1))
+        stuck = leaf_values(fg, parent_frames, cb, lam)[:, None] + cb
+        q = out.cost + jnp.where(out.anyobs, (out.w * vb).sum(-1), stuck)
+        values = q.min(-1)
+        links = v.argmin(-1)
+    root = levels[0][1]
+    best = jnp.argmin(q[0])
+    value = values[0]
+    return Plan(value=value, action=root.acts[0, best], exists=value < 0.5 * lam * cb,
+                actions=root.acts[0], ks=root.ks[0], links=links[0], q=q[0])
