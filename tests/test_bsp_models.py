@@ -42,7 +42,8 @@ def test_exact_supports(mod):
     K = np.asarray(mod.K) > 0
     kt = dict(zip(M.LINK_TYPES, K, strict=True))
     # BA is INVERSE of the robot's state, whatever C is
-    assert np.array_equal(np.asarray(mod.K)[0], np.broadcast_to(np.eye(Q)[::-1][:, None], (Q, Q, Q)))
+    inv = np.broadcast_to(np.eye(Q)[::-1][:, None], (Q, Q, Q))
+    assert np.array_equal(np.asarray(mod.K)[0], inv)
     assert not (kt["BA"] & ~t.inverse[:, None, :]).any()
     # BC:X in COMPOSE(AB:C, BC:X) -> AB:X exactly: support K[BC][x, c] = {b: compose[c, b, x]}
     exact_bc = t.compose.transpose(2, 0, 1)  # [x, c, b]

@@ -93,7 +93,8 @@ def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask) -> ja
     out = jnp.where(rowb[..., None], gb[None], out)
     out = jnp.where(rowb.T[..., None], gb[:, None], out)
     has = has | rowa | rowa.T | rowb | rowb.T
-    isref = ((idx[:, None] == a) & (idx[None, :] == b)) | ((idx[:, None] == b) & (idx[None, :] == a))
+    isref = (((idx[:, None] == a) & (idx[None, :] == b))
+             | ((idx[:, None] == b) & (idx[None, :] == a)))
     out = jnp.where(isref[..., None], ref_scale, out)
     has = has | isref
     in_trip = jnp.any(known, axis=2) | jnp.any(known, axis=1) | jnp.any(known, axis=0)

@@ -83,8 +83,8 @@ def augment(trip: np.ndarray, measured: np.ndarray, n: int, tensor: np.ndarray,
     L = trip.shape[0]
     src = np.where(measured, 1, 0).astype(np.int8)
     ncomp = np.zeros((L, L, L), np.int8)
-    sources = {frozenset((int(i), int(j), int(k))) for i, j, k in zip(*np.nonzero(measured))
-               if i < j < k}
+    nz = np.argwhere(measured)
+    sources = {frozenset(map(int, t)) for t in nz if t[0] < t[1] < t[2]}
     if not sources:
         return trip, src, ncomp
     g = optimal_composition_graph(sources, landmarks=range(n))

@@ -56,7 +56,8 @@ def mec_radius(p: np.ndarray) -> float:
     s = sorted([a, b, c])
     if s[2] ** 2 >= s[0] ** 2 + s[1] ** 2:  # right or obtuse: the longest side is a diameter
         return s[2] / 2
-    area = abs(np.cross(p[1] - p[0], p[2] - p[0])) / 2
+    u, v = p[1] - p[0], p[2] - p[0]
+    area = abs(u[0] * v[1] - u[1] * v[0]) / 2
     return a * b * c / (4 * area)
 
 

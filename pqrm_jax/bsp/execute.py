@@ -30,13 +30,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .. import calculi
-from .. import sim
+from .. import calculi, sim
 from ..pqrm import state_probabilities
 from .belief import QBelief, discretise, predict, scale_posteriors, update
 from .graph import frame_graph, plan_exists
-from .planner import PlannerParams, cbar, leaf_values, plan
 from .models import Models
+from .planner import PlannerParams, cbar, leaf_values, plan
 
 
 class ExecParams(NamedTuple):

@@ -17,6 +17,7 @@ therefore the same for both costs).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -45,6 +46,7 @@ def available(trip_src, lm_mask) -> jax.Array:
     return (trip_src > 0) & distinct & real
 
 
+@partial(jax.jit, static_argnames=("eps",))
 def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float = 0.01
                 ) -> FrameGraph:
     """Observability and hop counts of the frozen belief (module docstring); jit-able."""

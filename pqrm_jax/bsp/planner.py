@@ -7,8 +7,9 @@ sequence is ill-defined (decision Z-11). The planner is an expectimax tree to de
     V(F, p, ℓ) = min_{a ∈ Acts} [ c(p, a) + Σ_β w_β · ( 0 if β = τ* else
                                    min_{F' ∈ {F, (i,k), (j,k)}} V(F', ψ(p, a, β, ẑ, F'), ℓ+1) ) ]
 
-* ``Acts`` — the ``n_actions`` target states with the largest progress score
-  ``Σ_k P(β = ij:k | a) · g_k`` (``g = 1`` for the goal, ``1/(2 + hops)`` otherwise);
+* ``Acts`` — the ``n_actions`` target states with the smallest one-step proxy
+  ``c(p, a) + Σ_β w_β(a) · min_{F'} h(F')`` (goal branches 0), computed for all Q actions
+  (leaf values need no ẑ, so this costs one contraction per action);
 * β — the ``n_beta`` observable candidates containing F (Z §4.2.3 heuristic) with the largest
   ``P(β | a)``, renormalised over those kept (the thesis renormalises over the available
   candidates, eq. 4.14; decision Z-24);
@@ -46,6 +47,9 @@ class PlannerParams(NamedTuple):
     n_beta: int = 3
     cost: int = 1
     lam: float = 1000.0
+
+
+DEFAULT = PlannerParams()
 
 
 class Plan(NamedTuple):
@@ -99,12 +103,18 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     costs = step_costs(models, D1, sf, p, pp.cost)
     wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
     idx = jnp.arange(L)
-    gsum = goal.sum()
-    third = gsum - i - j
+    third = goal.sum() - i - j
     isg = fg.goal_obs[i, j] & (idx == third)
-    hk = jnp.minimum(fg.hops[i], fg.hops[j])
-    g = jnp.where(isg, 1.0, jnp.where(hk < INF, 1.0 / (2.0 + hk), 0.0))
-    score = wt @ g + 1e-6 * (wt.sum(1))
+    cb = cbar(models, D1, pp.cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
+    h_f = leaf_values(fg, frame, cb, lam)
+    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam)
+    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam)
+    hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
+    wsum = wt.sum(1)
+    proxy = costs + jnp.where(wsum > 0, (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0), h_f + cb)
+    score = -proxy
     _, acts = jax.lax.top_k(score, pp.n_actions)
     wa = wt[acts]  # [na, L]
     wk, ks = jax.lax.top_k(wa, pp.n_beta)  # [na, nb]
@@ -145,7 +155,7 @@ def leaf_values(fg: FrameGraph, frames, cb, lam) -> jax.Array:
 
 @partial(jax.jit, static_argnames=("pp",))
 def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, key,
-         pp: PlannerParams = PlannerParams()) -> Plan:
+         pp: PlannerParams = DEFAULT) -> Plan:
     """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
 
     Args:
