@@ -18,8 +18,8 @@ nearest-landmark-growth generator (every initial triplet has its minimum enclosi
 within R) the plan-exists rates do not move with S/R (measured: 0.85 / 1.00 at S/R = 2.5, 3.5
 and 4.5, 40 environments, eps_obs = 0.01), so S/R is fixed at 2.5 and the threshold, which
 decides how far an uncertain composed triplet is trusted, is the knob instead. Plan
-existence is decided at the first planning session by the frame graph (topology + observability) and so needs no execution, which keeps
-the calibration cheap.
+existence is decided at the first planning session by the frame graph (topology +
+observability) and so needs no execution, which keeps the calibration cheap.
 
 Outputs in ``DIR``: ``config.json`` (every parameter and decision), ``environments.jsonl``
 (landmarks, initial-belief triplets, target, frame, start), ``chunks/*.json`` (resumable,
