@@ -64,8 +64,14 @@ def check_distribution(name: str, p, axis: int = -1, atol: float = 1e-3) -> np.n
     return p
 
 
-def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask) -> jax.Array:
+def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
+                     measured=None) -> jax.Array:
     """(L, L, nb) frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24, Z-9, Z-10).
+
+    With ``measured`` (the measured subset of ``known``), a pair whose scale can be derived
+    from measured rows, or that lies inside a measured triplet, gets the same scale as without
+    the other (composed) rows; composed rows only serve the remaining pairs. Compositions then
+    never change what measured triplets say (plan existence is monotone in the belief).
 
     ``ref`` = (a, b) is the frame whose scale ``ref_scale`` (nb,) is known. The scale of
     ``{a, l}`` comes from ``GA`` and ``P(ab:l)``, of ``{b, l}`` from ``GB``, of ``{l1, l2}``
@@ -74,6 +80,14 @@ def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask) -> ja
     distribution over the observable bins (an observed triplet has pairwise distances ≤ 2R)
     and any other pair the uniform distribution over all bins.
     """
+    if measured is not None:
+        s_m, has_m, in_m = _scales(models, trip, measured, ref, ref_scale, lm_mask)
+        s_k, _, _ = _scales(models, trip, known, ref, ref_scale, lm_mask)
+        return jnp.where((has_m | in_m)[..., None], s_m, s_k)
+    return _scales(models, trip, known, ref, ref_scale, lm_mask)[0]
+
+
+def _scales(models, trip, known, ref, ref_scale, lm_mask):
     trip = jnp.asarray(trip, jnp.float32)
     known = jnp.asarray(known, bool)
     L, nb = trip.shape[0], models.num_bins
@@ -103,7 +117,7 @@ def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask) -> ja
     fallback = jnp.where(in_trip[..., None], obs_uniform, 1.0 / nb)
     s = out.sum(-1, keepdims=True)
     good = has[..., None] & (s > 0)
-    return jnp.where(good, out / jnp.where(s > 0, s, 1.0), fallback)
+    return (jnp.where(good, out / jnp.where(s > 0, s, 1.0), fallback), good[..., 0], in_trip)
 
 
 def predict(models: Models, scale_f, action) -> jax.Array:

@@ -177,7 +177,7 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
     ref_scale = reference_scale(models, env)
     lm = np.arange(L_max) < n
     scale = scale_posteriors(models, trip, src > 0, jnp.asarray([a, b]), jnp.asarray(ref_scale),
-                             jnp.asarray(lm))
+                             jnp.asarray(lm), measured=jnp.asarray(src == 1))
     return QBelief(frame=jnp.asarray([a, b], jnp.int32), robot=jnp.asarray(robot),
                    trip=jnp.asarray(trip), trip_src=jnp.asarray(src, jnp.int8),
                    ncomp=jnp.asarray(ncomp, jnp.int8), scale=scale, lm_mask=jnp.asarray(lm),

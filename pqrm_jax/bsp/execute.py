@@ -109,9 +109,9 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         avail = bel.trip_src[i, j] > 0
         cand = vis & vis[i] & vis[j] & (idx != i) & (idx != j) & avail
         isg = fg.goal_obs[i, j] & (idx == goal.sum() - i - j)
-        h_f = leaf_values(fg, bel.frame, cb, lam)
-        h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam)
-        h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam)
+        h_f = leaf_values(fg, bel.frame, cb, lam, pp.rho)
+        h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
+        h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
         hs = jnp.stack([jnp.full(L, h_f), h_ik, h_jk], -1)  # (L, 3)
         kval = jnp.where(isg, -1.0, hs.min(-1))
         kval = jnp.where(cand, kval, jnp.inf)
@@ -142,7 +142,8 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         srcv = nb_.trip_src[pid[..., 0], pid[..., 1], pid[..., 2]]
         src = nb_.trip_src.at[pid[..., 0], pid[..., 1], pid[..., 2]].set(
             jnp.where(okm, jnp.int8(1), srcv))
-        scale = scale_posteriors(models, trip, src > 0, ref, ref_scale, lm_mask)
+        scale = scale_posteriors(models, trip, src > 0, ref, ref_scale, lm_mask,
+                                 measured=src == 1)
         nb_ = nb_._replace(trip=trip, trip_src=src, scale=scale)
         bel = jax.tree.map(lambda u, v: jnp.where(active, u, v), nb_, bel)
         x = xn

@@ -19,8 +19,12 @@ sequence is ill-defined (decision Z-11). The planner is an expectimax tree to de
 * ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
   eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
   on ẑ (law of total expectation);
-* ``h(F) = c̄ · (hops(F) + 1)`` from the frame graph, ``λ = 1000 c̄`` when no path (so the tree
-  maximises the probability of reaching the goal first, then minimises cost).
+* ``h(F) = c̄ · (1 + ρ) · (hops(F) + 1)`` from the frame graph, ``λ = 10⁵ c̄`` when no path.
+  The digest proposed ρ = 0; then a link of progress is worth about one step's cost and
+  the eq. 4.29 planner (where staying costs 0) dithers. ρ = 10 makes each remaining link cost
+  ten mean steps, so the tree maximises progress towards the goal first and minimises cost
+  second ("the plan that most likely achieves the task's goal while minimizing the cost",
+  Z abstract).
 
 All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
 (no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.
@@ -46,7 +50,8 @@ class PlannerParams(NamedTuple):
     n_actions: int = 4
     n_beta: int = 3
     cost: int = 1
-    lam: float = 1000.0
+    lam: float = 1.0e5
+    rho: float = 10.0
 
 
 DEFAULT = PlannerParams()
@@ -108,9 +113,9 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     cb = cbar(models, D1, pp.cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
-    h_f = leaf_values(fg, frame, cb, lam)
-    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam)
-    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam)
+    h_f = leaf_values(fg, frame, cb, lam, pp.rho)
+    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
+    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
     hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
     wsum = wt.sum(1)
     proxy = costs + jnp.where(wsum > 0, (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0), h_f + cb)
@@ -147,10 +152,10 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
                   goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs, frames=fr, robots=rb)
 
 
-def leaf_values(fg: FrameGraph, frames, cb, lam) -> jax.Array:
-    """h(F) for frames [..., 2]."""
+def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array:
+    """h(F) = c̄ (1 + ρ) (hops + 1) for frames [..., 2]; λ c̄ without a path."""
     h = fg.hops[frames[..., 0], frames[..., 1]]
-    return jnp.where(h < INF, cb * (h + 1.0), lam * cb)
+    return jnp.where(h < INF, cb * (1.0 + rho) * (h + 1.0), lam * cb)
 
 
 @partial(jax.jit, static_argnames=("pp",))
@@ -177,13 +182,13 @@ def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, ke
         levels.append((frames, out))
         frames = out.frames.reshape(-1, 2)
         robots = out.robots.reshape(-1, robot.shape[-1])
-    values = leaf_values(fg, frames, cb, lam)
+    values = leaf_values(fg, frames, cb, lam, pp.rho)
     q = None
     for parent_frames, out in reversed(levels):
         n = parent_frames.shape[0]
         v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
         vb = jnp.where(out.goal, 0.0, v.min(-1))
-        stuck = leaf_values(fg, parent_frames, cb, lam)[:, None] + cb
+        stuck = leaf_values(fg, parent_frames, cb, lam, pp.rho)[:, None] + cb
         q = out.cost + jnp.where(out.anyobs, (out.w * vb).sum(-1), stuck)
         values = q.min(-1)
         links = v.argmin(-1)

@@ -59,9 +59,13 @@ DECISIONS = {
     "Z-8": "association and measurement condition on the scale of F_{t-1}",
     "Z-9": "frame scale = reference scale x |X1 - X2| (tables G2, GA, GB)",
     "Z-10": "reference = F_1's measured scale bin; fallback uniform over observable bins for "
-            "pairs in a known triplet, over all bins otherwise",
+            "pairs in a known triplet, over all bins otherwise; pairs derivable from measured "
+            "rows or inside a measured triplet keep their measured-only scale in both modes "
+            "(compositions serve only the other pairs: plan existence is monotone)",
     "Z-11": "expectimax tree: min over actions, expectation over beta and z, min over links; "
-            "goal branch terminal; leaf h = cbar (hops + 1), lambda = 1000 cbar",
+            "goal branch terminal; leaf h = cbar (1 + rho) (hops + 1) with rho = 10 (each "
+           "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
+           "the cost-1 planner dither), lambda = 1e5 cbar without a path",
     "Z-12": "map frozen during lookahead",
     "Z-13": "cost 1 uses neighbour distance with edges and corners (SPEC 2.1)",
     "Z-14": "cost 2 literal: D2[s,s] > 0; mid(last bin) = 2R",
@@ -112,7 +116,7 @@ def config_for(args) -> dict:
         "models": {"calculus": "edc", "n_f": 5, "window": 3.0, "sigma_m": 0.05,
                    "sigma_z": 0.05, "r_min": 0.05, "samples": base["samples"],
                    "pool": 1 << 20, "seed": 0, "target_half_width": 1.5} | tiny_models,
-        "planner": {"depth": base["depth"], "n_actions": 4, "n_beta": 3, "lam": 1000.0,
+        "planner": {"depth": base["depth"], "n_actions": 4, "n_beta": 3, "lam": 1.0e5, "rho": 10.0,
                     "n_z": 1},
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
                       "pqrm_samples": 64, "eps_obs": 0.01},
@@ -194,7 +198,7 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
             pp = P.PlannerParams(depth=cfg["planner"]["depth"],
                                  n_actions=cfg["planner"]["n_actions"],
                                  n_beta=cfg["planner"]["n_beta"], cost=cost,
-                                 lam=cfg["planner"]["lam"])
+                                 lam=cfg["planner"]["lam"], rho=cfg["planner"]["rho"])
             t0 = time.perf_counter()
             out = jax.device_get(X.run_lanes(models, D1, pos, lm, goal, start, B, ref, rs, keys,
                                              pp, ep))
