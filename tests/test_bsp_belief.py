@@ -23,7 +23,7 @@ def _pool(rng, n=400_000, w=3.0):
     return {q: pts[st == q] for q in range(20)}
 
 
-def particle_update(rng, pool, mod, scale_f, a, row, zhat, link, n=300_000, resample=True):
+def particle_update(rng, pool, mod, scale_f, a, row, zhat, link, n=200_000, resample=True):
     """Metric particles under the model's assumptions (uniform-in-state priors).
 
     ``resample``: before the link, redraw X and C uniformly within their (posterior) states,

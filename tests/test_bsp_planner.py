@@ -68,7 +68,7 @@ def test_fig46a_scenario(mod):
                                                              "GJ"}
     assert int(fg1.hops[4, 6]) == 2  # EG -> (A E or B E ...) -> AB, then observe ABC
     assert int(b1.ncomp[0, 4, 6]) == 2  # AEG needs two compositions
-    pp = P.PlannerParams(depth=2)
+    pp = P.PlannerParams(depth=1)
     p0 = P.plan(mod, D1, b0.trip, b0.scale, fg0, jnp.asarray(env.goal), b0.frame, b0.robot,
                 jax.random.key(0), pp)
     p1 = P.plan(mod, D1, b1.trip, b1.scale, fg1, jnp.asarray(env.goal), b1.frame, b1.robot,

@@ -73,12 +73,13 @@ def _to_world(pa, pb, p):
 
 
 def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref, ref_scale,
-             key, pp: PlannerParams, ep: ExecParams) -> Outcome:
-    """Execute one test (module docstring); pure and ``vmap``-able over lanes."""
+             key, cost, pp: PlannerParams, ep: ExecParams) -> Outcome:
+    """Execute one test (module docstring) with cost ``cost`` (1 or 2, traced); pure and
+    ``vmap``-able over lanes (``pp.cost`` is ignored)."""
     calc = calculi.get(ep.calculus)
     L = pos.shape[0]
     idx = jnp.arange(L)
-    cb = cbar(models, D1, pp.cost)
+    cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     sensor = sim.SensorParams(max_range=1.0, sigma=ep.sigma_z)
     perms = jnp.asarray([(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)])
@@ -87,7 +88,7 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = carry
         key, kp, km, ko, kq = jax.random.split(key, 5)
         fg = frame_graph(models, bel.trip, bel.trip_src, bel.scale, lm_mask, goal, ep.eps_obs)
-        pl = plan(models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, kp, pp)
+        pl = plan(models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, kp, pp, cost)
         exists = plan_exists(fg, bel.frame)
         ex0 = jnp.where(t == 0, exists, ex0)
         tex0 = jnp.where(t == 0, pl.exists, tex0)
@@ -166,8 +167,9 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
 
 @partial(jax.jit, static_argnames=("pp", "ep"))
 def run_lanes(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref, ref_scale,
-              keys, pp: PlannerParams, ep: ExecParams) -> Outcome:
-    """:func:`run_lane` ``vmap``-ed over a leading lane axis of every per-lane argument."""
+              keys, costs, pp: PlannerParams, ep: ExecParams) -> Outcome:
+    """:func:`run_lane` ``vmap``-ed over a leading lane axis of every per-lane argument
+    (``costs`` (lanes,) int: 1 or 2 per lane)."""
     f = partial(run_lane, pp=pp, ep=ep)
-    return jax.vmap(f, (None, None, 0, 0, 0, 0, 0, 0, 0, 0))(
-        models, D1, pos, lm_mask, goal, start, belief, ref, ref_scale, keys)
+    return jax.vmap(f, (None, None, 0, 0, 0, 0, 0, 0, 0, 0, 0))(
+        models, D1, pos, lm_mask, goal, start, belief, ref, ref_scale, keys, costs)

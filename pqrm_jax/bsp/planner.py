@@ -73,19 +73,21 @@ class Plan(NamedTuple):
     q: jax.Array
 
 
-def cbar(models: Models, D1, cost: int) -> jax.Array:
-    """Mean one-step cost used by the leaf heuristic."""
-    if cost == 1:
-        return jnp.mean(D1)
-    return jnp.mean(models.D2) * models.mid[models.num_bins // 2]
+def cbar(models: Models, D1, cost) -> jax.Array:
+    """Mean one-step cost used by the leaf heuristic (``cost`` 1 or 2, may be traced)."""
+    return jnp.where(cost == 1, jnp.mean(D1),
+                     jnp.mean(models.D2) * models.mid[models.num_bins // 2])
 
 
-def step_costs(models: Models, D1, sf, p, cost: int) -> jax.Array:
-    """(Q,) eq. 4.29 (cost 1) or eq. 4.30 (cost 2) for every action from robot belief ``p``."""
-    if cost == 1:
-        Tf = jnp.einsum("b,bas->as", sf, models.T)
-        return Tf @ (D1.T @ p)
-    return jnp.einsum("b,b,bas,s->a", sf, models.mid, models.T, models.D2.T @ p)
+def step_costs(models: Models, D1, sf, p, cost) -> jax.Array:
+    """(Q,) eq. 4.29 (cost 1) or eq. 4.30 (cost 2) for every action from robot belief ``p``.
+
+    ``cost`` may be traced, so lanes of both costs share one compiled program.
+    """
+    Tf = jnp.einsum("b,bas->as", sf, models.T)
+    c1 = Tf @ (D1.T @ p)
+    c2 = jnp.einsum("b,b,bas,s->a", sf, models.mid, models.T, models.D2.T @ p)
+    return jnp.where(cost == 1, c1, c2)
 
 
 class _Level(NamedTuple):
@@ -100,17 +102,17 @@ class _Level(NamedTuple):
 
 
 def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame, p,
-                pp: PlannerParams):
+                pp: PlannerParams, cost):
     L = trip.shape[0]
     Q = models.num_states
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    costs = step_costs(models, D1, sf, p, pp.cost)
+    costs = step_costs(models, D1, sf, p, cost)
     wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
     idx = jnp.arange(L)
     third = goal.sum() - i - j
     isg = fg.goal_obs[i, j] & (idx == third)
-    cb = cbar(models, D1, pp.cost)
+    cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
     h_f = leaf_values(fg, frame, cb, lam, pp.rho)
@@ -160,7 +162,7 @@ def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array
 
 @partial(jax.jit, static_argnames=("pp",))
 def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, key,
-         pp: PlannerParams = DEFAULT) -> Plan:
+         pp: PlannerParams = DEFAULT, cost=None) -> Plan:
     """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
 
     Args:
@@ -168,13 +170,15 @@ def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, ke
         trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
         fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
         frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
+        pp: static settings. cost: optional traced 1 or 2 overriding ``pp.cost``.
     """
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
-    cb = cbar(models, D1, pp.cost)
+    cost = pp.cost if cost is None else cost
+    cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     expand = jax.vmap(lambda f, p, lv: _expand_one(models, D1, trip, scale, fg, goal, key, lv,
-                                                   f, p, pp), (0, 0, None))
+                                                   f, p, pp, cost), (0, 0, None))
     frames, robots = frame[None], robot[None]
     levels = []
     for lv in range(pp.depth):
