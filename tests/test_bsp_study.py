@@ -47,4 +47,12 @@ def test_results_independent_of_chunking(tmp_path, request):
     models = str(request.config.cache.mkdir("bsp-models"))
     _run(tmp_path / "a", "--models-dir", models, "--chunk", "4")
     _run(tmp_path / "b", "--models-dir", models, "--chunk", "3")
-    assert (tmp_path / "a" / "tests.csv").read_text() == (tmp_path / "b" / "tests.csv").read_text()
+    ra = list(csv.DictReader(open(tmp_path / "a" / "tests.csv")))
+    rb = list(csv.DictReader(open(tmp_path / "b" / "tests.csv")))
+    assert len(ra) == len(rb) == 16
+    floats = ("executed_cost", "cost1", "cost2", "root_value")
+    for x, y in zip(ra, rb, strict=True):  # discrete outcomes exact, floats to rounding
+        assert {k: v for k, v in x.items() if k not in floats} == \
+            {k: v for k, v in y.items() if k not in floats}
+        for k in floats:
+            assert abs(float(x[k]) - float(y[k])) <= 1e-4 * max(1.0, abs(float(x[k])))
