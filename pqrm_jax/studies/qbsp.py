@@ -110,7 +110,7 @@ def config_for(args) -> dict:
     return {
         "envs": base["envs"], "calib_envs": base["calib_envs"], "landmarks": [8, 12],
         "seed": args.seed, "calib_seed": args.seed + 10_000,
-        "eps_grid": [0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4], "eps_fixed": args.eps,
+        "eps_grid": [0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5], "eps_fixed": args.eps,
         "size": args.size,
         "R": 1.0, "r_min": 0.05, "L_max": 12,
         "models": {"calculus": "edc", "n_f": 5, "window": 3.0, "sigma_m": 0.05,
