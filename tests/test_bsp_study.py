@@ -56,3 +56,29 @@ def test_results_independent_of_chunking(tmp_path, request):
             {k: v for k, v in y.items() if k not in floats}
         for k in floats:
             assert abs(float(x[k]) - float(y[k])) <= 1e-4 * max(1.0, abs(float(x[k])))
+
+
+@pytest.mark.slow
+def test_results_independent_of_device_count(tmp_path, request):
+    """The tiny study on 4 forced host devices (lanes sharded) gives the 1-device rows."""
+    import os
+    import subprocess
+    import sys
+
+    models = str(request.config.cache.mkdir("bsp-models"))
+    _run(tmp_path / "one", "--models-dir", models, "--chunk", "4")
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
+    code = ("import sys; from pqrm_jax.studies import qbsp; sys.exit(qbsp.main(sys.argv[1:]))")
+    subprocess.run([sys.executable, "-c", code, "--tiny", "--out", str(tmp_path / "four"),
+                    "--no-progress", "--eps", "0.35", "--envs", "4", "--chunk", "4",
+                    "--models-dir", models], check=True, env=env)
+    res = json.loads((tmp_path / "four" / "results.json").read_text())
+    assert res["timing"]["devices"] == 4
+    ra = list(csv.DictReader(open(tmp_path / "one" / "tests.csv")))
+    rb = list(csv.DictReader(open(tmp_path / "four" / "tests.csv")))
+    floats = ("executed_cost", "cost1", "cost2", "root_value")
+    for x, y in zip(ra, rb, strict=True):
+        assert {k: v for k, v in x.items() if k not in floats} == \
+            {k: v for k, v in y.items() if k not in floats}
+        for k in floats:
+            assert abs(float(x[k]) - float(y[k])) <= 1e-4 * max(1.0, abs(float(x[k])))

@@ -163,6 +163,23 @@ def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
     return float(best), rates
 
 
+def shard_lanes(tree):
+    """Place the lane axis of every array of ``tree`` across all devices (1-D mesh "lanes").
+
+    With one device, or a lane count not divisible by the device count, ``tree`` is returned
+    unchanged. Every lane is computed independently, so results do not depend on this.
+    """
+    import jax
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    devs = jax.devices()
+    n = jax.tree.leaves(tree)[0].shape[0]
+    if len(devs) < 2 or n % len(devs):
+        return tree
+    sh = NamedSharding(Mesh(np.array(devs), ("lanes",)), PartitionSpec("lanes"))
+    return jax.device_put(tree, sh)
+
+
 def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) -> list[dict]:
     """Run the four tests of each environment in ``envs`` (padded to the chunk width)."""
     import jax
@@ -202,9 +219,10 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
     pp = P.PlannerParams(depth=cfg["planner"]["depth"], n_actions=cfg["planner"]["n_actions"],
                          n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
                          rho=cfg["planner"]["rho"])
+    lanes = (rep(pos), rep(lm), rep(goal), rep(start), B, rep(ref), rep(rs), rep(keys), costs)
+    lanes = shard_lanes(lanes)
     t0 = time.perf_counter()
-    out = jax.device_get(X.run_lanes(models, D1, rep(pos), rep(lm), rep(goal), rep(start), B,
-                                     rep(ref), rep(rs), rep(keys), costs, pp, ep))
+    out = jax.device_get(X.run_lanes(models, D1, *lanes, pp, ep))
     dt = time.perf_counter() - t0
     rows = []
     for c_i, (mode, cost) in enumerate(combos):
