@@ -44,7 +44,8 @@ from .camera import CYCLIC, ImageMeasurement
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["QRMMap", "UpdateReport", "ClosureResult", "empty_map", "closure",
-           "apply_relations", "update_image", "cyclic_relations", "true_relations", "true_map", "distinct_mask"]
+           "apply_relations", "update_image", "cyclic_relations", "true_relations", "true_map",
+           "distinct_mask"]
 
 
 class QRMMap(NamedTuple):
