@@ -396,6 +396,7 @@ class Store:
                 from None
         try:
             legacy_dir = cls._check_marker(out, study, legacy, advice)
+            cls._clean_tmp(out)
             if config is None:
                 try:
                     cfg = json.loads((out / CONFIG).read_text())
@@ -468,6 +469,18 @@ class Store:
             raise StoreError(f"{out} is not empty and holds files that are not from a {study} "
                              f"study (e.g. {sorted(unknown)[0]!r}); {advice}")
         return bool(entries)
+
+    @staticmethod
+    def _clean_tmp(out: Path) -> None:
+        """Remove temp files left by killed writers (their process is gone)."""
+        for p in out.rglob(".*.tmp-*"):
+            try:
+                pid = int(p.name.rsplit("-", 1)[1])
+                os.kill(pid, 0)  # alive (e.g. another shard writing): keep
+            except ProcessLookupError:
+                p.unlink(missing_ok=True)
+            except (ValueError, PermissionError, OSError):
+                continue
 
     @staticmethod
     def _wipe(out: Path) -> None:
