@@ -15,9 +15,13 @@ Open choices of the seed, recorded in ``config.json``: the number of landmarks (
 
 Engineering: the run axis is sharded over ``jax.devices()`` (a 1-D ``NamedSharding`` mesh);
 runs are processed in chunks (progress bar, bounded memory); each finished noise level is
-appended to ``levels.jsonl`` (+ ``level_XX.npz``) so a killed study resumes at the first
-unfinished level; run keys are ``fold_in(fold_in(seed, level), run)``, so results do not
-depend on chunking, device count or resumption. Each step samples eq. 2.9 only for the triplets
+stored in ``levels.jsonl`` (+ ``level_XX.npz``) through the study store
+(:mod:`pqrm_jax.studies.store`: lock, atomic writes, verified records), so a killed study
+resumes at the unfinished levels; run keys are ``fold_in(fold_in(seed, level), run)``, so the
+draws and the discrete metrics do not depend on chunking, device count or resumption. Float
+metrics (entropy, P(ML), error locations) can differ in the last bits between per-device batch
+sizes (reduction order), so the effective layout (chunk, devices) is part of the stored config
+and a resume with another layout is refused (``layout``). Each step samples eq. 2.9 only for the triplets
 seen (``Mapper.update_batch``, compacted across the runs of a chunk), with results identical to
 the dense per-run reference (``run_level(..., dense=True)``). ``report.md`` and the figures
 are written at the end (``--report-only`` rewrites them from the stored results).
