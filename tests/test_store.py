@@ -269,3 +269,16 @@ def test_padgett_mc_sigkill_and_resume_bit_identical(tmp_path):
         a, b = read_npz(p), read_npz(out / p.name)
         for k in a:
             np.testing.assert_array_equal(a[k], b[k])
+
+
+@pytest.mark.parametrize("text", ['{"traverse": 1, "wall_s": 3.2, "remo', "", "null",
+                                  '{"traverse": 1}', "[]"])
+def test_torn_or_wrong_json_record_is_recomputed(tmp_path, text):
+    """mars-yard's per-traverse JSON (D9): a torn or wrong file reads as 'not done'."""
+    from pqrm_jax.studies.store import read_json
+
+    p = tmp_path / "traverse_1.json"
+    p.write_text(text)
+    with pytest.warns(CorruptRecordWarning, match="traverse_1.json"):
+        assert read_json(p, ("traverse", "wall_s", "removed_pct")) is None
+    assert not p.exists()
