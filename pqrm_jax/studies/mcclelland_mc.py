@@ -219,8 +219,11 @@ def report(out: Path, cfg: Config) -> dict:
         summary[n] = s
     peaks = [summary[n].get("update_time_peak_s", np.nan) for n in ns]
     slope = _fit_slope(ns, peaks)
-    (out / "summary.json").write_text(json.dumps({"per_n": summary, "peak_slope": slope},
-                                                 indent=1))
+    from .store import atomic_write_json, atomic_write_text, tidy_rows, write_results_csv
+
+    atomic_write_json(out / "summary.json", {"per_n": summary, "peak_slope": slope})
+    write_results_csv(out / "results.csv", NAME, tidy_rows(
+        [{"n": n, **s} for n, s in summary.items()], unit=lambda r: f"n={r['n']}", skip=("n",)))
     lines = [f"# {NAME}: QRM Monte Carlo study (M§VIII.B, Fig. 7)", "",
              f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
              "![fig7](fig7.png)", "",
@@ -259,7 +262,7 @@ def report(out: Path, cfg: Config) -> dict:
               "- *Open states cluster around the truth for n ≥ 18* (Fig. 7b: < 45 % "
               "not adjacent) while n = 6, 9 stay in the 45–90 % 'uniform' band.",
               "- The true state was never removed (soundness) in any run: 'truth kept'."]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     return summary
 
 
@@ -292,9 +295,14 @@ def main(argv: list[str]) -> int:
         print("runs and images must be >= 1 and every n in 3..landmarks", file=sys.stderr)
         return 2
     out = Path(a.out)
-    if not a.report_only:
+    if a.report_only:
+        from .store import Store
+
+        with Store.open(out, NAME, None, legacy=LEGACY):
+            summary = report(out, cfg)
+    else:
         run_study(cfg, out, progress=not a.no_progress, shard=shard)
-    summary = report(out, cfg)
+        summary = report(out, cfg)
     for n, s in summary.items():
         print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "
               f"{s['constrained_pct_final']:.1f}%  not-adj {s['not_adjacent_pct_final']:.1f}%"

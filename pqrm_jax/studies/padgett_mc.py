@@ -21,10 +21,11 @@ resumes at the unfinished levels; run keys are ``fold_in(fold_in(seed, level), r
 draws and the discrete metrics do not depend on chunking, device count or resumption. Float
 metrics (entropy, P(ML), error locations) can differ in the last bits between per-device batch
 sizes (reduction order), so the effective layout (chunk, devices) is part of the stored config
-and a resume with another layout is refused (``layout``). Each step samples eq. 2.9 only for the triplets
-seen (``Mapper.update_batch``, compacted across the runs of a chunk), with results identical to
-the dense per-run reference (``run_level(..., dense=True)``). ``report.md`` and the figures
-are written at the end (``--report-only`` rewrites them from the stored results).
+and a resume with another layout is refused (``layout``). Each step samples eq. 2.9 only for
+the triplets seen (``Mapper.update_batch``, compacted across the runs of a chunk), with
+results identical to the dense per-run reference (``run_level(..., dense=True)``).
+``report.md``, the figures and the tidy ``results.csv`` are written at the end
+(``--report-only`` rewrites the report and figures from the stored results).
 """
 
 from __future__ import annotations

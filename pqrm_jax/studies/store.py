@@ -573,20 +573,25 @@ class Store:
 
     def write_results_csv(self, rows: Iterable[tuple[Any, str, float]],
                           name: str = "results.csv") -> Path:
-        """Write the tidy ``results.csv``: ``study, unit, metric, value``, one row per number.
+        """Write the tidy ``out/results.csv`` (see :func:`write_results_csv`)."""
+        return write_results_csv(self.path(name), self.study, rows)
 
-        Non-finite values are written as ``nan``/``inf`` (``pandas.read_csv`` parses them).
-        """
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["study", "unit", "metric", "value"])
-        for unit, metric, value in rows:
-            v = float(value)
-            w.writerow([self.study, unit, metric, repr(v) if math.isfinite(v) else str(v)])
-        return self.write_text(name, buf.getvalue())
+
+def write_results_csv(path: Path, study: str, rows: Iterable[tuple[Any, str, float]]) -> Path:
+    """Atomically write a tidy CSV: ``study, unit, metric, value``, one row per number.
+
+    Non-finite values are written as ``nan``/``inf`` (``pandas.read_csv`` parses them).
+    """
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["study", "unit", "metric", "value"])
+    for unit, metric, value in rows:
+        v = float(value)
+        w.writerow([study, unit, metric, repr(v) if math.isfinite(v) else str(v)])
+    return atomic_write_text(Path(path), buf.getvalue())
 
 
 __all__ = ["Store", "Records", "StudyError", "StoreError", "CorruptRecordWarning",
            "precision", "atomic_write_bytes", "atomic_write_text", "atomic_write_json",
            "atomic_write_npz", "read_npz", "read_json", "read_jsonl", "flatten_metrics",
-           "tidy_rows"]
+           "tidy_rows", "write_results_csv"]
