@@ -231,15 +231,16 @@ def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
 
 def test_padgett_mc_failed_table_dependency_fails_the_study(tmp_path, monkeypatch, capsys):
     import pqrm_jax.tables as tables
+    from pqrm_jax.calculi import Calculus
 
-    real = tables.load_tables
+    real = Calculus.neighbor_distance
 
-    def broken(calc, *a, **kw):
+    def broken(calc):  # what a truncated lr.json in the table cache gives
         if calc.name == "lr":
             raise tables.CacheError("table file lr.json is corrupt (truncated)")
-        return real(calc, *a, **kw)
+        return real.fget(calc)
 
-    monkeypatch.setattr(tables, "load_tables", broken)
+    monkeypatch.setattr(Calculus, "neighbor_distance", property(broken))
     out = tmp_path / "t"
     argv = ["--runs", "2", "--levels", "2", "--samples", "8", "--landmarks", "4", "--quiet",
             "--out", str(out)]
@@ -282,3 +283,23 @@ def test_torn_or_wrong_json_record_is_recomputed(tmp_path, text):
     with pytest.warns(CorruptRecordWarning, match="traverse_1.json"):
         assert read_json(p, ("traverse", "wall_s", "removed_pct")) is None
     assert not p.exists()
+
+
+def test_directory_of_an_older_version_is_adopted_with_its_config(tmp_path):
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "config.json").write_text(json.dumps({"runs": 4}))
+    (old / "levels.jsonl").write_text("")
+    legacy = ("config.json", "levels.jsonl")
+    with pytest.raises(StoreError, match="runs: 4 there, 5 asked"):
+        Store.open(old, "p", {"runs": 5, "layout": 1}, legacy=legacy, legacy_assume=("layout",))
+    with pytest.warns(UserWarning, match="before studies recorded 'layout'"):
+        Store.open(old, "p", {"runs": 4, "layout": 1}, legacy=legacy,
+                   legacy_assume=("layout",)).close()
+    assert json.loads((old / "study.json").read_text())["study"] == "p"
+    serge_dir = tmp_path / "serge"  # serge kept its config in meta.json
+    serge_dir.mkdir()
+    (serge_dir / "meta.json").write_text(json.dumps({"trials": 8}))
+    with pytest.raises(StoreError, match="trials: 8 there, 9 asked"):
+        Store.open(serge_dir, "serge", {"trials": 9}, legacy=("meta.json",),
+                   legacy_config="meta.json")

@@ -422,7 +422,8 @@ def open_store(cfg: Config, out: Path, *, fresh: bool = False):
     from .store import Store
 
     return Store.open(out, NAME, dict(cfg.to_json(), layout=layout(cfg)), legacy=LEGACY,
-                      fresh=fresh, advice="use another --out or --fresh")
+                      legacy_assume=("layout",), fresh=fresh,
+                      advice="use another --out or --fresh")
 
 
 def results_rows(lines: list[dict]) -> list[tuple[str, str, float]]:

@@ -99,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
             "devices": str(jax.devices())}
     with Store.open(out, NAME, meta, selection=("folds_run", "devices"),
                     legacy=("meta.json", "results.jsonl", "report.md", "fig_*.png",
-                            "config.json", "study.json", "results.csv", "*.corrupt")) as st:
+                            "config.json", "study.json", "results.csv", "*.corrupt"),
+                    legacy_config="meta.json") as st:
         meta = st.config
         log = st.records("results.jsonl", key=_key, required=_FIELDS)
         scenes, grids, tasks = {}, {}, []

@@ -359,6 +359,7 @@ class Store:
     def open(cls, out: str | Path, study: str, config: dict | None, *,
              selection: tuple[str, ...] = (), legacy: tuple[str, ...] = (),
              fresh: bool = False, shard: tuple[int, int] | None = None,
+             legacy_config: str | None = None, legacy_assume: tuple[str, ...] = (),
              advice: str = "use another --out") -> Store:
         """Lock ``out``, check it holds ``study`` and guard ``config``; returns the store.
 
@@ -374,6 +375,10 @@ class Store:
                 non-empty unmarked directory is refused.
             fresh: delete the stored results of this study first (after the checks).
             shard: ``(i, k)`` for one of k processes sharing ``out`` (shared main lock).
+            legacy_config: the file an older version kept its config in (e.g.
+                ``"meta.json"``); read as the stored config of an adopted directory.
+            legacy_assume: fields an older version did not record (``"precision"`` always):
+                in an adopted directory they are assumed to match, with a warning.
             advice: appended to refusals.
 
         Raises:
@@ -409,7 +414,11 @@ class Store:
                 if fresh:
                     cls._wipe(out)
                 cfg = dict(config, precision=precision())
-                cfg = cls._guard(out, cfg, selection, legacy_dir, advice)
+                if legacy_dir and legacy_config and not (out / CONFIG).exists() \
+                        and (out / legacy_config).exists():
+                    shutil.copyfile(out / legacy_config, out / CONFIG)
+                assume = ("precision", *legacy_assume) if legacy_dir else ()
+                cfg = cls._guard(out, cfg, selection, assume, advice)
                 atomic_write_json(out / MARKER, {"study": study,
                                                  "store_version": STORE_VERSION})
         except BaseException:
@@ -493,7 +502,7 @@ class Store:
                 p.unlink()
 
     @staticmethod
-    def _guard(out: Path, cfg: dict, selection: tuple[str, ...], legacy_dir: bool,
+    def _guard(out: Path, cfg: dict, selection: tuple[str, ...], assume: tuple[str, ...],
                advice: str) -> dict:
         cfg = json.loads(json.dumps(cfg))
         path = out / CONFIG
@@ -505,10 +514,11 @@ class Store:
                     raise ValueError("not a JSON object")
             except (json.JSONDecodeError, ValueError) as exc:
                 raise StoreError(f"{path} is corrupt ({exc}); {advice} or --fresh") from None
-            if legacy_dir and "precision" not in have:
-                warnings.warn(f"{path} was written before studies recorded their precision; "
-                              f"assuming {cfg['precision']}", stacklevel=4)
-                have["precision"] = cfg["precision"]
+            for k in assume:
+                if k not in have and k in cfg:
+                    warnings.warn(f"{path} was written before studies recorded {k!r}; "
+                                  f"assuming {cfg[k]!r}", stacklevel=4)
+                    have[k] = cfg[k]
             diff = sorted(k for k in set(have) | set(cfg)
                           if k not in selection and have.get(k) != cfg.get(k))
             if diff:
