@@ -355,8 +355,6 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
     """
     ids = np.asarray(ids)
-    if ids.size == 0:  # seeing nothing is normal; ``np.asarray([])`` is float64
-        ids = ids.astype(np.int64)
     positions = np.asarray(positions, dtype=np.float32)
     if ids.ndim != 1 or positions.shape != (ids.shape[0], 2):
         raise ValueError(f"ids (K,) and positions (K, 2) expected, got {ids.shape} and "
@@ -372,6 +370,7 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
     _check_sigma(sigma)
     full = np.zeros((pq.num_landmarks, 2), np.float32)
     vis = np.zeros(pq.num_landmarks, bool)
+    ids = ids.astype(np.intp)  # checked integers above; seeing nothing gives float64 ``[]``
     full[ids] = positions
     vis[ids] = True
     sig = np.asarray(sigma, np.float32)
