@@ -171,5 +171,5 @@ def run_sequence(
             raise ValueError(f"run_sequence: {nm} contain NaN or inf")
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
-    return _run(spec, poses, landmarks, truth, _sensor(sensor), n=n,
+    return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, _sensor(sensor), n=n,
                 pool=pool, depth=depth)

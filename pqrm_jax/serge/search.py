@@ -387,12 +387,12 @@ def serge(
     >>> r.n_regions, abs(round(r.log_psi3, 4))
     (4, 0.0)
     """
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ValueError(f"serge: chunk must be an integer ≥ 1, got {chunk!r}")
     args = _inputs(problem, mu, sigma, active, start)
     t = 100 * problem.k + 1 if trials is None else int(trials)
     if t < 1:
         raise ValueError(f"serge: trials must be ≥ 1, got {trials}")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"serge: chunk must be an integer ≥ 1, got {chunk!r}")
     chunk = min(int(chunk), t)
     tt = math.ceil(t / chunk) * chunk
     # key derivation unchanged (split into a multiple of ``chunk``); a trial depends only on
