@@ -176,9 +176,13 @@ def test_wrong_study_and_unknown_files_refused(tmp_path):
 TINY = ["--runs", "4", "--levels", "2", "--samples", "16", "--landmarks", "4", "--quiet"]
 
 
-def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
+def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path):
+    import dataclasses
+
     out = tmp_path / "mc"
-    assert padgett_mc.main([*TINY, "--out", str(out)]) == 0
+    cfg = padgett_mc.Config(runs=4, levels=2, num_samples=16, num_landmarks=4,
+                            representations=("edc", "lr"))  # two representations: fast compile
+    padgett_mc.run_study(cfg, out, quiet=True)
     levels = (out / "levels.jsonl").read_text()
     arrays = {p.name: read_npz(p) for p in sorted(out.glob("level_*.npz"))}
     lines = levels.splitlines()
@@ -193,7 +197,7 @@ def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
     kept = out / "level_00.npz"
     mtime = kept.stat().st_mtime_ns
     with pytest.warns(CorruptRecordWarning) as rec:
-        assert padgett_mc.main([*TINY, "--out", str(out)]) == 0
+        padgett_mc.run_study(cfg, out, quiet=True)
     msg = _warned(rec)
     assert "level_01.npz" in msg and "level_02.npz" in msg
     assert all(f"levels.jsonl:{no}:" in msg for no in (3, 5, 6))
@@ -204,8 +208,8 @@ def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
         assert a.keys() == b.keys()
         for k in a:
             np.testing.assert_array_equal(a[k], b[k], err_msg=f"{name}:{k}")
-    cfg = json.loads((out / "config.json").read_text())
-    assert cfg["precision"] == "float32" and cfg["layout"] == {"chunk": 4, "devices": 1}
+    stored = json.loads((out / "config.json").read_text())
+    assert stored["precision"] == "float32" and stored["layout"] == {"chunk": 4, "devices": 1}
     # the tidy results table: one row per level × metric
     import csv
 
@@ -218,7 +222,8 @@ def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
         "error_mean"]
     pd = pytest.importorskip("pandas")
     assert pd.read_csv(out / "results.csv")["value"].dtype == np.float64
-    # a resume under float64 is refused: x64 draws differ (D7)
+    # a resume under float64 is refused: x64 draws differ (D7). (The CLI asks for all six
+    # representations, so the message lists that difference too.)
     env = dict(os.environ, JAX_ENABLE_X64="1")
     proc = subprocess.run([sys.executable, "-m", "pqrm_jax.cli", "study", "padgett-mc", *TINY,
                            "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
@@ -226,7 +231,7 @@ def test_padgett_mc_corrupt_levels_recomputed_alone(tmp_path, capsys):
     assert proc.returncode == 2 and "precision: 'float32' there, 'float64' asked" in proc.stderr
     # another chunk layout changes float bits (D15): refused too
     with pytest.raises(StoreError, match="layout"):
-        padgett_mc.main([*TINY, "--chunk-runs", "3", "--out", str(out)])
+        padgett_mc.run_study(dataclasses.replace(cfg, chunk_runs=3), out, quiet=True)
 
 
 def test_padgett_mc_failed_table_dependency_fails_the_study(tmp_path, monkeypatch, capsys):
