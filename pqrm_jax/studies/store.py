@@ -19,8 +19,13 @@ resume and inspect:
 * **verified reads** — :meth:`Store.read_npz` reads every array (zip CRC checked),
   :meth:`Store.read_json` and :meth:`Store.records` parse and check each record. A truncated,
   empty or garbage file, a torn JSONL line, or a valid-JSON line of the wrong shape (``null``,
-  ``{"lvl": 2}``) is named in a :class:`CorruptRecordWarning`, the bad file is moved aside
-  (``*.corrupt``) and the unit counts as not done, so it alone is recomputed.
+  ``{"lvl": 2}``) is named in a :class:`CorruptRecordWarning` (file, and line number for
+  JSONL); a bad file is moved aside (``*.corrupt``), a bad line is dropped when the file is
+  rewritten, and the unit counts as not done, so it alone is recomputed.
+* **older directories** — an unmarked directory holding only files an older version of the
+  study wrote (``legacy`` globs) is adopted; its recorded config (``legacy_config``) is
+  guarded, fields it never recorded (``legacy_assume``, ``precision``) are assumed with a
+  warning. Temp files of killed writers are removed when a store is opened.
 * **tidy results** — :meth:`Store.write_results_csv` writes ``results.csv`` with one row per
   unit × metric (columns ``study, unit, metric, value``) that ``pandas.read_csv`` reads as is.
 
