@@ -64,9 +64,26 @@ def _message(exc: BaseException) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (2 for user errors, printed on one line)."""
+    import warnings
+
+    default_format = warnings.formatwarning
+
+    def one_line(message, category, filename, lineno, line=None):
+        # a record set aside for recomputation is news for the user, not a code location
+        if category.__name__ == "CorruptRecordWarning":
+            return f"pqrm-jax: warning: {message}\n"
+        return default_format(message, category, filename, lineno, line)
+
+    warnings.formatwarning = one_line
+    try:
+        return _dispatch(list(sys.argv[1:] if argv is None else argv))
+    finally:
+        warnings.formatwarning = default_format
+
+
+def _dispatch(argv: list[str]) -> int:
     import os
 
-    argv = list(sys.argv[1:] if argv is None else argv)
     commands = {"tables": _tables, "study": _study}
     if not argv or argv[0] not in commands:
         print(__doc__)
@@ -84,7 +101,6 @@ def main(argv: list[str] | None = None) -> int:
         msg = " ".join(_message(exc).split())
         print(f"pqrm-jax: error: {msg}", file=sys.stderr)
         return 2
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

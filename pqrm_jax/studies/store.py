@@ -152,7 +152,7 @@ def atomic_write_npz(path: Path, arrays: dict[str, Any], compressed: bool = True
 
 def _quarantine(path: Path, why: str) -> None:
     """Warn naming ``path`` and move it aside to ``path.corrupt`` (kept for inspection)."""
-    warnings.warn(f"{path}: {why}; set aside as {path.name}.corrupt and recomputed",
+    warnings.warn(f"{path}: {why}; set aside as {path.name}.corrupt (the study recomputes it)",
                   CorruptRecordWarning, stacklevel=3)
     try:
         os.replace(path, path.with_name(path.name + ".corrupt"))
