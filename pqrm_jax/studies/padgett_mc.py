@@ -43,11 +43,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import calculi
+from .padgett_common import (
+    BD_BINS,
+    LINE_FIELDS,
+    SIGMA_E,
+    boundary_distance,
+    level_check,
+    load_results,
+    npz_required,
+)
+
 NAME = "padgett-mc"
 HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 
-SIGMA_E = 100.0 / math.sqrt(12.0)
-REPS = ("edc", "edc_lune", "triple_cross", "double_cross", "single_cross", "lr")
+REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
 
@@ -348,19 +358,6 @@ def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tu
     return line, arrays
 
 
-BD_BINS = np.array([0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf])
-
-
-def boundary_distance(xy: np.ndarray) -> np.ndarray:
-    """Distance (in |AB| units) of C = (α, β) to the nearest EDC boundary (SPEC §2.1)."""
-    a, b = xy[:, 0], xy[:, 1]
-    da = np.hypot(a, b)  # to A
-    db = np.hypot(a, b - 1.0)  # to B
-    cands = [np.abs(a), np.abs(b), np.abs(b - 0.5), np.abs(b - 1.0), np.abs(da - 1.0),
-             np.abs(db - 1.0)]
-    return np.min(np.stack(cands), axis=0)
-
-
 # --------------------------------------------------------------------------------------
 # storage / resume
 # --------------------------------------------------------------------------------------
@@ -368,42 +365,6 @@ def boundary_distance(xy: np.ndarray) -> np.ndarray:
 
 LEGACY = ("config.json", "levels.jsonl", "level_*.npz", "timing.json", "report.md",
           "fig*.png", "results.csv", "study.json", "*.corrupt")
-LINE_FIELDS = ("level", "tag", "sigma_r", "runs", "reps")
-
-
-def _level_check(n_levels: int):
-    def ok(line: dict) -> bool:
-        lv = line["level"]
-        return (isinstance(lv, int) and 0 <= lv < n_levels and isinstance(line["reps"], dict)
-                and all(isinstance(v, dict) for v in line["reps"].values()))
-    return ok
-
-
-def _npz_required(reps) -> tuple[str, ...]:
-    return tuple(f"{r}/{k}" for r in reps for k in ("entropy", "error", "p_ml", "neighbor",
-                                                     "confusion")) + ("err/num_errors",)
-
-
-def _load_done(out: Path, n_levels: int | None = None, reps=REPS) -> list[dict]:
-    """The finished levels of ``out``: a valid ``levels.jsonl`` line whose npz reads in full.
-
-    Bad lines (torn, garbage, ``null``, missing fields) and corrupt npz files are named in a
-    :class:`~pqrm_jax.studies.store.CorruptRecordWarning` and left out (recomputed).
-    """
-    import warnings
-
-    from .store import CorruptRecordWarning, read_jsonl, read_npz
-
-    n = n_levels if n_levels is not None else 10**6
-    done, problems = read_jsonl(out / "levels.jsonl", key=lambda r: r["level"],
-                                required=LINE_FIELDS, check=_level_check(n))
-    for msg in problems:
-        warnings.warn(f"{msg}; that level is recomputed", CorruptRecordWarning, stacklevel=2)
-    req = _npz_required(reps)
-    return [line for k, line in sorted(done.items())
-            if read_npz(out / f"level_{k:02d}.npz", req) is not None]
-
-
 def layout(cfg: Config) -> dict:
     """The run layout that changes float bits (per-device batch of the batched mapper).
 
@@ -446,8 +407,8 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
     try:
         levels = cfg.sigma_levels()
         log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
-                         check=_level_check(len(levels)))
-        req = _npz_required(cfg.representations)
+                         check=level_check(len(levels)))
+        req = npz_required(cfg.representations)
         for i in list(log.done):
             if st.read_npz(f"level_{i:02d}.npz", req) is None:
                 log.discard(i)
@@ -473,26 +434,6 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
     finally:
         if store is None:
             st.close()
-
-
-def load_results(out: Path) -> tuple[dict, list[dict], dict[int, dict]]:
-    """(config, level summaries, level arrays) of a study directory; corrupt levels skipped."""
-    from .store import StudyError, read_npz
-
-    try:
-        cfg = json.loads((out / "config.json").read_text())
-    except FileNotFoundError:
-        raise StudyError(f"{out} holds no {NAME} results (no config.json)") from None
-    except json.JSONDecodeError as exc:
-        raise StudyError(f"{out / 'config.json'} is corrupt ({exc})") from None
-    reps = tuple(cfg.get("representations", REPS))
-    lines = _load_done(out, len(cfg.get("levels_sigma_r", [])) or None, reps)
-    arrays = {}
-    for line in lines:
-        arrays[line["level"]] = read_npz(out / f"level_{line['level']:02d}.npz")
-    if not lines:
-        raise StudyError(f"{out} holds no finished {NAME} level; run the study first")
-    return cfg, lines, arrays
 
 
 def main(argv: list[str] | None = None) -> int:
