@@ -121,3 +121,16 @@ def test_registry_knows_its_builtins():
 
     assert calculi.is_builtin("edc") and calculi.is_builtin("lr_full")
     assert not calculi.is_builtin("my_lr")
+
+
+def test_readme_lists_every_study():
+    """The README's ``pqrm-jax study --list`` line names exactly the discovered studies."""
+    import re
+
+    from pqrm_jax.studies import discover
+
+    readme = (ROOT.parent / "README.md").read_text()
+    line = re.search(r"^pqrm-jax study --list\s+#\s*(.+)$", readme, re.M)
+    assert line, "README has no 'pqrm-jax study --list  # names' line"
+    listed = {n.strip() for n in line.group(1).split(",")}
+    assert listed == set(discover()), (sorted(listed), sorted(discover()))
