@@ -1,23 +1,12 @@
-"""Ternary point calculi as polynomial sign constraints (SPEC §2, P2.2.1, MT App. C).
+"""Ternary point calculi as polynomial sign constraints (docs/decisions.md §2, P2.2.1, MT App. C).
 
-A relation ``AB:C`` places C in the frame of the ordered pair (A, B). In the canonical frame
-A=(0,0), B=(0,1), C=(α, β) (right of AB is α > 0), a calculus is k polynomial constraints
-``f_a(α, β, ρ)`` (ρ = α² + β²) and a map from their sign patterns in {−,0,+}^k to states.
+Offers :class:`Calculus`: a calculus defined by k polynomial constraints in the canonical
+frame and a map from sign patterns to states, or by merging the states of another calculus;
+a division-free, jit-able ``classify`` with documented sentinels; and the definition hash
+that keys its tables.
 
-``classify`` never divides: with d = B − A, e = C − A, u = e×d, v = e·d, m = |e|², n = |d|²
-we have α = u/n, β = v/n, ρ = m/n, and every constraint is multiplied by n^D (D its weighted
-degree), which keeps its sign. Integer coordinates are therefore classified exactly (in float64
-up to |x| ≲ 2^12 for degree-one constraints), so collinear, perpendicular and coincident
-configurations get their boundary relations.
-
-Sentinel results (documented, never a silent wrong state):
-
-* ``BOUNDARY`` (−1): C lies on a boundary of an *open* calculus (measure zero).
-* ``DEGENERATE`` (−2): A = B in an open calculus (the frame does not exist).
-* ``INVALID`` (−3): a NaN or infinite coordinate.
-
-Boundary-inclusive calculi (``dcc``, ``lr_full``) give a state for every configuration,
-including A = B ≠ C (``dou``) and A = B = C (``tri``).
+The canonical frame, division-free classification and the sentinels:
+docs/calculi.md §calculus and docs/decisions.md §2.
 """
 
 from __future__ import annotations

@@ -1,51 +1,12 @@
 """Probabilistic composition (Z eq. 2.4 / 4.28) and its propagation over a PQRM map.
 
-Map representation (independent of :mod:`pqrm_jax.pqrm`'s internal format):
+Offers the composition of two distributions through a ``[Q, Q, Q]`` tensor, the fusion rule
+that combines several composition paths (and optionally the measurement), and the batched
+propagation over a dense ``[L, L, L, Q]`` map with an ``[L, L, L]`` ``observed`` mask, with
+converters from and to PQRM rows. Bad input raises ``ValueError``.
 
-* ``probs`` — shape ``(L, L, L, Q)``; ``probs[i, j, k, q] = P(ij:k = q)`` for the ordered
-  triplet of landmark ids ``(i, j, k)`` (P ch. 2 maps all orderings);
-* ``observed`` — shape ``(L, L, L)`` bool; rows with ``observed`` set are the measured
-  triplets. Rows that are not observed are ignored (their content may be anything, even NaN).
-
-Composition (Z §2.4): the pair ``τ1 = AB:C``, ``τ2 = BC:D`` composes ``τ3 = AB:D``; with
-landmark ids ``(i, j, k, d)`` the pair ``(ij:k, jk:d)`` composes ``ij:d``. Under the
-approximations of Z eq. 4.28 (the metric prior of each source triplet is uniform within its
-state and the two are independent) eq. 2.4 becomes
-
-    P(ij:d = c) = Σ_a Σ_b P(ij:k = a) · P(jk:d = b) · T[a, b, c],
-
-with ``T = calc.tables.prob_compose`` (``(Q, Q, Q)``, ``T[a, b, c] = P(AB:D = c | AB:C = a,
-BC:D = b)``). For every ordered target ``ij:d`` there is one candidate path per intermediate
-landmark ``k ∉ {i, j, d}``; :func:`propagate` evaluates all ``L·(L−1)·(L−2)·(L−3)`` candidate
-pairs in one jit-compiled array program (two einsums per middle landmark ``j``).
-Only this canonical operand pattern is used (no unary LEFT/RIGHT/INVERSE re-orderings), so a
-target ``ij:d`` is reachable only through an available triplet with the prefix ``ij``; PQRM maps
-store every ordering of a measured triplet (P§2.3), which makes this no restriction there.
-
-Fusion rule (:func:`fuse`)
---------------------------
-Several composition paths (and, in ``mode="fuse"``, the measurement itself) are combined by a
-**smoothed, tempered product of experts**: each source distribution ``p_s`` is first mixed
-with the uniform distribution, ``p̃_s = (1 − ε)·p_s + ε/Q`` (a source is wrong with
-probability ``ε`` and then says nothing), and then
-
-    P(c | all sources) ∝ Π_s p̃_s(c)^{w_s}.
-
-With ``w_s = 1`` this is Bayes' rule under the assumption that **the sources are conditionally
-independent given the target state** and the prior over states is uniform (naive Bayes: every
-``p_s`` is a posterior under the same uniform prior). Paths through different intermediates
-``k`` use different source triplets, but they share the landmarks ``i, j, d``, so they are
-positively correlated and the product is over-confident; the weights ``w_s ≤ 1`` temper it
-(``w = 1/K`` for ``K`` paths is the geometric-mean "logarithmic opinion pool"). The defaults
-(``eps = 0.05``, ``path_weight = 0.5``) were chosen with the held-out simulation of
-``benchmarks/bench_compositions.py`` / ``notebooks/05_compositions.ipynb``. Because every
-factor is at least ``(ε/Q)^{w}`` > 0 and normalisation uses log-sum-exp, the result is always
-a proper distribution: no NaN, no negative entries, no division by zero. A composed path whose
-operands are jointly impossible under ``T`` (zero mass) is dropped rather than used.
-
-Bad input: negative, non-finite or non-normalised observed rows, ``observed`` set on a
-triplet with a repeated landmark, and tensors of the wrong shape or with negative entries
-raise ``ValueError``; ``renormalize=True`` rescales observed rows that merely do not sum to 1.
+Map layout, the composition sum, the fusion rule (a smoothed, tempered product of experts)
+and its defaults: docs/compositions.md §propagation.
 
 >>> import numpy as np
 >>> T = np.zeros((2, 2, 2), np.float32); T[0, 0, 0] = T[1, 1, 0] = 1; T[0, 1, 1] = T[1, 0, 1] = 1

@@ -1,31 +1,12 @@
 """The online PQRM map: a recursive Bayes filter per ordered landmark triplet (P §2.2.3).
 
-The map holds ``p(R^n | Z^n_{1:t})`` for every ordered triplet n = (i, j, k) of distinct
-landmarks (P §2.3: "the reported results record all possible orderings"), for one or several
-representations at once. An update with the landmarks seen at time t (Alg. 1):
+Offers the map state over every ordered triplet of M landmarks (T = M(M−1)(M−2) rows, for one
+or several representations at once) and the mapper's pure ``init``/``update`` functions
+(P eq. 2.10, Alg. 1), with static shapes so that ``update`` runs under ``jit``, ``lax.scan``
+and ``vmap``. Degenerate evidence never gives a NaN map; it is counted.
 
-* every triplet whose three landmarks are all seen gets the measurement distribution
-  ``p(R^n | Z^n_t)`` (eq. 2.9, :mod:`.measurement`) — one sampling pass for all
-  representations, which must be merges of one root calculus (the EDC for Padgett's six);
-* a triplet already in the map is updated by eq. 2.10,
-  ``p_t(q) ∝ p(q | Z_t) · p_{t-1}(q)``; a triplet seen for the first time is initialised with
-  ``p(q | Z_t)``; triplets not seen keep their distribution.
-
-Everything has static shapes (T = M(M−1)(M−2) rows for M landmarks, masks for what was seen),
-so ``update`` runs under ``jit``, ``lax.scan`` over time and ``vmap`` over Monte Carlo runs.
-
-Documented handling of degenerate evidence (never a NaN map):
-
-* **Conflict** — the product in eq. 2.10 is zero for every state (the sampled likelihood is
-  zero on all states the prior allows; with finite S this happens at low noise near state
-  boundaries): the prior is kept and ``num_conflicts`` of that triplet and representation is
-  incremented.
-* **Rejected measurement** — no sample had a defined state (σ = 0 with a landmark exactly on a
-  boundary or two landmarks coincident): the triplet is not updated, ``num_rejected`` counts it.
-* **Non-finite positions** of a landmark flagged visible: the landmark is treated as not seen
-  at this step and ``num_dropped`` counts it. Eager :func:`update_observed` raises instead.
-* Negative or NaN ``sigma`` raises ``ValueError`` when concrete; inside ``jit`` a NaN sigma makes
-  every sample undefined, i.e. every seen triplet is a rejected measurement.
+The update rule and the handling of conflicts, rejected measurements and non-finite
+positions: docs/pqrm.md §map.
 """
 
 from __future__ import annotations

@@ -1,44 +1,12 @@
 """The PQRM measurement model: ``p(R^n = q | Z^n)`` by sampling (P §2.2.2, eq. 2.9).
 
-For each landmark triplet n the three measured positions ``means[n] = (A, B, C)`` (robot frame)
-are the centres of an isotropic Gaussian inverse sensor model ``p(L^n | Z^n)`` with standard
-deviation ``sigma[n, i]`` per landmark. Eq. 2.9 is estimated by drawing S landmark
-configurations, evaluating the k constraint signs of each and counting the samples per state:
-``p̂(q) = #{s : state(s) = q} / #{s : state(s) is defined}``.
+Offers the state probabilities of N triplets (``means`` ``[N, 3, 2]``, ``sigma`` ``[N, 3]``)
+for one calculus or for several at once, the fused EDC sign kernel and its per-state counts,
+and the aggregation of EDC counts into any calculus that merges the EDC. Eager calls raise
+``ValueError`` for bad input; inside ``jit`` a row with no defined sample is all zeros.
 
-**One sampling pass for every representation.** All of Padgett's representations (P Fig. 2.2)
-are merges of the 20-state EDC, so the kernel counts EDC states once and every coarser
-calculus is an exact aggregation of those counts (``calc.parent_map``): the six
-representations of the Monte Carlo study cost one pass. A calculus that is not a merge of the
-EDC takes a generic (slower) path through ``Calculus.classify``.
-
-**The fused EDC kernel.** Per sample the kernel computes ``u = e×d``, ``v = e·d``, ``m = |e|²``,
-``n = |d|²`` (d = B−A, e = C−A), the six homogenised EDC constraints and from their strict signs
-an arithmetic state key (side × band × circle count) — no table lookup, no division. It equals
-``edc.classify`` on every sample whose constraint values are all non-zero and finite (a test
-checks this); a sample with a zero constraint (C exactly on a boundary, A = B) or a non-finite
-value is *rejected* (counted in no state), which is what ``classify`` does for EDC boundaries.
-Because every representation is aggregated from EDC counts, a sample on an EDC boundary is
-rejected for a coarser calculus too, even where that boundary is internal to a coarse state
-(e.g. β = ½ for LR); with σ > 0 this has probability zero, with σ = 0 it affects only inputs
-exactly on an EDC boundary.
-The counts are accumulated with a single variadic XLA reduction into byte fields packed four
-per uint32 word (chunks of at most 255 samples, so a field never overflows) — a histogram
-without scatter and without a one-hot tensor.
-
-**Common random numbers.** One bank of S standard-normal draws (S, 3, 2) is shared by all
-triplets of a call and scaled by each triplet's means and sigmas. Every row is therefore
-exactly the S-sample Monte Carlo estimator of eq. 2.9 (same distribution as with independent
-draws); only the errors of different rows are correlated. Use a fresh key per call.
-
-**Bounded memory.** The sample axis is reduced inside the fusion (chunks of ≤ 255 samples) and
-the triplet axis is processed in blocks of ``chunk_triplets`` with ``lax.map``, so the working
-set is O(chunk_triplets · 255) regardless of N·S; the output is (N, Q).
-
-**Bad input.** ``means`` must be (N, 3, 2); eager calls raise ``ValueError`` for NaN/inf
-means, negative or NaN sigma and non-positive ``num_samples``. Inside ``jit``/``vmap`` values
-are not inspected: a row whose samples are all rejected (non-finite input, σ = 0 with C exactly
-on a boundary or A = B) is all zeros — never NaN — and ``valid`` reports 0 samples for it.
+One sampling pass for every representation, the fused kernel, common random numbers, bounded
+memory and bad input: docs/pqrm.md §measurement.
 """
 
 from __future__ import annotations

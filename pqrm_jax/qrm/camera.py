@@ -1,59 +1,12 @@
 """Camera measurement of qualitative states (M§IV, Table III; M§V feasibility).
 
-From one image we know the bearings of the visible landmarks and the ordering of their
-ranges, nothing else. For a landmark triple with ranges ``d = (d_near, d_mid, d_far)`` along
-known unit bearing vectors ``w_s``, the positions are ``P_s = d_s w_s`` (camera at the
-origin). Every calculus constraint used here is a line or circle ``c0 + c1 α + c2 β + c3 ρ``
-in the canonical frame of ``XY:Z``; homogenised (M Table III, ``pqrm_jax.tables.problems``)
-it becomes ``c0 n + c1 u + c2 v + c3 m`` with ``n = |Y−X|², m = |Z−X|²,
-u = (Z−X)×(Y−X), v = (Z−X)·(Y−X)`` — a *quadratic form in d*. The measurement is scale free,
-so instead of McClelland's (l, r) ∈ (0, ∞)² with an ad-hoc upper bound we use the exact,
-bounded parametrisation of the range-ordering cone
+Turns one image — the bearings of the visible landmarks and the order of their ranges — into
+the set of feasible EDC states of every visible triple and each of its three cyclic
+relations, batched over triples by one branch-and-bound kernel. A state is removed only when
+it is proven infeasible, so the true state is never dropped (docs/decisions.md §4).
 
-    d = (a·b, b, 1),   (a, b) ∈ [0, 1]²      (d_near ≤ d_mid ≤ d_far),
-
-which covers every configuration with the observed ordering (ties included, on the closed
-box edges) and needs no artificial bound. Each constraint becomes a polynomial with
-monomials ``a^i b^j`` (i, j ≤ 2); at ``b → 0`` the near and middle landmarks collapse onto
-the camera, and constraints that vanish there identically are divided by ``b`` (exact: their
-``d_far²`` coefficient is structurally zero, and b > 0 in the open cone).
-
-**Kernel** (batched over triples, static shapes). Per triple a pool of ``pool`` boxes in
-(a, b) is refined by quadtree splits for ``depth`` rounds (a branch-and-bound in the sense of
-M§V / Alg. 1, but shared by all states and the three cyclic relations of the triple):
-
-* bound every constraint over every box (monomials are monotone on the positive box, so
-  the enclosure is exact at the corners and valid everywhere); a sign is *certain* only with
-  a relative safety margin ``eps`` (float32 rounding can never flip a certain sign);
-* the atoms (sign patterns) compatible with a box are those agreeing with every certain
-  sign; a box whose signs are all certain, or whose centre has a certain sign pattern,
-  *proves* an atom feasible (a witness);
-* a box is kept only if it is compatible with an atom that is wanted (``target``) and not
-  yet proven; kept boxes are split into four while the pool has room;
-* at the checkpoints ``_CHECKPOINTS`` the triples that still have boxes are gathered into a
-  buffer of half the rows when they fit (``lax.cond``), so later rounds cost what the hard
-  triples need (after the first images of a traverse ~¼ of the triples are still busy after
-  three rounds). Rows are independent: the result is bit-identical to the plain loop
-  (tested). Under ``vmap`` both branches run, which is correct but gains nothing.
-
-The measured set is ``proven ∪ (atoms compatible with a surviving box) ∪ ¬target``: a state
-is removed only when every box of the cone is certainly incompatible with it, i.e. when it is
-proven infeasible (soundness, SPEC §4: the true state is never dropped). States that are
-neither proven nor excluded at the depth limit (``undecided``) are kept.
-
-Limitations (measured, see the issue report): (1) states whose closure touches a degenerate
-corner of the cone (e.g. near landmark at the camera *and* a range tie) cannot be excluded
-with a float32 safety margin and stay undecided (kept); (2) the pool is per triple and fixed:
-when a camera sees all landmarks inside a narrow bearing sector (imaging point at the edge of
-the field) the curves to resolve are long and the pool fills up, so coarse boxes remain and
-many states stay open (sound, uninformative; a larger ``pool``/``depth`` helps at a cost).
-
-Why a specialised kernel rather than :func:`pqrm_jax.tables.feasibility.solve` (which is
-used as the oracle in the tests): the generic solver runs one branch-and-bound per
-(relation, state) in float64 with a pool per problem; an image of 30 landmarks has
-4060 × 3 × 20 = 243 600 such problems. Sharing one subdivision between the 20 states and the
-three cyclic relations of a triple and bounding all constraints of a box with one batched
-matrix product makes the image update about two orders of magnitude cheaper.
+How it works (the bounded range-cone parametrisation, the shared subdivision, checkpoints,
+limits, and why not the generic table solver): docs/qrm.md §camera.
 """
 
 from __future__ import annotations

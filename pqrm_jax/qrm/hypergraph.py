@@ -1,33 +1,12 @@
 """The qualitative map: a 3-uniform hypergraph of state sets, path-consistency update (M§VI).
 
-**Representation** (decision). M§VI.A stores, per unordered triple {A, B, C}, the three cyclic
-relations AB:C, BC:A, CA:B. We store the same information densely as ``rel[i, j, k]``, the
-uint32 state mask of ``ij:k`` for *every ordered* triple of a fixed capacity of ``N``
-landmarks (entries with a repeated index are unused and kept full). The inverse orientations
-are redundant (kept consistent by INVERSE) but make the propagation a handful of transposes
-and one batched composition sweep instead of index gathers; for N = 30 the map is 27 000
-words. :func:`cyclic_relations` gives the per-unordered-triple view of M§VI.A.
+Offers the map (a uint32 state mask per ordered triple of a fixed landmark capacity), its
+update by intersection with measured sets followed by path-consistency propagation to a fixed
+point, the per-unordered-triple view of M§VI.A and the true map of a layout. An empty set
+rejects the update and keeps the previous map (``inconsistent=True``).
 
-**Update** (M§VI.B, path consistency in the sense of van Beek / Renz–Nebel): intersect the
-measured sets, then repeat until nothing changes (a ``lax.while_loop``):
-
-* unary closure — ``rel[j,i,k] ∩= INVERSE(rel[i,j,k])``, ``rel[j,k,i] ∩= LEFT(rel[i,j,k])``,
-  ``rel[k,i,j] ∩= RIGHT(rel[i,j,k])`` (the pseudo-measurements of step 7);
-* composition — ``rel[a,b,d] ∩= ⋂_c COMPOSE(rel[a,b,c], rel[b,c,d])`` over every fourth
-  landmark c (step 8), for all ordered (a, b, d) at once. Because every orientation is stored,
-  each pair of the other three triples of a 4-set constrains every triple: the propagation is
-  complete with respect to the composition table.
-
-Sweeps after the first are semi-naive: the composition through a fourth landmark whose
-relations did not change since the previous sweep is skipped (its constraints already hold);
-the fixed point is the same (tested against the one-relation-at-a-time worklist reference).
-
-All operations only intersect (they are monotone and deflationary), so the result is the
-greatest fixed point below the measurements: it does not depend on the order in which
-measurements arrive (M§VI.C). An empty set proves the measurements inconsistent; the update is
-then rejected and the previous map returned with ``inconsistent=True`` (the map stays
-usable). Path consistency is a sound filter, not a decision procedure (SPEC §11): a
-path-consistent map can still be geometrically unrealisable.
+The dense representation, the unary and composition closure, the semi-naive sweeps and
+order independence: docs/qrm.md §hypergraph.
 """
 
 from __future__ import annotations

@@ -1,23 +1,10 @@
 """Beliefs ``B_k = p(X_k | Z_k)`` over a 2-D domain (Padgett eq. 3.1, §3.4.1).
 
-Two representations:
+Offers Gaussian beliefs and sample-set beliefs, each giving the ``[K, N]`` cell masses on a
+grid and the ``[K, N]`` score used to pick the highest-saliency belief per cell. Bad input
+raises ``ValueError`` naming the belief.
 
-* :class:`GaussianBeliefs` — ``B_k ~ N(α_k, Σ_k)``, e.g. fitted to measurements
-  (:meth:`GaussianBeliefs.fit`), as for the well-separated and the lab data of P§3.4.1;
-* :class:`SampleBeliefs` — a sample set per belief, as for the hallway triplets (10 000 samples
-  of F̂ in the normalised frame per belief).
-
-Both give the (K, N) matrix of cell masses ``P[k, n] = ∫_{C_n} B_k`` on a :class:`Grid` (the
-saliency of each fine cell for each belief) and a (K, N) score used to pick the highest-
-saliency belief per cell for the initial cells. Cell masses of a Gaussian are computed from a
-fixed set of ``n_mc`` quasi-samples drawn with an explicit key and histogrammed with clipping,
-so border cells hold the tails and every row sums to one (the cells partition ℝ²).
-
-Bad input raises ``ValueError`` naming the belief: NaN/inf samples or means, empty sample
-sets, non-symmetric or non-positive-semidefinite covariances. Singular (degenerate)
-covariances are allowed: they are regularised by a jitter of 1e-12·scale² (a point mass then
-puts all its mass in one cell, which is fine unless two beliefs share that cell; see
-:func:`pqrm_jax.serge.cells.initial_cells`).
+How cell masses are computed and how singular covariances are handled: docs/serge.md §beliefs.
 """
 
 from __future__ import annotations

@@ -1,23 +1,10 @@
 """Initial cells ``C_init`` and the SERGE problem (Padgett §3.3, §3.4.1).
 
-P§3.4.1: "a fine grid of cells is generated, and the saliency of each grid cell is computed
-for each belief. Grid cells are then assigned the belief that has the highest saliency. The
-cells in C_init are the union of all grid cells with the same assignment."
+Offers the initial contiguous regions of a belief set on a grid (one per belief, by highest
+saliency) and the SERGE problem built from them or from a given partition. A belief the grid
+cannot separate raises ``ValueError`` by default, or is attached to a neighbouring region.
 
-Decisions where the paper is open (documented handling):
-
-* The highest-saliency score is the log density at the cell centre for Gaussians and the
-  log of a slightly blurred histogram for sample sets (so noise does not speckle the map).
-  Cells where no belief has mass are left unassigned and then filled (below).
-* ``C_init`` must be K *contiguous* regions (ψ2 > 0, P§3.3). Where a belief wins several
-  disconnected patches, the patch holding most of its mass keeps the label; the others are
-  re-filled by growing the neighbouring regions (multi-source dilation, each cell taking the
-  neighbouring label whose belief scores highest there), which keeps every region connected.
-* A belief that wins no cell — or only cells holding less than ``min_saliency`` (1 %) of its
-  mass — cannot get its own region: the grid is too coarse to separate it (or two beliefs
-  coincide). ``unseparated="error"`` (default) raises a ``ValueError``
-  naming those beliefs; ``unseparated="attach"`` assigns each of them to the region holding
-  most of its mass, so the map starts with R0 < K regions.
+The decisions where the paper is open: docs/serge.md §cells.
 """
 
 from __future__ import annotations

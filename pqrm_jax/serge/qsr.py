@@ -1,27 +1,11 @@
 """SR maps as a learned ternary qualitative calculus (Padgett §3.3.2, eq. 3.11, Alg. 3).
 
-Beliefs over the position of F in the frame D=(0,0), E=(0,1) of each landmark triplet
-(:func:`triplet_beliefs`, eq. 3.11) are fed to SERGE; the resulting SRs are the states of a
-calculus, :class:`SergeCalculus`, with the duck-typed interface of
-:class:`pqrm_jax.calculi.Calculus` used by the PQRM engine (``name``, ``states``,
-``num_states``, jit-able ``classify(a, b, c)``). Its compose table is computed by Alg. 3.
+Offers the beliefs over the position of F in the frame D=(0,0), E=(0,1) of each landmark
+triplet (eq. 3.11) and :class:`SergeCalculus`, whose states are the SERGE regions, with a
+jit-able ``classify`` (sentinels as in the calculus core) and a compose table by Alg. 3.
 
-Frame: the calculus core's (right of DE is α > 0, see :func:`~pqrm_jax.serge.scenes.to_frame`).
-``classify`` maps C into the frame of (A, B) and reads the SR of the grid cell it lands in;
-points outside the grid domain take the nearest border cell (the SR map partitions ℝ²).
-Sentinels follow the core: ``DEGENERATE`` (−2) when A = B, ``INVALID`` (−3) for NaN/inf.
-
-**Relation to the exact tables of the calculus core.** The core's ``calc.tables.compose`` is
-decided exactly over the continuous plane (feasibility of polynomial sign constraints).
-Alg. 3 instead enumerates grid-cell centres: F at the centre of every cell of ``{DE:F}``, G at
-the centre of every cell of ``{EF:G}`` (in frame EF), mapped back to frame DE and looked up.
-Every entry it sets is therefore *witnessed* by a concrete configuration (D, E, F, G) that
-realises all three relations on the SR map — SERGE compose is sound (an inner approximation
-of the exact composition of the same regions) and converges to it as the grid (``stride``)
-is refined; thin feasible combinations can be missed. When the SRs coincide with a core
-calculus's regions (grid edges on its boundaries, e.g. ``quadrant``), SERGE compose is
-contained in the core's exact table (tested in ``tests/test_serge.py``). ``compose_prob``
-adds what the exact table cannot: the fraction of (F, G) cell pairs landing in each state.
+The frame, the sentinels and how SERGE compose relates to the exact tables:
+docs/serge.md §qsr.
 """
 
 from __future__ import annotations

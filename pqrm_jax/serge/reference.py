@@ -1,27 +1,11 @@
 """Plain NumPy reference of the SERGE merge search (Padgett Alg. 2, §3.3).
 
-:func:`serge_reference` runs the trials of :func:`pqrm_jax.serge.serge` one after another in a
-Python loop, in NumPy, with no pair-gain cache: each step evaluates the gains of merging the
-picked region ``C_n`` into every region directly from the current region masses (Alg. 2 lines
-13–19, vectorised over regions and beliefs). It is the *same* algorithm as one trial of
-:mod:`pqrm_jax.serge.search`:
+Runs the trials of :func:`pqrm_jax.serge.serge` one after another in a Python loop, in
+NumPy, without the pair-gain cache, with the same seeds and the same random region order, so
+that tests and benchmarks can compare the batched program with a plain implementation.
 
-* start ``C_init`` (or ``start``), restricted to ``active`` (same masses, adjacency, beliefs);
-* trial i uses the same seed as :func:`serge`'s trial i (``key`` split the same way, seed =
-  ``jax.random.bits(key_i)`` — the only JAX calls, once per run) and the same integer hash
-  :func:`_hash_uniform_np` (bit-identical to ``_hashrng.hash_uniform``) with the step counter,
-  so the random region order (line 10, without replacement among untried regions) is the
-  same;
-* gain ``Σ_{k ∈ n ∪ m} [log(M_kn + M_km) − log S_k] + log ψ1(|R|−1) − log ψ1(|R|)``, best
-  neighbour by first argmax, merge accepted when the gain is > 0 (lines 20–26);
-* converged when every alive region was tried since the last merge (same step cap);
-* best trial by log ψ = log ψ1 + log ψ3 kept (lines 28–32).
-
-Arithmetic is float32 like the JAX program (the problem's masses are float32), so that exact
-ties (e.g. gains that round to 0 for well-separated beliefs) break the same way. Sums are
-ordered differently from XLA's (and the JAX search reads cached gains), so values agree to
-float32 rounding, not bit for bit; a decision can only differ on a near tie (a gain within
-~1e-6 of 0 or of the best other neighbour's).
+What is shared with the batched search and how closely the results agree:
+docs/serge.md §reference.
 """
 
 from __future__ import annotations

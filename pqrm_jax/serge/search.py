@@ -1,38 +1,11 @@
 """The SERGE merge search (Padgett Alg. 2, §3.3) as one batched, jit-compiled program.
 
-One *trial* starts from ``C_init`` (one contiguous region per belief) and repeatedly picks a
-random current region ``C_n``, evaluates merging it into each neighbouring region ``C_m``
-(beliefs assigned to ``C_n`` follow it, Alg. 2 lines 13–19) and applies the best merge when it
-raises ψ (lines 20–26). A trial has converged when every current region has been tried since
-the last merge without an improving merge (the random choice of line 10 is made without
-replacement among the untried regions). Merging two adjacent connected regions gives a
-connected region, so ψ2 = 1 throughout — contiguity is guaranteed by construction.
+Offers the batched search over T random-order trials (the best trial by log ψ is kept), the
+same trial run one at a time for comparison, and the direct pair-gain evaluation that the
+incremental cache is tested against. Regions stay contiguous by construction (ψ2 = 1).
 
-All T trials are independent and run in blocks of ``WIDTH`` trials (so that a block's state
-stays in cache). A block is one ``lax.while_loop`` whose body is the ``vmap`` of one trial step,
-masked by whether that trial is still running (a finished trial's step changes nothing), until
-every trial of the block has converged; the same step under a per-trial while loop is
-:func:`serge_sequential`'s trial. (A ``vmap`` of the per-trial while loop would select every
-trial's whole state at every step — most of the time.) The key-independent start (region
-masses, adjacency, the pair-gain cache below) is computed once and shared by all trials. The
-best trial by log ψ is kept (Alg. 2 lines 28–32). On CPU the blocks are dealt to one queue per
-usable core, run side by side (:mod:`pqrm_jax._parallel`); a trial depends only on its key, so
-the result does not depend on the number of queues.
-
-Incremental potential. Only the beliefs assigned to ``C_n`` or ``C_m`` change saliency under
-a merge, so the gain of merging n into m is ``G[n, m] = Σ_{k: L_k ∈ {n, m}} [log(M_kn + M_km)
-− log M_{k L_k}]`` plus the change of log ψ1. ``G`` (R0, R0) is symmetric and is cached: a
-merge of n into t changes only row and column t (the beliefs and masses of every other pair
-are untouched), so a step costs one row read (pick n, best t) and, on an accepted merge, the
-new row t — from the beliefs of t in blocks of ``BLOCK`` (a loop over the blocks actually used
-by the accepting trials) plus one segment sum over the beliefs of the other regions — instead
-of the full (R0 × K) evaluation. Adjacency is ``G > −inf``. :func:`pair_gains` is the direct
-evaluation (tests compare).
-
-Cheap under vmap on CPU: the beliefs of each region are kept as a bit set (a merge ORs two
-rows) and the beliefs of t are taken in increasing index order with popcount / count-trailing-
-zeros, and argmax is a max plus a first-index min — small elementwise programs instead of the
-cumsum, scatter and variadic argmax reductions that dominate a vmapped step otherwise.
+Trial convergence, blocks of trials, the incremental potential and the bit-set bookkeeping:
+docs/serge.md §search.
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
-"""Unicycle rover with explicit state and parameters, gymnax style (SPEC §9).
+"""Unicycle rover with explicit state and parameters, gymnax style (docs/decisions.md §9).
 
 ``state = reset(key, params)``; ``state = step(state, control, params)``;
 ``final, poses = rollout(state, controls, params)`` (a ``lax.scan``). Everything is a pure
 function of pytrees (:class:`RoverParams`, :class:`RoverState`) and can be ``vmap``-ed over
 Monte Carlo runs.
 
-Dynamics: pose ``(x, y, theta)``, control ``(v, omega)`` held constant over ``params.dt``.
-The update is the exact solution of ``x' = v cos(theta), y' = v sin(theta), theta' = omega``
-for constant controls, written in chord form
-
-    d = v * dt * sinc(omega * dt / 2),   (x, y) += d * (cos, sin)(theta + omega * dt / 2)
-
-which equals the arc formula ``x += v/omega (sin(theta + omega dt) - sin(theta))`` and has
-the straight-line limit ``x += v dt cos(theta)`` at ``omega = 0`` without division by zero.
-Controls are clipped to ``|v| <= max_speed``, ``|omega| <= max_turn_rate``; headings are
-wrapped to ``[-pi, pi)``.
+The exact chord-form dynamics and the control limits: docs/sim.md §rover.
 """
 
 from __future__ import annotations

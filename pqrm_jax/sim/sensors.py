@@ -1,23 +1,11 @@
-"""Landmark sensors for the rover simulator (SPEC §9).
+"""Landmark sensors for the rover simulator (docs/decisions.md §9).
 
-Two measurement models, both over a fixed-size landmark array with boolean masks (static
-shapes, no Python loops over landmarks, ``jit``/``vmap``-friendly):
+Offers two measurement models over a fixed-size landmark array with boolean masks: noisy
+relative landmark positions (the range sensor of P §2.3.1) and the camera measurement of
+M §IV (bearings plus range ordering). Shapes are always checked; values are checked when
+concrete.
 
-* :func:`observe` -- noisy relative landmark positions in the robot frame (x forward, y left),
-  the range/position sensor of Padgett's PQRM Monte Carlo study (P §2.3.1: 60 m range,
-  Gaussian noise of std ``sigma`` on each observed position).
-* :func:`camera` -- bearings of the visible landmarks plus their range *ordering*, the camera
-  measurement of McClelland (M §IV): angles to landmark centroids in the local camera frame and
-  a scale-free ordering of distances. Restricting to the nearest ``n`` landmarks (M §VIII.B) is
-  ``obs.visible & (obs.range_rank < n)``.
-
-Visibility = within ``max_range`` and inside the field of view and not occluded. A landmark is
-occluded when the segment from the robot to its centre passes strictly within
-``landmark_radius`` of the centre of a strictly nearer landmark.
-
-Inputs are checked (shapes always; NaN/inf and negative parameters when called eagerly with
-concrete values). Inside ``jit``/``vmap`` values are not inspected: NaN inputs give NaN outputs
-and ``visible`` is False for NaN landmarks.
+Visibility, occlusion and the handling of bad input: docs/sim.md §sensors.
 """
 
 from __future__ import annotations

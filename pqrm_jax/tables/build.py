@@ -1,23 +1,11 @@
-"""Build exact operator tables for a calculus (SPEC §2.3, M§III, M§V).
+"""Build exact operator tables for a calculus (docs/decisions.md §2.3, M§III, M§V).
 
-Pipeline for a calculus defined by constraints (atoms = realisable sign patterns):
+Offers the table build of a constraint-defined calculus (unary operators, composition,
+adjacency, each present entry with a witness and every undecided problem listed with its
+verdict), the exact unions for merged calculi, and the neighbour distances.
 
-1. **witness pre-pass** — realised relations of random configurations (open calculi) or of
-   integer-grid configurations (boundary-inclusive calculi, where collinear, perpendicular and
-   coincident cases occur); every hit is re-verified in rational arithmetic;
-2. **branch-and-bound** — all remaining problems in one batched JAX program
-   (:mod:`.feasibility`) over the box |x| ≤ ``box`` with |BC| ≥ |AB|/``box`` (M§III.B bounds
-   the search the same way); witnesses re-verified exactly;
-3. **path consistency** (open calculi, compose problems) — a B&B-undecided problem whose
-   four-point network the closure under the candidate tables (feasible + undecided entries)
-   empties is infeasible (:mod:`.symmetry`; repeated while it removes entries);
-4. **certification** — problems still undecided go to z3 (:mod:`.certify`), an exact
-   decision procedure over the whole plane; each is listed in ``undecided`` with its verdict.
-
-Mirror-symmetric calculi (reflection in AB permutes the atoms; :mod:`.symmetry`) solve one
-problem of each mirror pair; the other takes its verdict and the reflected witness.
-
-Merged calculi take exact unions of their parent's tables.
+The four-stage pipeline (witness pre-pass, branch-and-bound, path consistency, z3) and mirror
+symmetry: docs/tables.md §build.
 """
 
 from __future__ import annotations

@@ -1,42 +1,12 @@
-"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V, SPEC §2.3).
+"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V, docs/decisions.md §2.3).
 
-Each problem asks for an x in a box [lo, hi] ⊂ R^nv with ``sign(q_k(x)) == s_k`` for every
-active constraint k, where ``q_k(x) = c_k + b_kᵀx + xᵀA_k x`` and s_k ∈ {−1, 0, +1}
-(strict inequalities and equalities). All problems of a batch run in one jit-compiled
-program (static shapes, masks); each problem keeps at most ``pool`` boxes.
+Decides, for a batch of problems, whether some x in a box satisfies every sign constraint
+``sign(c_k + b_kᵀx + xᵀA_k x) == s_k`` (s_k ∈ {−1, 0, +1}), in one jit-compiled program,
+and returns each problem's status (FEASIBLE with a witness, INFEASIBLE or UNDECIDED — never
+guessed).
 
-Per round and box (the per-problem algorithm is exactly that of :mod:`.reference`):
-
-* **bound**: a valid enclosure of q_k over the box, exact for the separable part (each
-  ``A_ii x_i² + b_i x_i`` is minimised/maximised exactly, vertex included) plus interval
-  products for the cross terms (M§V's cases 1–3 are exact under this bound);
-* **prune** the box if some constraint cannot take its sign there (``> 0`` needs hi > 0,
-  ``< 0`` needs lo < 0, ``= 0`` needs lo ≤ 0 ≤ hi). The solver puts every constraint in
-  one-sided form first (``s·q > 0``, an equality as ``q ≥ 0`` and ``−q ≥ 0``), where only
-  upper bounds are needed: negation is exact, so the test is the same to the bit;
-* **witness**: if the box centre or one of ``probes`` random points of a surviving box
-  satisfies every constraint, the problem is feasible and the point is kept as its witness
-  (re-verified exactly by the caller). Probe points are drawn by a counter hash at (problem
-  id, round, box, coordinate), so they do not depend on the batching and the reference
-  draws the very same ones;
-* **branch**: surviving boxes are split in half along their longest edge while the pool has
-  room; boxes narrower than ``min_width`` are no longer split.
-
-**Frontier.** The boxes of all problems in flight share one array of ``frontier`` rows, grouped
-by problem in each problem's box order, so a round costs what the live boxes need (most
-problems hold 1–8 boxes; a per-problem pool of fixed capacity was ~17 % occupied). A problem's
-rows start on a multiple of ``GROUP``, and its constraint table is gathered once per group of
-rows. Decided problems free their rows for the next ones of the queue; a problem whose
-children would not fit waits a round unchanged (rows are reserved so that the oldest problem
-can always grow to a full pool, so the queue never deadlocks). On CPU the problems are dealt
-to one queue per core, run side by side in threads (one compiled program): XLA spreads these small
-per-round kernels badly over threads.
-``benchmarks/bench_tables.py`` compares this program with the plain-NumPy per-problem
-reference :mod:`.reference` and with itself run one problem per call.
-
-A problem is FEASIBLE (witness found), INFEASIBLE (no box left: no solution inside the box,
-up to the floating-point evaluation of dyadic boxes), or UNDECIDED (boxes left at the limit;
-typically solutions on a lower-dimensional set or closures that touch — never guessed).
+Bound, prune, witness and branch steps, the shared frontier of box rows and the per-core
+work queues: docs/tables.md §feasibility.
 """
 
 from __future__ import annotations
