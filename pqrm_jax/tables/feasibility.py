@@ -1,9 +1,9 @@
-"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V, docs/decisions.md §2.3).
+"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V).
 
 Decides, for a batch of problems, whether some x in a box satisfies every sign constraint
 ``sign(c_k + b_kᵀx + xᵀA_k x) == s_k`` (s_k ∈ {−1, 0, +1}), in one jit-compiled program,
 and returns each problem's status (FEASIBLE with a witness, INFEASIBLE or UNDECIDED — never
-guessed).
+guessed; docs/decisions.md §2.3).
 
 Bound, prune, witness and branch steps, the shared frontier of box rows and the per-core
 work queues: docs/tables.md §feasibility.
