@@ -35,7 +35,8 @@ _WORDS = math.ceil(EDC_NUM_STATES * _FIELD_BITS / 32)  # 5 uint32 words
 _REJECT_KEY = 2 * 10  # keys 0..19 are states; 20 = rejected sample (in no counted word)
 
 # Realisable (inside A-circle, inside B-circle) pairs per band, behind A .. in front of B; the
-# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5, SPEC §2.1).
+# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5,
+# docs/decisions.md §2.1).
 _BAND_CIRCLES = (
     ((0, 0), (1, 0)),
     ((0, 0), (1, 0), (1, 1)),

@@ -102,7 +102,7 @@ def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:
     """C in the canonical AB frame (α, β) (T, 2) and |AB| (T,) for each triplet (P Fig. 2.8).
 
-    Right of AB is α > 0 (SPEC §2); A = B gives NaN coordinates.
+    Right of AB is α > 0 (docs/decisions.md §2); A = B gives NaN coordinates.
     """
     tri = jnp.asarray(triplets)
     a, b, c = landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]]

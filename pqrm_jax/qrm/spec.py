@@ -1,4 +1,4 @@
-"""Static per-calculus arrays used by the QRM pipeline (M§II–III, SPEC §4).
+"""Static per-calculus arrays used by the QRM pipeline (M§II–III, docs/decisions.md §4).
 
 :func:`qrm_spec` turns a :class:`~pqrm_jax.calculi.Calculus` into a :class:`QRMSpec`: the
 constraint coefficients needed by the camera measurement (M§IV, Table III), the atom

@@ -1,4 +1,4 @@
-"""The three data sets of Padgett §3.4.1, simulated (SPEC §5).
+"""The three data sets of Padgett §3.4.1, simulated (docs/decisions.md §5).
 
 * :func:`well_separated` — 49 landmarks whose Gaussian beliefs do not overlap (P Fig. 3.4);
 * :func:`hallway` — a robot drives down a hallway observing wall landmarks; K landmark

@@ -1,4 +1,4 @@
-"""``sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+"""``sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (docs/decisions.md §9).
 
 Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
 boundary, ``vmap``-able over runs:

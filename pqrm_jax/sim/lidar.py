@@ -1,4 +1,4 @@
-"""Lidar ray casting into an occupancy grid (SPEC §9).
+"""Lidar ray casting into an occupancy grid (docs/decisions.md §9).
 
 A 2D occupancy grid is a boolean array ``grid[i, j]`` (row ``i`` along y, column ``j`` along
 x); cell ``(i, j)`` covers ``[x0 + j r, x0 + (j + 1) r) x [y0 + i r, y0 + (i + 1) r)`` for

@@ -1,4 +1,4 @@
-"""Trajectories, imaging points and a closed-loop waypoint controller (SPEC §9).
+"""Trajectories, imaging points and a closed-loop waypoint controller (docs/decisions.md §9).
 
 * :func:`perimeter_loop` -- Padgett's PQRM Monte Carlo trajectory (P §2.3.1): one loop of a
   circle around the perimeter of the 100 m x 100 m environment, one measurement pose every

@@ -1,4 +1,4 @@
-"""Landmark worlds for the rover simulator (SPEC §9).
+"""Landmark worlds for the rover simulator (docs/decisions.md §9).
 
 Every generator is a pure function of an explicit PRNG key and static sizes, returns an
 ``(n, 2)`` float array of landmark centres (metres, world frame) and can be ``vmap``-ed over

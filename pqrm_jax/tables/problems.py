@@ -1,4 +1,4 @@
-"""Feasibility problems behind the operator tables (M§III.B Table II, SPEC §2.3).
+"""Feasibility problems behind the operator tables (M§III.B Table II, docs/decisions.md §2.3).
 
 An *atom* of a calculus is one realisable sign pattern of its constraints (a tuple in
 {−1,0,1}^k) or, for boundary-inclusive calculi, ``"dou"`` (A=B≠C) / ``"tri"`` (A=B=C).

@@ -1,4 +1,4 @@
-"""Plain-NumPy per-problem reference of the batched branch-and-bound (M§V, SPEC §2.3).
+"""Plain-NumPy per-problem reference of the batched branch-and-bound (M§V, docs/decisions.md §2.3).
 
 The same algorithm as :mod:`pqrm_jax.tables.feasibility` — interval bound (exact separable
 quadratic part, vertex included, interval products for the cross terms), prune by sign,
