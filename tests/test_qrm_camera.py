@@ -12,7 +12,7 @@ from pqrm_jax.tables.feasibility import FEASIBLE, INFEASIBLE, ProblemBatch, solv
 
 
 def _true_states(spec, P, exact_tol=1e-12):
-    """float64 true state of the three cyclic relations of (T, 3, 2) points; −1 on a
+    """float64 true state of the three cyclic relations of [T, 3, 2] points; −1 on a
     boundary (|constraint| below exact_tol relative)."""
     out = np.full((P.shape[0], 3), -1, np.int64)
     for o, (X, Y, Z) in enumerate(C.CYCLIC):

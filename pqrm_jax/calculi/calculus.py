@@ -284,7 +284,7 @@ class Calculus:
         return jnp.where(finite, state, INVALID)
 
     def classify(self, a, b, c) -> jax.Array:
-        """State index of ``AB:C`` for points of shape (..., 2) (broadcast); jit-able.
+        """State index of ``AB:C`` for points of shape [..., 2] (broadcast); jit-able.
 
         Returns an int32 array of the broadcast batch shape; sentinels as in the module doc.
         """
@@ -306,12 +306,12 @@ class Calculus:
 
     @property
     def adjacency(self) -> np.ndarray:
-        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1)."""
+        """[Q, Q] bool conceptual neighbourhood computed from geometry (P§2.3.1)."""
         return self.tables.adjacency
 
     @property
     def neighbor_distance(self) -> np.ndarray:
-        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph."""
+        """[Q, Q] int shortest-path length in the conceptual neighbourhood graph."""
         return self.tables.neighbor_distance
 
 

@@ -33,7 +33,7 @@ DEFAULT_PATH_WEIGHT = 0.5
 
 # -------------------------------------------------------------------------------- checks
 def check_tensor(tensor, atol: float = 1e-3) -> jax.Array:
-    """Validate a ``(Q, Q, Q)`` probabilistic composition tensor; rows sum to 1 (or 0).
+    """Validate a ``[Q, Q, Q]`` probabilistic composition tensor; rows sum to 1 (or 0).
 
     A row ``T[a, b, :]`` summing to 0 marks a jointly impossible pair of source states.
     """
@@ -57,7 +57,7 @@ def _distinct_mask(n: int) -> np.ndarray:
 
 
 def check_map(probs, observed, atol: float = 1e-3, renormalize: bool = False):
-    """Validate the ``(L, L, L, Q)`` map and ``(L, L, L)`` mask; returns float32 arrays.
+    """Validate the ``[L, L, L, Q]`` map and ``[L, L, L]`` mask; returns float32 arrays.
 
     Unobserved rows are zeroed (they may hold anything, including NaN).
     """
@@ -105,7 +105,7 @@ def _log(x):
 
 
 def compose(p1, p2, tensor) -> jax.Array:
-    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)`` (``(..., Q)`` each, broadcast).
+    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)`` (``[..., Q]`` each, broadcast).
 
     The result is renormalised; an impossible pair (zero mass) returns all zeros.
     """
@@ -140,8 +140,8 @@ def fuse(dists, weights=None, eps: float = DEFAULT_EPS, axis: int = 0) -> jax.Ar
 class PropagationResult:
     """Output of :func:`propagate`.
 
-    ``probs`` (L, L, L, Q) the updated map; ``n_paths`` (L, L, L) int32 number of composition
-    paths that contributed to each ordered triplet; ``filled`` (L, L, L) bool — unobserved
+    ``probs`` [L, L, L, Q] the updated map; ``n_paths`` [L, L, L] int32 number of composition
+    paths that contributed to each ordered triplet; ``filled`` [L, L, L] bool — unobserved
     triplets that received a composed distribution; ``known`` = observed | filled.
     """
 
@@ -212,9 +212,9 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
     Parameters
     ----------
     probs, observed:
-        the map, ``(L, L, L, Q)`` and ``(L, L, L)`` (module doc).
+        the map, ``[L, L, L, Q]`` and ``[L, L, L]`` (module doc).
     tensor:
-        ``(Q, Q, Q)`` probabilistic composition tensor (``calc.tables.prob_compose``).
+        ``[Q, Q, Q]`` probabilistic composition tensor (``calc.tables.prob_compose``).
     mode:
         ``"fill"`` — only unobserved triplets are inferred, observed rows are returned as
         given; ``"fuse"`` — observed rows are also fused with their composition paths.
@@ -222,7 +222,7 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
         round ``r > 1`` also uses triplets filled in earlier rounds as path operands, for
         targets still without a path (reaches triplets that need deeper composition trees).
     eps, path_weight, measurement_weight, prior:
-        the fusion rule (module doc); ``prior`` (Q,) defaults to uniform.
+        the fusion rule (module doc); ``prior`` [Q] defaults to uniform.
     batch_size:
         how many middle landmarks ``j`` are processed at once (``None``: one at a time;
         memory ``≈ batch_size·L³·Q`` floats).
@@ -389,7 +389,7 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
 
 
 def to_pqrm_rows(probs, num_landmarks: int) -> np.ndarray:
-    """``(T, Q)`` rows in ``pqrm.ordered_triplets`` order from an ``(L, L, L, Q)`` array."""
+    """``[T, Q]`` rows in ``pqrm.ordered_triplets`` order from an ``[L, L, L, Q]`` array."""
     from ..pqrm import ordered_triplets
 
     trip = ordered_triplets(num_landmarks)

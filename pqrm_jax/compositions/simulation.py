@@ -1,6 +1,6 @@
 """Simulation helpers: does composition propagation improve a PQRM map? (issue #6 item 4).
 
-* :func:`sample_compose_tensor` — a Monte Carlo ``(Q, Q, Q)`` composition tensor
+* :func:`sample_compose_tensor` — a Monte Carlo ``[Q, Q, Q]`` composition tensor
   ``P(AB:D | AB:C, BC:D)`` under "four landmarks uniform in a square" (the world prior of the
   study below), with per-row sample counts. Rows never hit stay zero, which
   :func:`~pqrm_jax.compositions.propagation.propagate` treats as "no information" (the path
@@ -39,7 +39,7 @@ def sample_compose_tensor(calc, key, num_samples: int = 2_000_000, chunk: int = 
     """Monte Carlo composition tensor under four landmarks i.i.d. uniform in a square.
 
     Returns ``(tensor, counts)``: ``tensor[a, b, c] = P(AB:D = c | AB:C = a, BC:D = b)``
-    (float32, rows sum to 1 where ``counts[a, b] > 0``, else 0) and the ``(Q, Q)`` sample
+    (float32, rows sum to 1 where ``counts[a, b] > 0``, else 0) and the ``[Q, Q]`` sample
     counts. The sampling error of a row is about ``sqrt(p(1-p)/counts)``.
     """
     q = calc.num_states
@@ -70,7 +70,7 @@ def random_world(key, num_landmarks: int, size: float = 100.0) -> jax.Array:
 
 
 def true_states(calc, pos) -> np.ndarray:
-    """``(L, L, L)`` true state of every ordered triplet (sentinel < 0 on repeated landmarks)."""
+    """``[L, L, L]`` true state of every ordered triplet (sentinel < 0 on repeated landmarks)."""
     pos = jnp.asarray(pos)
     return np.asarray(calc.classify(pos[:, None, None], pos[None, :, None], pos[None, None, :]))
 
@@ -78,7 +78,7 @@ def true_states(calc, pos) -> np.ndarray:
 def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 256):
     """PQRM-style measurement of the given unordered triplets (each measured once).
 
-    Returns ``probs`` (L, L, L, Q) and ``observed`` (L, L, L); unobserved rows are uniform.
+    Returns ``probs`` [L, L, L, Q] and ``observed`` [L, L, L]; unobserved rows are uniform.
     """
     pos = jnp.asarray(pos, jnp.float32)
     n, q = pos.shape[0], calc.num_states

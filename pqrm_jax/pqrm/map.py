@@ -48,11 +48,11 @@ def ordered_triplets(num_landmarks: int) -> np.ndarray:
 class MapState(NamedTuple):
     """State of a PQRM map (a pytree).
 
-    probs: representation name → (T, Q) ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
-    mapped: (T,) bool, the triplet has been initialised.
-    num_updates: (T,) int32, measurements incorporated (including the initialisation).
-    num_conflicts: name → (T,) int32, eq. 2.10 products that were zero everywhere (prior kept).
-    num_rejected: (T,) int32, measurements with no defined sample (not incorporated).
+    probs: representation name → [T, Q] ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
+    mapped: [T] bool, the triplet has been initialised.
+    num_updates: [T] int32, measurements incorporated (including the initialisation).
+    num_conflicts: name → [T] int32, eq. 2.10 products that were zero everywhere (prior kept).
+    num_rejected: [T] int32, measurements with no defined sample (not incorporated).
     num_dropped: () int32, visible landmarks dropped for non-finite positions.
     step: () int32, number of update calls.
     """
@@ -70,8 +70,8 @@ class Mapper(NamedTuple):
     """A PQRM map's pure functions and static description (like an optax transformation).
 
     init() -> MapState
-    update(state, key, positions (M, 2), visible (M,), sigma) -> MapState (jitted)
-    update_batch(states, keys (R,), positions (R, M, 2), visible (R, M), sigma) -> MapState
+    update(state, key, positions [M, 2], visible [M], sigma) -> MapState (jitted)
+    update_batch(states, keys [R], positions [R, M, 2], visible [R, M], sigma) -> MapState
         R independent maps at once (leading axis R on every leaf), equal to ``vmap(update)``
         bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``).
     """
@@ -97,7 +97,7 @@ def _bayes(prior, meas, mapped, seen):
 
 
 def _prepare(positions, visible, sigma, triplets):
-    """Per-call inputs of the kernel: (means (T,3,2), sigma (T,3), seen (T,), dropped ())."""
+    """Per-call inputs of the kernel: (means [T, 3, 2], sigma [T, 3], seen [T], dropped ())."""
     m = positions.shape[0]
     dtype = jnp.result_type(positions, jnp.float32)
     positions = positions.astype(dtype)
@@ -113,7 +113,7 @@ def _prepare(positions, visible, sigma, triplets):
 
 
 def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
-    """Eq. 2.10 for every seen triplet from its root-calculus sample counts (T, Q_root)."""
+    """Eq. 2.10 for every seen triplet from its root-calculus sample counts [T, Q_root]."""
     defined = jnp.sum(counts, axis=-1) > 0
     use = seen & defined
     fine = counts.astype(jnp.float32)
@@ -245,7 +245,7 @@ def mapper(
 
     ``update`` samples eq. 2.9 for all T triplets (static shapes) and masks the unseen ones.
     ``update_batch(states, keys, positions, visible, sigma, groups=1)`` updates R maps at once
-    (sigma: scalar, (R,) or (R, M)): with the EDC as root it gathers the seen triplets of all R
+    (sigma: scalar, [R] or [R, M]): with the EDC as root it gathers the seen triplets of all R
     maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so
     the sampling work is proportional to what is seen (in Padgett's study about 1 triplet in
     8), with results identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static)
@@ -330,7 +330,7 @@ def mapper(
 
 def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
                     sigma) -> MapState:
-    """Eager convenience: update with the landmarks ``ids`` (K,) seen at ``positions`` (K, 2).
+    """Eager convenience: update with the landmarks ``ids`` [K] seen at ``positions`` [K, 2].
 
     Raises ``ValueError`` for duplicate or out-of-range ids, NaN/inf positions and bad sigma.
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.

@@ -77,7 +77,7 @@ def _key_to_edc_state() -> np.ndarray:
 
 
 def aggregation_matrix(calc: Calculus) -> np.ndarray:
-    """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
+    """[Q_root, Q] 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
     while c.parent is not None:
@@ -135,7 +135,7 @@ def _variadic_sum(ops, axis):
 
 
 def _edc_block_counts(mT, sT, zc):
-    """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
+    """Counts in key order for one block: mT [6, B], sT [3, B] → [B, 20] int32.
 
     ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
     per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
@@ -264,7 +264,7 @@ def fine_counts(
     key: jax.Array, calculus: Calculus | str, means: jax.Array, sigma, num_samples: int,
     *, chunk_triplets: int = 4096,
 ) -> jax.Array:
-    """Sample counts (N, Q_root) of ``root_of(calculus)`` states (eq. 2.9 before normalising).
+    """Sample counts [N, Q_root] of ``root_of(calculus)`` states (eq. 2.9 before normalising).
 
     Rows sum to the number of defined samples (≤ ``num_samples``; rejected samples — a zero
     constraint or a non-finite value — are in no state).
@@ -284,7 +284,7 @@ def counts_to_probabilities(counts: jax.Array) -> jax.Array:
 
 
 def state_counts(key, calculus, means, sigma, num_samples: int, *, chunk_triplets: int = 4096):
-    """Sample counts (N, Q) of ``calculus`` states (aggregated from one EDC pass)."""
+    """Sample counts [N, Q] of ``calculus`` states (aggregated from one EDC pass)."""
     calc = calculi.get(calculus)
     fine = fine_counts(key, calc, means, sigma, num_samples, chunk_triplets=chunk_triplets)
     return (fine.astype(jnp.float32) @ aggregation_matrix(calc)).astype(jnp.int32)
@@ -299,13 +299,13 @@ def state_probabilities(
     Args:
         key: PRNG key (one bank of draws shared by the rows; use a fresh key per call).
         calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
-        means: (N, 3, 2) measured positions of landmarks A, B, C of each triplet (robot frame).
-        sigma: noise std, scalar, (N,) or (N, 3) (per landmark), isotropic.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet (robot frame).
+        sigma: noise std, scalar, [N] or [N, 3] (per landmark), isotropic.
         num_samples: S, samples per triplet.
         chunk_triplets: triplets per block (bounds the working set).
 
     Returns:
-        (N, Q) float32 probabilities; each row sums to 1, or is all zeros when no sample had a
+        [N, Q] float32 probabilities; each row sums to 1, or is all zeros when no sample had a
         defined state (see the module docstring).
 
     >>> import jax, jax.numpy as jnp

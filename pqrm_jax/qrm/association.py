@@ -52,7 +52,7 @@ def association_candidates(
     pool: int = 16,
     depth: int = 12,
 ) -> jax.Array:
-    """(N,) bool: map landmarks that the uncertain observation ``unknown`` may be (M§VI.C).
+    """[N] bool: map landmarks that the uncertain observation ``unknown`` may be (M§VI.C).
 
     ``unknown`` is the index, in the observation arrays, of the landmark whose identity is
     uncertain (it must be visible and among the ``n`` nearest); the other visible landmarks'

@@ -33,8 +33,8 @@ _EPS = 2e-5  # relative safety margin on certain signs (float32 rounding ~1e-7)
 class TripleMeasurement(NamedTuple):
     """Kernel output for T triples (slot order near, mid, far).
 
-    sets: (T, 3) uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
-    undecided: (T, 3) uint32 states kept without a witness (neither proven nor excluded).
+    sets: [T, 3] uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
+    undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded).
     """
 
     sets: jax.Array
@@ -44,12 +44,12 @@ class TripleMeasurement(NamedTuple):
 class ImageMeasurement(NamedTuple):
     """One image's measurement (M§IV) of the ``n`` nearest visible landmarks.
 
-    ids: (S,) int32 landmark id of each slot, nearest first; −1 for empty slots.
-    triples: (T, 3) int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
-    sets: (T, 3) uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
+    ids: [S] int32 landmark id of each slot, nearest first; −1 for empty slots.
+    triples: [T, 3] int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
+    sets: [T, 3] uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
         ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
-    valid: (T,) bool, all three slots hold a visible landmark.
-    undecided: (T, 3) uint32 states kept undecided at the depth limit.
+    valid: [T] bool, all three slots hold a visible landmark.
+    undecided: [T, 3] uint32 states kept undecided at the depth limit.
     """
 
     ids: jax.Array
@@ -63,12 +63,12 @@ class ImageMeasurement(NamedTuple):
 # constraint forms over the ordering cone
 # --------------------------------------------------------------------------------------
 def _quadratic_forms(bearings):
-    """(…, 3) bearings → n, m, u, v forms (…, O=3, 3, 3) over d for the cyclic relations."""
+    """[…, 3] bearings → n, m, u, v forms (…, O=3, 3, 3) over d for the cyclic relations."""
     w = jnp.stack([jnp.cos(bearings), jnp.sin(bearings)], -1)  # (..., 3 slots, 2)
     eye = jnp.eye(3, dtype=w.dtype)
     out = []
     for X, Y, Z in CYCLIC:
-        # linear maps d -> point difference, (..., 2, 3)
+        # linear maps d -> point difference, [..., 2, 3]
         ld = w[..., Y, :, None] * eye[Y] - w[..., X, :, None] * eye[X]
         le = w[..., Z, :, None] * eye[Z] - w[..., X, :, None] * eye[X]
         n = jnp.einsum("...is,...ir->...sr", ld, ld)
@@ -81,7 +81,7 @@ def _quadratic_forms(bearings):
 
 
 def cone_forms(spec: QRMSpec, bearings):
-    """Monomial coefficients (…, O, K, 3, 3) of every constraint over (a, b) ∈ [0, 1]².
+    """Monomial coefficients […, O, K, 3, 3] of every constraint over (a, b) ∈ [0, 1]².
 
     ``coef[..., o, k, i, j]`` multiplies ``a^i b^j``. Constraints whose constant term
     (the ``d_far²`` coefficient) vanishes structurally are divided by ``b``.
@@ -111,12 +111,12 @@ def _powers(x):
 
 
 def _monomials(a, b):
-    """(..., ) → (..., 9) values of a^i b^j, flattened i-major."""
+    """(..., ) → [..., 9] values of a^i b^j, flattened i-major."""
     return (_powers(a)[..., :, None] * _powers(b)[..., None, :]).reshape(*a.shape, 9)
 
 
 def _atom_masks_to_states(atom_mask, atom_state):
-    """(...,) uint32 atom masks → state masks."""
+    """[...] uint32 atom masks → state masks."""
     bits = (atom_mask[..., None] >> jnp.arange(atom_state.shape[0], dtype=jnp.uint32)) & 1
     vals = jnp.where(bits.astype(bool), jnp.uint32(1) << atom_state.astype(jnp.uint32),
                      jnp.uint32(0))
@@ -236,7 +236,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         return jax.lax.while_loop(cond, body, st)
 
     def finish(rows, st):
-        """Rounds to ``depth``, then the final bound: (proven, remaining) atom masks (R, O)."""
+        """Rounds to ``depth``, then the final bound: (proven, remaining) atom masks [R, O]."""
         _, box, alive, proven = rounds(rows, st, depth)
         compat, useful, proven = evaluate(*rows, box, alive, proven)
         return proven, _or_reduce(jnp.where(useful[..., None], compat, jnp.uint32(0)), 1)
@@ -285,8 +285,8 @@ def measure_triples(
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV), batched.
 
-    ``bearings`` (T, 3): bearings of each triple's landmarks in *range order* (nearest
-    first; ties allowed). ``target`` (T, 3) uint32 state masks restricts the work to states
+    ``bearings`` [T, 3]: bearings of each triple's landmarks in *range order* (nearest
+    first; ties allowed). ``target`` [T, 3] uint32 state masks restricts the work to states
     still open in the map (others are returned as possible, unchecked); default all states.
 
     Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
@@ -397,7 +397,7 @@ def measure_image(
     """Measure every triple of the ``n`` nearest visible landmarks of one image (M§IV).
 
     ``bearings``, ``range_rank``, ``visible``: a :class:`sim.sensors.CameraObservation`'s
-    fields. ``target_map`` (N, N, N) uint32: the current map relations (only their open
+    fields. ``target_map`` [N, N, N] uint32: the current map relations (only their open
     states are tested). Checks (when concrete, ``check=True``): finite bearings of visible
     landmarks, distinct ranks, at least three visible landmarks — each raises ``ValueError``.
 

@@ -27,7 +27,7 @@ __all__ = ["QRMMap", "UpdateReport", "empty_map", "closure", "apply_relations", 
 
 
 class QRMMap(NamedTuple):
-    """The map pytree: ``rel`` (N, N, N) uint32 masks of ``ij:k``; ``known`` (N,) bool nodes."""
+    """The map pytree: ``rel`` [N, N, N] uint32 masks of ``ij:k``; ``known`` [N] bool nodes."""
 
     rel: jax.Array
     known: jax.Array
@@ -67,7 +67,7 @@ def empty_map(n: int, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
 
 
 def _lift(table, s):
-    """Lift a (Q,) table of masks to a set: OR of table[i] over the bits i of s."""
+    """Lift a [Q] table of masks to a set: OR of table[i] over the bits i of s."""
     q = table.shape[0]
     bits = ((s[..., None] >> jnp.arange(q, dtype=jnp.uint32)) & 1).astype(bool)
     vals = jnp.where(bits, table, jnp.uint32(0))
@@ -176,8 +176,8 @@ def apply_relations(
     valid: jax.Array | None = None,
     max_sweeps: int = 64,
 ) -> tuple[QRMMap, UpdateReport]:
-    """Fuse measured cyclic relations into the map (M§VI.B): ``triples`` (T, 3) landmark ids
-    (X, Y, Z) and ``sets`` (T, 3) masks of XY:Z, YZ:X, ZX:Y. New ids become known nodes.
+    """Fuse measured cyclic relations into the map (M§VI.B): ``triples`` [T, 3] landmark ids
+    (X, Y, Z) and ``sets`` [T, 3] masks of XY:Z, YZ:X, ZX:Y. New ids become known nodes.
 
     >>> m, rep = apply_relations(empty_map(3), [[0, 1, 2]], [[1 << 6, (1 << 20) - 1,
     ...                                                     (1 << 20) - 1]])
@@ -203,7 +203,7 @@ def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSp
 
 def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
     """Per unordered triple i < j < k the three cyclic relations (M§VI.A):
-    ``(triples (E, 3), masks (E, 3))`` of ij:k, jk:i, ki:j."""
+    ``(triples [E, 3], masks [E, 3])`` of ij:k, jk:i, ki:j."""
     n = m.rel.shape[0]
     import itertools
 
@@ -213,7 +213,7 @@ def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
 
 
 def true_relations(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc") -> jax.Array:
-    """(N, N, N) int32 true state index of ``ij:k`` (−2 on repeated indices)."""
+    """[N, N, N] int32 true state index of ``ij:k`` (−2 on repeated indices)."""
     spec = _spec(calc)
     p = jnp.asarray(landmarks)
     n = p.shape[0]

@@ -30,7 +30,7 @@ __all__ = ["NavResult", "plan_next_hop", "navigate", "navigate_many"]
 class NavResult(NamedTuple):
     """``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
     (metres driven), ``straight`` (|END − START|), ``poses`` (n_steps + 1, 3), ``path``
-    (N,) planned landmark sequence (−1 padded), ``hops``."""
+    [N] planned landmark sequence (−1 padded), ``hops``."""
 
     success: jax.Array
     reached_cell: jax.Array
@@ -45,7 +45,7 @@ class NavResult(NamedTuple):
 def plan_next_hop(edges: jax.Array, cost: jax.Array, lam: float = 1.0):
     """All-pairs shortest paths on the RNG estimate (Floyd–Warshall, ``lax.fori_loop``).
 
-    Returns ``(dist (N, N), nxt (N, N))``: ``nxt[i, j]`` is the landmark after i on a
+    Returns ``(dist [N, N], nxt [N, N])``: ``nxt[i, j]`` is the landmark after i on a
     cheapest path to j (−1 if unreachable); edge weight = 1 + lam · w_ij.
     """
     n = edges.shape[0]
@@ -160,7 +160,7 @@ def navigate(
 
 def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, sensor=None, *,
                   n_steps: int = 3000, lam: float = 1.0) -> NavResult:
-    """:func:`navigate` ``vmap``-ed over start/goal pairs (S, 3) / (S, 2)."""
+    """:func:`navigate` ``vmap``-ed over start/goal pairs [S, 3] / [S, 2]."""
     params = RoverParams() if params is None else params
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))

@@ -19,7 +19,7 @@ from .grid import Grid
 
 
 def _histogram(grid: Grid, samples: jax.Array, weights: jax.Array | None = None) -> jax.Array:
-    """(K, S, 2) samples → (K, N) normalised cell masses (clipped to the border)."""
+    """[K, S, 2] samples → [K, N] normalised cell masses (clipped to the border)."""
     k, s = samples.shape[:2]
     idx = grid.cell_of(samples)                                       # (K, S)
     w = jnp.ones((k, s), jnp.float32) if weights is None else weights
@@ -31,7 +31,7 @@ def _histogram(grid: Grid, samples: jax.Array, weights: jax.Array | None = None)
 
 @dataclass(frozen=True)
 class GaussianBeliefs:
-    """K Gaussian beliefs with means (K, 2) and covariances (K, 2, 2).
+    """K Gaussian beliefs with means [K, 2] and covariances [K, 2, 2].
 
     >>> b = GaussianBeliefs(np.array([[0., 0.], [5., 0.]]), np.tile(np.eye(2) * .1, (2, 1, 1)))
     >>> b.k
@@ -74,7 +74,7 @@ class GaussianBeliefs:
     def fit(cls, points: list[np.ndarray] | np.ndarray, min_var: float = 0.0) -> GaussianBeliefs:
         """Fit ``N(α_k, Σ_k)`` to the measurements of each belief (P§3.4.1).
 
-        ``points``: a list of (S_k, 2) arrays (or one (K, S, 2) array). Needs S_k ≥ 2;
+        ``points``: a list of [S_k, 2] arrays (or one [K, S, 2] array). Needs S_k ≥ 2;
         ``min_var`` is added to the diagonal (e.g. a sensor-noise floor).
         """
         means, covs = [], []
@@ -96,12 +96,12 @@ class GaussianBeliefs:
             "kij,knj->kni", jnp.asarray(chol, jnp.float32), z)
 
     def cell_masses(self, grid: Grid, key: jax.Array | None = None, n_mc: int = 20000) -> jax.Array:
-        """(K, N) cell masses ``∫_{C_n} B_k`` from ``n_mc`` samples per belief (key 0 default)."""
+        """[K, N] cell masses ``∫_{C_n} B_k`` from ``n_mc`` samples per belief (key 0 default)."""
         key = jax.random.PRNGKey(0) if key is None else key
         return _histogram(grid, self.sample(key, n_mc))
 
     def cell_scores(self, grid: Grid) -> np.ndarray:
-        """(K, N) log densities at cell centres: the smooth 'highest-saliency' score."""
+        """[K, N] log densities at cell centres: the smooth 'highest-saliency' score."""
         x = grid.centers()[None, :, :] - self.means[:, None, :]
         inv = np.linalg.inv(self.covs)
         maha = np.einsum("kni,kij,knj->kn", x, inv, x)
@@ -111,7 +111,7 @@ class GaussianBeliefs:
 
 @dataclass(frozen=True)
 class SampleBeliefs:
-    """K beliefs as sample sets, (K, S, 2) (all sets the same size S ≥ 1).
+    """K beliefs as sample sets, [K, S, 2] (all sets the same size S ≥ 1).
 
     >>> b = SampleBeliefs(np.zeros((3, 10, 2)) + np.arange(3)[:, None, None])
     >>> b.k, b.samples.shape
@@ -136,11 +136,11 @@ class SampleBeliefs:
         return self.samples.shape[0]
 
     def cell_masses(self, grid: Grid, key: jax.Array | None = None, n_mc: int = 0) -> jax.Array:
-        """(K, N) fraction of each belief's samples in each cell (``key``/``n_mc`` unused)."""
+        """[K, N] fraction of each belief's samples in each cell (``key``/``n_mc`` unused)."""
         return _histogram(grid, jnp.asarray(self.samples))
 
     def cell_scores(self, grid: Grid, blur_cells: float = 1.0) -> np.ndarray:
-        """(K, N) log of the histogram blurred by a Gaussian of ``blur_cells`` cells (−inf
+        """[K, N] log of the histogram blurred by a Gaussian of ``blur_cells`` cells (−inf
         where a belief has no mass nearby)."""
         h = np.asarray(self.cell_masses(grid), np.float64).reshape(self.k, *grid.shape)
         if blur_cells > 0:

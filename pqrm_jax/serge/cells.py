@@ -23,11 +23,11 @@ from .grid import Grid, connected_components
 class Problem:
     """A SERGE problem on R0 initial regions (all arrays static-shaped).
 
-    * ``grid`` and ``cell_region`` (N,): initial region of every fine cell;
-    * ``mass`` (K, R0): ``∫_{C_r} B_k`` for belief k and initial region r;
-    * ``adj`` (R0, R0) bool: 4-adjacency of initial regions;
-    * ``belief_region`` (K,): initial region of each belief (``L^B_init``);
-    * ``cell_mass`` (K, N): the fine cell masses (for plotting and diagnostics).
+    * ``grid`` and ``cell_region`` [N]: initial region of every fine cell;
+    * ``mass`` [K, R0]: ``∫_{C_r} B_k`` for belief k and initial region r;
+    * ``adj`` [R0, R0] bool: 4-adjacency of initial regions;
+    * ``belief_region`` [K]: initial region of each belief (``L^B_init``);
+    * ``cell_mass`` [K, N]: the fine cell masses (for plotting and diagnostics).
     """
 
     grid: Grid
@@ -156,7 +156,7 @@ def initial_cells(
 
 
 def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarray:
-    """(R0, R0) bool: regions sharing a grid edge (no self-adjacency)."""
+    """[R0, R0] bool: regions sharing a grid edge (no self-adjacency)."""
     e = grid.edges()
     a, b = cell_region[e[:, 0]], cell_region[e[:, 1]]
     adj = np.zeros((r0, r0), dtype=bool)
@@ -168,7 +168,7 @@ def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarra
 
 def problem_from_partition(cell_mass, grid: Grid, cell_region, belief_region) -> Problem:
     """A problem from an explicit contiguous partition of the grid (e.g. a calculus's
-    regions): ``cell_region`` (N,) region ids 0..R0−1, ``belief_region`` (K,)."""
+    regions): ``cell_region`` [N] region ids 0..R0−1, ``belief_region`` [K]."""
     cell_region = np.asarray(cell_region, dtype=np.int64)
     r0 = int(cell_region.max()) + 1
     onehot = np.zeros((grid.n_cells, r0))

@@ -45,7 +45,7 @@ def log_psi1(n_regions, mu, sigma, k_max, k_static: int) -> jax.Array:
 
 
 def log_saliency(region_mass: jax.Array, assign: jax.Array) -> jax.Array:
-    """(K,) log S_k = log ∫_{R_{L_k}} B_k from (K, R) region masses and assignments (K,)."""
+    """[K] log S_k = log ∫_{R_{L_k}} B_k from [K, R] region masses and assignments [K]."""
     s = jnp.take_along_axis(region_mass, assign[:, None], axis=1)[:, 0]
     return jnp.log(jnp.maximum(s, SAL_FLOOR))
 
@@ -62,7 +62,7 @@ def direct_log_potential(cell_mass, cell_labels, belief_labels, mu, sigma, shape
                          k_max: int | None = None) -> float:
     """Reference: log of ψ1·ψ2·ψ3 evaluated directly in float64 from the fine cells.
 
-    ``cell_labels`` (N,) region of every fine cell, ``belief_labels`` (K,) region of every
+    ``cell_labels`` [N] region of every fine cell, ``belief_labels`` [K] region of every
     belief. ψ2 is computed by counting connected components (Ω of eq. 3.6); returns −inf when
     any region is disconnected.
     """

@@ -23,7 +23,7 @@ INVALID = -3
 
 
 def triplet_beliefs(d, e, f) -> SampleBeliefs:
-    """Eq. (3.11): samples of D, E, F (K, S, 2) each → beliefs over F̂ in frame DE.
+    """Eq. (3.11): samples of D, E, F [K, S, 2] each → beliefs over F̂ in frame DE.
 
     >>> d = np.zeros((1, 4, 2)); e = d + [0., 2.]; f = d + [2., 2.]
     >>> triplet_beliefs(d, e, f).samples[0, 0].tolist()
@@ -89,7 +89,7 @@ class SergeCalculus:
 
     # classification ---------------------------------------------------------------------
     def lookup(self, p) -> jax.Array:
-        """State of frame coordinates p (..., 2)."""
+        """State of frame coordinates p [..., 2]."""
         return self._labels[self.grid.cell_of(jnp.asarray(p))]
 
     def _classify(self, a, b, c):
@@ -102,7 +102,7 @@ class SergeCalculus:
         return jnp.where(finite, state, INVALID).astype(jnp.int32)
 
     def classify(self, a, b, c) -> jax.Array:
-        """State index of ``AB:C`` for points (..., 2) (broadcast); jit-able; sentinels −2/−3."""
+        """State index of ``AB:C`` for points [..., 2] (broadcast); jit-able; sentinels −2/−3."""
         a, b, c = (jnp.asarray(x, jnp.float32) for x in (a, b, c))
         for nm, x in (("a", a), ("b", b), ("c", c)):
             if x.ndim < 1 or x.shape[-1] != 2:
@@ -112,7 +112,7 @@ class SergeCalculus:
 
     # compose (Alg. 3) -----------------------------------------------------------------------
     def compose_counts(self, stride: int = 2, chunk: int = 256) -> np.ndarray:
-        """(Q, Q, Q) counts of Alg. 3: for every cell c (F at its centre, state q1 = {DE:F})
+        """[Q, Q, Q] counts of Alg. 3: for every cell c (F at its centre, state q1 = {DE:F})
         and every cell d (G at its centre in frame EF, q2 = {EF:G}), the state q3 of G in
         frame DE. Every ``stride``-th cell per axis is used (stride 1 = Alg. 3 exactly,
         O(N²) pairs)."""
@@ -126,7 +126,7 @@ class SergeCalculus:
 
         @jax.jit
         def block(fc, fl, w):
-            # F = fc (chunk, 2) in frame DE; G' = centres (M, 2) in frame EF
+            # F = fc (chunk, 2) in frame DE; G' = centres [M, 2] in frame EF
             v = fc - e                                               # EF direction
             right = jnp.stack([v[:, 1], -v[:, 0]], -1)
             g = (e + centres[None, :, 0:1] * right[:, None, :]
@@ -153,12 +153,12 @@ class SergeCalculus:
 
     @property
     def compose(self) -> np.ndarray:
-        """(Q, Q, Q) bool: ``compose[p, q, r]`` ⇔ DE:F = p and EF:G = q allow DE:G = r."""
+        """[Q, Q, Q] bool: ``compose[p, q, r]`` ⇔ DE:F = p and EF:G = q allow DE:G = r."""
         return self.compose_counts() > 0
 
     @property
     def compose_prob(self) -> np.ndarray:
-        """(Q, Q, Q) P(DE:G = r | DE:F = p, EF:G = q), uniform over the (F, G) cell pairs."""
+        """[Q, Q, Q] P(DE:G = r | DE:F = p, EF:G = q), uniform over the (F, G) cell pairs."""
         c = self.compose_counts().astype(np.float64)
         tot = c.sum(axis=2, keepdims=True)
         return np.divide(c, tot, out=np.zeros_like(c), where=tot > 0)

@@ -101,7 +101,7 @@ def serge_reference(
     """Plain NumPy SERGE (Alg. 2, P§3.3): the trials of :func:`serge` (same arguments, same
     seeds for trial i) run one at a time; the best map by log ψ is kept.
 
-    With ``return_trials`` also returns the (T, R0) final labels of every trial.
+    With ``return_trials`` also returns the [T, R0] final labels of every trial.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells

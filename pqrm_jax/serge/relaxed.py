@@ -70,7 +70,7 @@ def _optimise(mass, adj, belief_region, mu, sigma, key, n_slots, steps, restarts
 def project_contiguous(slots: np.ndarray, adj: np.ndarray) -> np.ndarray:
     """Split every slot into its connected components on the initial-region graph.
 
-    Returns ``start`` (R0,): the representative (smallest initial region) of each region."""
+    Returns ``start`` [R0]: the representative (smallest initial region) of each region."""
     slots = np.asarray(slots)
     adj = np.asarray(adj, bool)
     rep = np.arange(len(slots))

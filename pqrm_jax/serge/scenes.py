@@ -24,7 +24,7 @@ from .beliefs import GaussianBeliefs, SampleBeliefs
 
 
 def to_frame(d, e, f):
-    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11), NumPy or JAX arrays (..., 2).
+    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11), NumPy or JAX arrays [..., 2].
 
     Uses the calculus core's orientation (right of DE is α > 0): with v = E − D, w = F − D,
     α = (w × v)/|v|², β = (w · v)/|v|². (P's Γ_k as printed is a reflection; the core's
@@ -43,7 +43,7 @@ def to_frame(d, e, f):
 
 
 def from_frame(d, e, p):
-    """Inverse of :func:`to_frame`: world position of frame coordinates ``p`` (..., 2)."""
+    """Inverse of :func:`to_frame`: world position of frame coordinates ``p`` [..., 2]."""
     v = e - d
     xp = jax.numpy if isinstance(v, jax.Array) else np
     right = xp.stack([v[..., 1], -v[..., 0]], axis=-1)
@@ -54,9 +54,9 @@ def from_frame(d, e, p):
 class Scene:
     """Raw data of K beliefs and how to turn a subset of it into beliefs.
 
-    ``points[k]`` (S_k, 2) are the data points Z_k used for the error rate; ``kind`` is
+    ``points[k]`` [S_k, 2] are the data points Z_k used for the error rate; ``kind`` is
     ``"gaussian"`` (beliefs fitted to the points) or ``"triplets"`` (beliefs sampled from the
-    triplet measurements ``raw[k]`` (S_k, 3, 2) with noise ``noise_var``).
+    triplet measurements ``raw[k]`` [S_k, 3, 2] with noise ``noise_var``).
     """
 
     name: str

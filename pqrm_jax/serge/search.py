@@ -43,7 +43,7 @@ def _setup(mass, adj, belief_region, lab0, active):
 
 
 def pair_gains(mt, a, lb, alive, bmask):
-    """Direct (R0, R0) saliency gain of merging every adjacent alive pair (n, m):
+    """Direct [R0, R0] saliency gain of merging every adjacent alive pair (n, m):
     ``G[n, m] = Σ_{k ∈ n ∪ m} log(M_kn + M_km) − log M_{k L_k}`` (−inf where not adjacent).
     Symmetric; the initial value of the merge search's incremental cache."""
     r0, k = mt.shape
@@ -91,7 +91,7 @@ def _argmax(x):
 
 
 def _bitset(mask):
-    """(R, ceil(K/32)) uint32 bit sets of a (R, K) bool mask (bit k%32 of word k//32)."""
+    """(R, ceil(K/32)) uint32 bit sets of a [R, K] bool mask (bit k%32 of word k//32)."""
     r, k = mask.shape
     nw = -(-k // 32)
     bits = jnp.pad(mask, ((0, 0), (0, 32 * nw - k))).reshape(r, nw, 32).astype(jnp.uint32)
@@ -99,7 +99,7 @@ def _bitset(mask):
 
 
 def _row_gain(mt, row_t, t, lb, logs, sal, bmask, words):
-    """(R0,) gain of merging the (just merged) region t with every region m, from the beliefs
+    """[R0] gain of merging the (just merged) region t with every region m, from the beliefs
     of t (in blocks of ``BLOCK`` in increasing index order, a while loop over the blocks
     actually used) and the beliefs of each m (a segment sum over all beliefs). ``words``: the
     bit set of the beliefs of t (empty for a rejected merge, whose row is discarded: no
@@ -152,7 +152,7 @@ def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
     def merge(s, n, t, accept):
         # merge C_n into C_t; with ``accept`` False every update is a no-op (the branch-free
         # form used when batched: only rows t and n of the state are touched, never the
-        # whole (R0, K) / (R0, R0) arrays)
+        # whole [R0, K] / [R0, R0] arrays)
         lab, mt, g, lb, logs, sal, alive, bs = s
         row_t = mt[t] + jnp.where(accept, mt[n], 0.0)
         words = jnp.where(accept, bs[t] | bs[n], 0)                  # beliefs of t ∪ n
@@ -270,10 +270,10 @@ def _one_trial(init, mu, sigma, key, branch=True):
 class SergeResult:
     """Best SR map of a SERGE run.
 
-    * ``region_of_init`` (R0,): compact region 0..|R|−1 of every initial region (−1 inactive);
-    * ``cell_labels`` (N,): region of every fine cell (−1 outside the active part);
-    * ``belief_labels`` (K,): ``L^B`` (−1 for beliefs outside the active part);
-    * ``log_psi = log_psi1 + log_psi3`` (ψ2 = 1); ``trial_log_psi`` (T,) of every trial.
+    * ``region_of_init`` [R0]: compact region 0..|R|−1 of every initial region (−1 inactive);
+    * ``cell_labels`` [N]: region of every fine cell (−1 outside the active part);
+    * ``belief_labels`` [K]: ``L^B`` (−1 for beliefs outside the active part);
+    * ``log_psi = log_psi1 + log_psi3`` (ψ2 = 1); ``trial_log_psi`` [T] of every trial.
     """
 
     problem: Problem
@@ -290,11 +290,11 @@ class SergeResult:
     iterations: np.ndarray
 
     def label_points(self, points) -> np.ndarray:
-        """Region of each point (..., 2) (outside the grid → nearest border cell)."""
+        """Region of each point [..., 2] (outside the grid → nearest border cell)."""
         return self.cell_labels[np.asarray(self.problem.grid.cell_of(np.asarray(points)))]
 
     def saliency(self) -> np.ndarray:
-        """(K,) saliency S_k of each belief in its region (training beliefs)."""
+        """[K] saliency S_k of each belief in its region (training beliefs)."""
         pm = np.asarray(self.problem.cell_mass, np.float64)
         own = self.cell_labels[None, :] == np.asarray(self.belief_labels)[:, None]  # (K, N)
         return (pm * own).sum(1)
@@ -346,9 +346,9 @@ def serge(
 ) -> SergeResult:
     """Run SERGE (Alg. 2) with ``trials`` random-order trials batched; keep the best map.
 
-    ``trials`` defaults to 100·K + 1 (P§3.3 suggests T > 100·K). ``active`` (R0,) bool
+    ``trials`` defaults to 100·K + 1 (P§3.3 suggests T > 100·K). ``active`` [R0] bool
     restricts the search to some initial regions and their beliefs (a branch of the resolution
-    tree, P§3.3.1); ``start`` (R0,) starts from a coarser contiguous partition instead of
+    tree, P§3.3.1); ``start`` [R0] starts from a coarser contiguous partition instead of
     ``C_init`` (used by the relaxed optimiser).
 
     >>> import jax, numpy as np

@@ -118,7 +118,7 @@ class ResolutionTree:
                 if n.level == level or (n.level < level and not n.children)]
 
     def map_of(self, frontier: Iterable[int]) -> np.ndarray:
-        """(N,) cell labels of a frontier (label i = i-th node of the frontier).
+        """[N] cell labels of a frontier (label i = i-th node of the frontier).
 
         ``ValueError`` unless the frontier's initial regions partition the map."""
         frontier = list(frontier)

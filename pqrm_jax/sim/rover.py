@@ -164,7 +164,7 @@ def step(
 def rollout(
     state: RoverState, controls: jax.Array, params: RoverParams | None = None
 ) -> tuple[RoverState, jax.Array]:
-    """Apply ``controls`` (T, 2) in sequence; returns ``(final_state, poses (T + 1, 3))`` with
+    """Apply ``controls`` [T, 2] in sequence; returns ``(final_state, poses (T + 1, 3))`` with
     ``poses[0] = state.pose``.
 
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))

@@ -40,10 +40,10 @@ class SensorParams(NamedTuple):
 class Observation(NamedTuple):
     """Result of :func:`observe`.
 
-    rel: (N, 2) noisy landmark positions in the robot frame (noise is drawn for every landmark;
+    rel: [N, 2] noisy landmark positions in the robot frame (noise is drawn for every landmark;
         entries of invisible landmarks are meaningless, use ``visible``).
-    true_rel: (N, 2) noise-free positions in the robot frame.
-    visible: (N,) bool, in range and field of view and not occluded.
+    true_rel: [N, 2] noise-free positions in the robot frame.
+    visible: [N] bool, in range and field of view and not occluded.
     """
 
     rel: jax.Array
@@ -54,12 +54,12 @@ class Observation(NamedTuple):
 class CameraObservation(NamedTuple):
     """Result of :func:`camera`.
 
-    bearings: (N,) angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
+    bearings: [N] angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
         counter-clockwise from the heading (computed for every landmark; meaningful where
         ``visible``).
-    range_rank: (N,) int32, 0 for the nearest visible landmark, 1 for the next, ...;
+    range_rank: [N] int32, 0 for the nearest visible landmark, 1 for the next, ...;
         -1 where not visible. Ties are broken by landmark index.
-    visible: (N,) bool, as in :class:`Observation`.
+    visible: [N] bool, as in :class:`Observation`.
     """
 
     bearings: jax.Array
@@ -142,7 +142,7 @@ def _prepare(pose, landmarks, params):
 
 
 def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
-    """Landmark positions ``(N, 2)`` in the robot frame (x forward, y left), noise-free.
+    """Landmark positions ``[N, 2]`` in the robot frame (x forward, y left), noise-free.
 
     >>> relative_positions(jnp.array([1.0, 0.0, jnp.pi / 2]), jnp.array([[1.0, 2.0]])).round(4)
     Array([[ 2., -0.]], dtype=float32)
@@ -152,7 +152,7 @@ def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
 
 
 def visibility(pose: jax.Array, landmarks: jax.Array, params: SensorParams) -> jax.Array:
-    """Boolean ``(N,)`` visibility mask: range & field of view & occlusion."""
+    """Boolean ``[N]`` visibility mask: range & field of view & occlusion."""
     pose, landmarks, params = _prepare(pose, landmarks, params)
     return _visibility_jit(pose, landmarks, params)
 

@@ -9,7 +9,7 @@
 * :func:`waypoint_controller` / :func:`follow_waypoints` -- a proportional unicycle controller
   and a ``lax.scan`` that drives a :mod:`sim.rover` through a list of waypoints.
 
-All functions return poses as ``(T, 3)`` arrays of ``(x, y, theta)``; sizes are static Python
+All functions return poses as ``[T, 3]`` arrays of ``(x, y, theta)``; sizes are static Python
 ints, everything else may be traced, and the keyed functions ``vmap`` over keys.
 """
 
@@ -63,7 +63,7 @@ def perimeter_loop(
     start_angle: float = 0.0,
     clockwise: bool = False,
 ) -> jax.Array:
-    """Poses ``(T, 3)`` on one loop of a circle, one every ``dtheta`` radians.
+    """Poses ``[T, 3]`` on one loop of a circle, one every ``dtheta`` radians.
 
     ``T = ceil(2 pi / dtheta)`` (23 for the default 16 degrees); pose ``i`` sits at polar angle
     ``start_angle +- i * dtheta`` around ``center`` and faces along the direction of travel
@@ -280,7 +280,7 @@ def follow_waypoints(
     tol: float = 0.5,
     gains: ControllerGains | None = None,
 ) -> FollowResult:
-    """Drive the rover through ``waypoints`` (W, 2) in order for ``n_steps`` steps.
+    """Drive the rover through ``waypoints`` [W, 2] in order for ``n_steps`` steps.
 
     A waypoint counts as reached when the rover is within ``tol`` of it; the controller then
     moves on to the next one, and the rover stops (zero control) after the last.

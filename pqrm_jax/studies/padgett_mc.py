@@ -193,7 +193,7 @@ def _make_dense_run_fn(cfg: Config, dists: dict):
 
 
 def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
-    """``run_batch(keys (R,), sigma_r) -> dict`` of per-run results (leading axis R).
+    """``run_batch(keys [R], sigma_r) -> dict`` of per-run results (leading axis R).
 
     Same results as ``jax.vmap(_make_dense_run_fn(...))`` bit for bit (same keys, same draws):
     the R maps are stepped together with ``Mapper.update_batch``, which samples eq. 2.9 only

@@ -87,7 +87,7 @@ def _atoms_of(calc: Calculus, lut, dou, tri, X, Y, Z):
 
 
 def realised(calc: Calculus, atoms: list, configs: np.ndarray) -> dict[str, np.ndarray]:
-    """Atom indices of the relations of configurations (M, 4, 2) = (A, B, C, D).
+    """Atom indices of the relations of configurations [M, 4, 2] = (A, B, C, D).
 
     Returns arrays for AB:C, BC:A, CA:B, BA:C, BC:D and AB:D (−1 = not an atom). One jitted
     float64 program for the six relations (eagerly, each of its ~50 operations would compile

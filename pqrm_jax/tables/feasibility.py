@@ -75,7 +75,7 @@ def _tables(A, b, c, sign, active):
 
 
 def _unpack(T, nv):
-    """(G, F, K) group tables → dict of (G, 1, K) rows (broadcast over a group's boxes)."""
+    """[G, F, K] group tables → dict of [G, 1, K] rows (broadcast over a group's boxes)."""
     npairs = nv * (nv - 1) // 2
     row = [T[:, f, None, :] for f in range(T.shape[1])]
     return dict(a=row[:nv], b=row[nv:2 * nv], v=row[2 * nv:3 * nv], gv=row[3 * nv:4 * nv],
@@ -248,8 +248,8 @@ def _admit(st, lo0, hi0, n, pool, group):
 
 
 def _evaluate(T, l, u, own, xs, *, classes: tuple, group: int):
-    """Prune and probe every row of the frontier: ``keep`` (N,) where every constraint can
-    hold in the box, ``good`` (M, N) where probe point m of a kept box satisfies every
+    """Prune and probe every row of the frontier: ``keep`` [N] where every constraint can
+    hold in the box, ``good`` [M, N] where probe point m of a kept box satisfies every
     constraint. Each row group's problem table is gathered once."""
     N, nv = l.shape
     M = xs.shape[0]

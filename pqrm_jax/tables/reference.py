@@ -38,7 +38,7 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
               pid: int = 0) -> tuple[int, np.ndarray, int]:
     """Branch-and-bound for one problem with K *active* constraints over nv variables.
 
-    ``A`` (K, nv, nv) symmetric, ``b`` (K, nv), ``c`` (K,), ``sign`` (K,), box ``lo0``/``hi0``
+    ``A`` (K, nv, nv) symmetric, ``b`` (K, nv), ``c`` [K], ``sign`` [K], box ``lo0``/``hi0``
     (nv,). Returns (status, witness (nv,), rounds). Each round is this problem's round of
     ``feasibility._round`` (same bound, prune, probes, split and termination); ``pid`` is the
     problem's id in the probe stream.

@@ -87,10 +87,10 @@ _TID = {t: n for n, t in enumerate(_TRIPLES)}
 def path_consistency_refutes(left: np.ndarray, right: np.ndarray, inverse: np.ndarray,
                              compose: np.ndarray, problems: np.ndarray,
                              max_rounds: int = 50) -> np.ndarray:
-    """Which compose problems (P, 3) of atom indices (AB:C, BC:D, AB:D) the four-point
-    path-consistency closure under the given (superset) atom tables refutes → (P,) bool.
+    """Which compose problems [P, 3] of atom indices (AB:C, BC:D, AB:D) the four-point
+    path-consistency closure under the given (superset) atom tables refutes → [P] bool.
 
-    ``left/right/inverse`` (Q, Q) and ``compose`` (Q, Q, Q) boolean, indexed by atoms.
+    ``left/right/inverse`` [Q, Q] and ``compose`` [Q, Q, Q] boolean, indexed by atoms.
     """
     P, Q = len(problems), left.shape[0]
     if P == 0:
