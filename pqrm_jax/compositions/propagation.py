@@ -209,26 +209,33 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
               renormalize: bool = False, validate: bool = True) -> PropagationResult:
     """Fill in / sharpen a PQRM map by probabilistic composition (Z eq. 2.4, 4.28).
 
-    Parameters
-    ----------
-    probs, observed:
-        the map, ``[L, L, L, Q]`` and ``[L, L, L]`` (module doc).
-    tensor:
-        ``[Q, Q, Q]`` probabilistic composition tensor (``calc.tables.prob_compose``).
-    mode:
-        ``"fill"`` — only unobserved triplets are inferred, observed rows are returned as
-        given; ``"fuse"`` — observed rows are also fused with their composition paths.
-    rounds:
-        round ``r > 1`` also uses triplets filled in earlier rounds as path operands, for
-        targets still without a path (reaches triplets that need deeper composition trees).
-    eps, path_weight, measurement_weight, prior:
-        the fusion rule (module doc); ``prior`` [Q] defaults to uniform.
-    batch_size:
-        how many middle landmarks ``j`` are processed at once (``None``: one at a time;
-        memory ``≈ batch_size·L³·Q`` floats).
+    Args:
+        probs: ``[L, L, L, Q]`` map, ``probs[i, j, k] = P(ij:k)`` (docs/compositions.md
+            §propagation).
+        observed: ``[L, L, L]`` bool, the measured triplets; other rows are ignored.
+        tensor: ``[Q, Q, Q]`` probabilistic composition tensor
+            (``calc.tables.prob_compose``).
+        mode: ``"fill"`` — only unobserved triplets are inferred, observed rows are returned
+            as given; ``"fuse"`` — observed rows are also fused with their composition paths.
+        rounds: round ``r > 1`` also uses triplets filled in earlier rounds as path operands,
+            for targets still without a path (reaches triplets that need deeper composition
+            trees).
+        eps: smoothing of every source towards uniform in the fusion rule.
+        path_weight: tempering exponent of each composition path in the fusion rule.
+        measurement_weight: tempering exponent of the measurement (``mode="fuse"``).
+        prior: ``[Q]`` prior over states; defaults to uniform.
+        batch_size: how many middle landmarks ``j`` are processed at once (``None``: one at
+            a time; memory ``≈ batch_size·L³·Q`` floats).
+        renormalize: rescale observed rows that merely do not sum to 1 instead of raising.
+        validate: check the map and the tensor first (see Raises).
 
-    Returns a :class:`PropagationResult`. Unobserved triplets with no path get ``prior``;
-    triplets with a repeated landmark get ``prior`` and are never marked known.
+    Returns:
+        A :class:`PropagationResult`. Unobserved triplets with no path get ``prior``;
+        triplets with a repeated landmark get ``prior`` and are never marked known.
+
+    Raises:
+        ValueError: for an unknown ``mode``, ``eps`` outside [0, 1], negative weights,
+            ``rounds < 1``, and (with ``validate``) a malformed map or tensor.
 
     >>> import numpy as np
     >>> from pqrm_jax.compositions.propagation import propagate

@@ -44,12 +44,14 @@ def unit_cost(left: Triplet, right: Triplet, head: Triplet) -> float:
 class CompositionGraph:
     """Composition graph over a landmark space with cumulative costs (Z Def. 3.2.6, Alg. 2).
 
-    Parameters
-    ----------
-    landmarks:
-        the landmark space ``L`` (distinct hashable items; at least 3).
-    comp_cost:
-        ``C_comp(τ_L, τ_R, τ) ≥ 0`` (callable) or a constant; default 1 per composition.
+    Args:
+        landmarks: the landmark space ``L`` (distinct hashable items; at least 3).
+        comp_cost: ``C_comp(τ_L, τ_R, τ) ≥ 0`` (callable) or a constant; default 1 per
+            composition.
+
+    Raises:
+        ValueError: for repeated landmarks, fewer than 3, or a constant cost that is
+            negative or not finite.
     """
 
     def __init__(self, landmarks: Iterable[Hashable], comp_cost: CompCost | float = 1.0):
