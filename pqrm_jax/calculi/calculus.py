@@ -35,8 +35,11 @@ def _pattern_index(signs: Sequence[int]) -> int:
 
 
 def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarray:
-    """Sign table for an open calculus: full patterns from ``full``; a pattern with zeros gets
-    a state only when every realisable completion of its zeros is that same state."""
+    """Sign table for an open calculus: full patterns from ``full``.
+
+    A pattern with zeros gets a state only when every realisable completion of its zeros is that
+    same state.
+    """
     table = np.full(3**k, BOUNDARY, dtype=np.int32)
     for signs in itertools.product((-1, 0, 1), repeat=k):
         zeros = [a for a, s in enumerate(signs) if s == 0]

@@ -219,8 +219,10 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         return jnp.stack([na0, na1, nb0, nb1], -1), alive
 
     def rounds(rows, st, stop):
-        """Refine rows until round ``stop`` or until no row has a useful box. A row without
-        useful boxes has no live box left after the split: it is final."""
+        """Refine rows until round ``stop`` or until no row has a useful box.
+
+        A row without useful boxes has no live box left after the split: it is final.
+        """
         cpn, target = rows
 
         def cond(c):

@@ -23,8 +23,10 @@ __all__ = ["RNGEstimate", "rng_estimate", "true_rng"]
 
 
 class RNGEstimate(NamedTuple):
-    """``edges`` [N, N] bool symmetric candidate edges among known nodes; ``cost`` [N, N]
-    float32 Alg. 2 edge costs (0 on non-edges); ``total_cost`` Σ_{i<j} w_ij."""
+    """``edges`` [N, N] bool symmetric candidate edges among known nodes.
+
+    ``cost`` [N, N] float32 Alg. 2 edge costs (0 on non-edges); ``total_cost`` Σ_{i<j} w_ij.
+    """
 
     edges: jax.Array
     cost: jax.Array

@@ -32,8 +32,10 @@ def _hash_uniform_np(seed: np.uint32, counter: int, mix: np.ndarray) -> np.ndarr
 
 
 def _trial_np(lab0, mt0, adj0, lb0, bmask, alive0, lp1, seed, mix):
-    """One trial (Alg. 2 lines 5–28) in NumPy; returns (labels, |R|, log ψ, log ψ1, log ψ3,
-    steps)."""
+    """One trial (Alg. 2 lines 5–28) in NumPy.
+
+    Returns (labels, |R|, log ψ, log ψ1, log ψ3, steps).
+    """
     r0, k = mt0.shape
     ar = np.arange(r0)
     kk = np.arange(k)

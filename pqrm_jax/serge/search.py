@@ -203,12 +203,13 @@ def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
 
 
 def _run_trial(init, mu, sigma, key, max_steps=None, branch=False):
-    """One merge-search trial (Alg. 2 lines 5–28) from the shared start ``init``; returns the
-    final state (jit-able). ``max_steps`` stops early (tests of the incremental cache).
+    """One merge-search trial (Alg. 2 lines 5–28) from the shared start ``init``.
+
+    Returns the final state (jit-able). ``max_steps`` stops early (tests of the incremental cache).
     ``branch`` applies the merge under ``lax.cond`` (skips work for a single trial; under vmap a
-    cond becomes a select over the whole state, so the batched program uses the branch-free
-    form). Both give the same result. The batched program runs the same step
-    (:func:`_run_block`)."""
+    cond becomes a select over the whole state, so the batched program uses the branch-free form).
+    Both give the same result. The batched program runs the same step (:func:`_run_block`).
+    """
     start, cond, body = _trial_fns(init, mu, sigma, max_steps, branch)
     return jax.lax.while_loop(cond, body, start(key))
 

@@ -164,8 +164,9 @@ def step(
 def rollout(
     state: RoverState, controls: jax.Array, params: RoverParams | None = None
 ) -> tuple[RoverState, jax.Array]:
-    """Apply ``controls`` [T, 2] in sequence; returns ``(final_state, poses (T + 1, 3))`` with
-    ``poses[0] = state.pose``.
+    """Apply ``controls`` [T, 2] in sequence.
+
+    Returns ``(final_state, poses (T + 1, 3))`` with ``poses[0] = state.pose``.
 
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> final, poses = rollout(s, jnp.tile(jnp.array([1.0, 0.0]), (20, 1)), RoverParams(dt=0.25))

@@ -74,8 +74,11 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
 
 def run_study(cfg: Config, out: Path, progress: bool = True,
               shard: tuple[int, int] = (0, 1)) -> None:
-    """Run (and resume) the study; ``shard=(i, k)`` does only the runs r with r % k == i, so
-    k processes (or machines sharing ``out``) can split it; every run is its own file."""
+    """Run (and resume) the study.
+
+    ``shard=(i, k)`` does only the runs r with r % k == i, so k processes (or machines sharing
+    ``out``) can split it; every run is its own file.
+    """
     from tqdm.auto import tqdm
 
     from pqrm_jax.qrm import pipeline as P

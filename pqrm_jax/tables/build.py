@@ -158,9 +158,11 @@ def _mirror_plan(keys: list[tuple], known: dict[int, list], sigma, unordered: bo
 def _run_mirrored(dec: _Decider, name: str, keys: list[tuple], make, tag,
                   known: dict[int, list], sigma: list[int] | None, *, unordered: bool = False,
                   refine=None) -> tuple:
-    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`); the other
-    takes the verdict and the reflected witness (and a copy of any certification record).
-    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag."""
+    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`).
+
+    The other takes the verdict and the reflected witness (and a copy of any certification record).
+    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag.
+    """
     rep, reps, pos, known_r = _mirror_plan(keys, known, sigma, unordered)
     full_of = np.array([pos[rep[n]] for n in range(len(keys))], np.int64)
     refine_r = None

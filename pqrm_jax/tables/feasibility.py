@@ -83,8 +83,7 @@ def _unpack(T, nv):
 
 
 def _upper(T, l, u, cls):
-    """Upper bounds of the (one-sided) constraints of one support class over every box:
-    (G, R, k).
+    """Upper bounds of the (one-sided) constraints of one support class over every box: (G, R, k).
 
     ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: (G, R, nv) boxes;
     ``cls`` = (offset, k, variables, pairs): the class's constraint columns and the variables
