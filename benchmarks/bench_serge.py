@@ -1,5 +1,7 @@
-"""Benchmark: SERGE trials batched in one program vs a plain NumPy reference and vs a
-sequential loop of the same jitted trials.
+"""Benchmark: batched SERGE trials vs a plain NumPy reference and a loop of jitted trials.
+
+The batched program runs all trials in one program; the sequential loop runs the same jitted
+trials one at a time.
 
     .venv/bin/python benchmarks/bench_serge.py [--trials T] [--seq-trials S] [--ref-trials R]
                                                [--json PATH] [--one-core]

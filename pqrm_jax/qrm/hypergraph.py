@@ -136,8 +136,10 @@ def _closure(spec: QRMSpec, rel, *, max_sweeps: int):
 
 
 def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc", max_sweeps: int = 64):
-    """Path-consistency fixed point of a relation array: ``(rel, inconsistent, n_empty,
-    sweeps)`` (M§VI.B steps 7–9)."""
+    """Path-consistency fixed point of a relation array (M§VI.B steps 7–9).
+
+    Returns ``(rel, inconsistent, n_empty, sweeps)``.
+    """
     return _closure(_spec(calc), jnp.asarray(rel, jnp.uint32), max_sweeps=max_sweeps)
 
 
@@ -176,8 +178,10 @@ def apply_relations(
     valid: jax.Array | None = None,
     max_sweeps: int = 64,
 ) -> tuple[QRMMap, UpdateReport]:
-    """Fuse measured cyclic relations into the map (M§VI.B): ``triples`` [T, 3] landmark ids
-    (X, Y, Z) and ``sets`` [T, 3] masks of XY:Z, YZ:X, ZX:Y. New ids become known nodes.
+    """Fuse measured cyclic relations into the map (M§VI.B).
+
+    ``triples`` [T, 3] are landmark ids (X, Y, Z) and ``sets`` [T, 3] the masks of XY:Z, YZ:X,
+    ZX:Y. New ids become known nodes.
 
     >>> m, rep = apply_relations(empty_map(3), [[0, 1, 2]], [[1 << 6, (1 << 20) - 1,
     ...                                                     (1 << 20) - 1]])
@@ -202,8 +206,10 @@ def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSp
 
 
 def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
-    """Per unordered triple i < j < k the three cyclic relations (M§VI.A):
-    ``(triples [E, 3], masks [E, 3])`` of ij:k, jk:i, ki:j."""
+    """The three cyclic relations of every unordered triple i < j < k (M§VI.A).
+
+    Returns ``(triples [E, 3], masks [E, 3])`` of ij:k, jk:i, ki:j.
+    """
     n = m.rel.shape[0]
     import itertools
 

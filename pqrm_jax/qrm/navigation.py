@@ -28,9 +28,12 @@ __all__ = ["NavResult", "plan_next_hop", "navigate", "navigate_many"]
 
 
 class NavResult(NamedTuple):
-    """``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
-    (metres driven), ``straight`` (|END − START|), ``poses`` (n_steps + 1, 3), ``path``
-    [N] planned landmark sequence (−1 padded), ``hops``."""
+    """Outcome of one navigation run.
+
+    ``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
+    (metres driven), ``straight`` (|END − START|), ``poses`` [n_steps + 1, 3], ``path``
+    [N] planned landmark sequence (−1 padded), ``hops``.
+    """
 
     success: jax.Array
     reached_cell: jax.Array

@@ -140,8 +140,10 @@ class SampleBeliefs:
         return _histogram(grid, jnp.asarray(self.samples))
 
     def cell_scores(self, grid: Grid, blur_cells: float = 1.0) -> np.ndarray:
-        """[K, N] log of the histogram blurred by a Gaussian of ``blur_cells`` cells (−inf
-        where a belief has no mass nearby)."""
+        """[K, N] log of the histogram blurred by a Gaussian of ``blur_cells`` cells.
+
+        The score is −inf where a belief has no mass nearby.
+        """
         h = np.asarray(self.cell_masses(grid), np.float64).reshape(self.k, *grid.shape)
         if blur_cells > 0:
             r = int(np.ceil(3 * blur_cells))

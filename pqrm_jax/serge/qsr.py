@@ -112,10 +112,12 @@ class SergeCalculus:
 
     # compose (Alg. 3) -----------------------------------------------------------------------
     def compose_counts(self, stride: int = 2, chunk: int = 256) -> np.ndarray:
-        """[Q, Q, Q] counts of Alg. 3: for every cell c (F at its centre, state q1 = {DE:F})
-        and every cell d (G at its centre in frame EF, q2 = {EF:G}), the state q3 of G in
-        frame DE. Every ``stride``-th cell per axis is used (stride 1 = Alg. 3 exactly,
-        O(N²) pairs)."""
+        """[Q, Q, Q] counts of Alg. 3 over pairs of grid cells.
+
+        For every cell c (F at its centre, state q1 = {DE:F}) and every cell d (G at its centre
+        in frame EF, q2 = {EF:G}), the state q3 of G in frame DE is counted. Every
+        ``stride``-th cell per axis is used (stride 1 = Alg. 3 exactly, O(N²) pairs).
+        """
         if self._compose_counts is not None and self._compose_stride == stride:
             return self._compose_counts
         q = self.num_states

@@ -100,8 +100,10 @@ def serge_reference(
     chunk: int = 1024,
     return_trials: bool = False,
 ) -> SergeResult | tuple[SergeResult, np.ndarray]:
-    """Plain NumPy SERGE (Alg. 2, P§3.3): the trials of :func:`serge` (same arguments, same
-    seeds for trial i) run one at a time; the best map by log ψ is kept.
+    """Plain NumPy SERGE (Alg. 2, P§3.3), one trial at a time.
+
+    The trials of :func:`serge` (same arguments, same seeds for trial i) run one after another;
+    the best map by log ψ is kept.
 
     With ``return_trials`` also returns the [T, R0] final labels of every trial.
 

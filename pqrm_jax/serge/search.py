@@ -43,9 +43,11 @@ def _setup(mass, adj, belief_region, lab0, active):
 
 
 def pair_gains(mt, a, lb, alive, bmask):
-    """Direct [R0, R0] saliency gain of merging every adjacent alive pair (n, m):
+    """Direct [R0, R0] saliency gain of merging every adjacent alive pair (n, m).
+
     ``G[n, m] = Σ_{k ∈ n ∪ m} log(M_kn + M_km) − log M_{k L_k}`` (−inf where not adjacent).
-    Symmetric; the initial value of the merge search's incremental cache."""
+    Symmetric; the initial value of the merge search's incremental cache.
+    """
     r0, k = mt.shape
     ar = jnp.arange(r0)
     sal = mt.T[jnp.arange(k), lb]                                     # (K,) S_k
@@ -384,8 +386,10 @@ def serge(
 
 def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Array,
                      trials: int, active=None, start=None, branch: bool = False) -> SergeResult:
-    """Reference: the same trials (same keys as :func:`serge` with ``chunk ≥ trials``) run
-    one at a time in a Python loop of jitted single trials (the shared start computed once).
+    """Reference: the trials of :func:`serge`, one at a time in a Python loop of jitted trials.
+
+    The keys are those of :func:`serge` with ``chunk ≥ trials``; the shared start is computed
+    once.
     ``branch`` applies each merge under ``lax.cond`` (skips the merge work on rejected
     steps); the default is the branch-free step that the batched program vmaps. On one core
     of a 2-core CPU the two take 13–28 µs per step (noisy; the cond form is the faster),

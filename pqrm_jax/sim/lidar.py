@@ -50,9 +50,11 @@ class LidarParams(NamedTuple):
 
 
 class LidarScan(NamedTuple):
-    """Result of :func:`lidar_scan`: ``angles`` (B,) beam angles in the robot frame,
-    ``ranges`` (B,) measured ranges, ``hit`` (B,) bool, True where the beam hit an occupied
-    cell within ``max_range``."""
+    """Result of :func:`lidar_scan`.
+
+    ``angles`` [B] beam angles in the robot frame, ``ranges`` [B] measured ranges, ``hit`` [B]
+    bool, True where the beam hit an occupied cell within ``max_range``.
+    """
 
     angles: jax.Array
     ranges: jax.Array
@@ -145,8 +147,9 @@ def rasterize_discs(
     resolution: float,
     origin: Sequence[float] = (0.0, 0.0),
 ) -> jax.Array:
-    """Occupancy grid ``shape`` (rows along y, columns along x): a cell is occupied when its
-    centre lies within ``radius`` of a landmark centre.
+    """Occupancy grid of ``shape`` (rows along y, columns along x) from disc landmarks.
+
+    A cell is occupied when its centre lies within ``radius`` of a landmark centre.
 
     >>> g = rasterize_discs(jnp.array([[2.5, 1.5]]), 0.6, (3, 4), 1.0)
     >>> g.astype(int).tolist()

@@ -115,8 +115,10 @@ def reset(
     pose: jax.Array | None = None,
     size: tuple[float, float] = (100.0, 100.0),
 ) -> RoverState:
-    """Initial state at ``pose``, or (``pose=None``) at a pose drawn from ``key``: position
-    uniform over ``[0, size[0]] x [0, size[1]]``, heading uniform in ``[-pi, pi)``. ``t = 0``.
+    """Initial state at ``pose``, or (``pose=None``) at a pose drawn from ``key``; ``t = 0``.
+
+    A drawn pose has its position uniform over ``[0, size[0]] x [0, size[1]]`` and its heading
+    uniform in ``[-pi, pi)``.
 
     >>> s = reset(jax.random.key(0), RoverParams(), pose=jnp.array([1.0, 2.0, 0.0]))
     >>> s.pose.tolist(), float(s.t)

@@ -61,10 +61,11 @@ class _Decider:
             self.presolved[pr.tag] = (int(st), x)
 
     def presolve(self, problems: list[pb.Problem]) -> None:
-        """Branch-and-bound, in one batch, the problems that several later :meth:`run` calls
-        will need (one compiled program instead of one per batch shape); ``run`` then takes
-        their verdicts from here. Verdicts do not depend on the batching (probe points are
-        drawn per problem)."""
+        """Branch-and-bound, in one batch, the problems that later :meth:`run` calls will need.
+
+        One compiled program instead of one per batch shape; ``run`` then takes their verdicts
+        from here. Verdicts do not depend on the batching (probe points are drawn per problem).
+        """
         self._bnb([pr for pr in problems if not pr.trivially_infeasible], "branch-and-bound")
 
     def run(self, name: str, problems: list[pb.Problem], known: dict[int, list],

@@ -130,8 +130,10 @@ def _values(T, x, cls):
 
 
 def one_sided(batch: ProblemBatch) -> ProblemBatch:
-    """The same problems with every constraint one-sided: ``sign(q) = s ≠ 0`` becomes
-    ``s·q > 0`` (sign 1: strict) and an equality ``q = 0`` the pair ``q ≥ 0``, ``−q ≥ 0``
+    """The same problems with every constraint in one-sided form.
+
+    ``sign(q) = s ≠ 0`` becomes ``s·q > 0`` (sign 1: strict) and an equality ``q = 0`` the
+    pair ``q ≥ 0``, ``−q ≥ 0``
     (sign 0: non-strict; the negated copies are appended). In this form a constraint holds at
     x iff ``sign(q(x)) ≥ sign`` and can hold in a box iff ``sign(upper bound) ≥ sign``."""
     P, K, nv = batch.b.shape
@@ -155,8 +157,10 @@ def one_sided(batch: ProblemBatch) -> ProblemBatch:
 
 
 def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
-    """Put the constraints in one-sided form (:func:`one_sided`) and reorder every problem's
-    constraints by the set of variables they use.
+    """One-sided constraints (:func:`one_sided`), reordered by the variables they use.
+
+    Every problem's constraints are put in one-sided form and grouped by the set of variables
+    they use.
 
     Returns the reordered one-sided batch (inactive ``0 ≥ 0`` constraints pad each class to
     its largest count over the batch) and the static class list ``(offset, k, variables,

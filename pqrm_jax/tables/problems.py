@@ -189,9 +189,11 @@ def _merge(parts) -> list[tuple[Poly, int]] | None:
 
 
 def random_compose_problems(calc: Calculus, n: int, seed: int = 0) -> list[Problem]:
-    """``n`` compose problems on random atom triples that are not trivially infeasible
-    (``numpy.random.default_rng(seed)``): the random workload of ``benchmarks/bench_tables.py``
-    and of the reference tests."""
+    """``n`` compose problems on random atom triples that are not trivially infeasible.
+
+    Drawn with ``numpy.random.default_rng(seed)``: the random workload of
+    ``benchmarks/bench_tables.py`` and of the reference tests.
+    """
     found, _ = atoms(calc)
     rng = np.random.default_rng(seed)
     probs: list[Problem] = []

@@ -23,8 +23,10 @@ def _mirror_poly(p: Poly) -> Poly:
 
 
 def mirror_atoms(calc: Calculus, atoms: list) -> list[int] | None:
-    """The atom permutation induced by reflection in AB, or None if the calculus is not
-    mirror symmetric constraint by constraint. Degenerate atoms map to themselves.
+    """The atom permutation induced by reflection in AB, or None.
+
+    None when the calculus is not mirror symmetric constraint by constraint. Degenerate atoms
+    map to themselves.
 
     >>> from pqrm_jax import calculi
     >>> from pqrm_jax.tables import problems as pb
@@ -87,8 +89,10 @@ _TID = {t: n for n, t in enumerate(_TRIPLES)}
 def path_consistency_refutes(left: np.ndarray, right: np.ndarray, inverse: np.ndarray,
                              compose: np.ndarray, problems: np.ndarray,
                              max_rounds: int = 50) -> np.ndarray:
-    """Which compose problems [P, 3] of atom indices (AB:C, BC:D, AB:D) the four-point
-    path-consistency closure under the given (superset) atom tables refutes → [P] bool.
+    """[P] bool: which compose problems the four-point path-consistency closure refutes.
+
+    The problems are [P, 3] atom indices (AB:C, BC:D, AB:D); the closure runs under the given
+    (superset) atom tables.
 
     ``left/right/inverse`` [Q, Q] and ``compose`` [Q, Q, Q] boolean, indexed by atoms.
     """
