@@ -244,9 +244,11 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         return proven, _or_reduce(jnp.where(useful[..., None], compat, jnp.uint32(0)), 1)
 
     def stage(rows, st, level):
-        """Run to the next checkpoint, then continue on a compacted half-size buffer when the
-        rows still working fit in it (rows are independent: the result is identical; a row
-        without live boxes has nothing remaining)."""
+        """Run to the next checkpoint, then continue on a compacted half-size buffer.
+
+        The buffer is used when the rows still working fit in it (rows are independent: the
+        result is identical; a row without live boxes has nothing remaining).
+        """
         if level == len(_CHECKPOINTS) or _CHECKPOINTS[level] >= depth or \
                 st[1].shape[0] < _MIN_COMPACT_ROWS:
             return finish(rows, st)

@@ -34,9 +34,11 @@ class QRMMap(NamedTuple):
 
 
 class UpdateReport(NamedTuple):
-    """Result flags of an update: ``inconsistent`` (an empty set appeared; the update was
-    rejected), ``n_empty`` (number of empty relations it would have produced), ``sweeps``
-    (propagation sweeps to the fixed point)."""
+    """Result flags of an update.
+
+    ``inconsistent`` (an empty set appeared; the update was rejected), ``n_empty`` (number of
+    empty relations it would have produced), ``sweeps`` (propagation sweeps to the fixed point).
+    """
 
     inconsistent: jax.Array
     n_empty: jax.Array

@@ -66,9 +66,11 @@ def _ctz(x):
 
 
 def _pop_lowest(words, n):
-    """Indices of the n lowest set bits of the bit set ``words`` (uint32, 32 per word), in
-    increasing order, whether each was found, and the remaining set (elementwise integer ops:
-    cheap under vmap, unlike a cumsum, sort or scatter)."""
+    """Indices of the n lowest set bits of the bit set ``words`` (uint32, 32 per word).
+
+    Returns them in increasing order, whether each was found, and the remaining set
+    (elementwise integer ops: cheap under vmap, unlike a cumsum, sort or scatter).
+    """
     idx, found = [], []
     for _ in range(n):
         i_s, f_s = jnp.int32(0), jnp.bool_(False)
@@ -86,8 +88,11 @@ def _pop_lowest(words, n):
 
 
 def _argmax(x):
-    """(first index of the maximum, maximum) of a NaN-free vector: ``jnp.argmax`` as two plain
-    reductions (a variadic argmax reduction is slow on CPU under vmap)."""
+    """(first index of the maximum, maximum) of a NaN-free vector.
+
+    ``jnp.argmax`` as two plain reductions (a variadic argmax reduction is slow on CPU under
+    vmap).
+    """
     m = jnp.max(x)
     return jnp.min(jnp.where(x == m, jnp.arange(x.shape[0], dtype=jnp.int32), x.shape[0])), m
 
@@ -101,8 +106,10 @@ def _bitset(mask):
 
 
 def _row_gain(mt, row_t, t, lb, logs, sal, bmask, words):
-    """[R0] gain of merging the (just merged) region t with every region m, from the beliefs
-    of t (in blocks of ``BLOCK`` in increasing index order, a while loop over the blocks
+    """[R0] gain of merging the (just merged) region t with every region m.
+
+    Computed from the beliefs of t (in blocks of ``BLOCK`` in increasing index order, a while
+    loop over the blocks
     actually used) and the beliefs of each m (a segment sum over all beliefs). ``words``: the
     bit set of the beliefs of t (empty for a rejected merge, whose row is discarded: no
     blocks)."""
@@ -138,9 +145,11 @@ def _init_state(mass, adj, belief_region, lab0, active):
 
 
 def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
-    """(start, cond, body) of one merge-search trial (Alg. 2 lines 5–28) from the shared start
-    ``init``. ``body(s, active)`` is one step; with ``active`` False it leaves ``s`` unchanged
-    (the batched program steps every trial of a block until all have converged)."""
+    """(start, cond, body) of one merge-search trial (Alg. 2 lines 5–28) from ``init``.
+
+    ``init`` is the shared start; ``body(s, active)`` is one step; with ``active`` False it leaves
+    ``s`` unchanged (the batched program steps every trial of a block until all have converged).
+    """
     lab, mt, g, lb, logs, sal, alive, bmask, bs = init
     k_static, r0 = mt.shape[1], mt.shape[0]
     ar = jnp.arange(r0)
@@ -217,9 +226,11 @@ def _run_trial(init, mu, sigma, key, max_steps=None, branch=False):
 
 
 def _run_block(init, mu, sigma, keys):
-    """The trials of ``keys`` stepped together: one while loop over the block, each step a
-    vmapped trial step masked by whether that trial is still running (a vmapped while loop
-    would instead select the whole state of every trial at every step)."""
+    """The trials of ``keys`` stepped together in one while loop over the block.
+
+    Each step is a vmapped trial step masked by whether that trial is still running (a vmapped
+    while loop would instead select the whole state of every trial at every step).
+    """
     start, cond, body = _trial_fns(init, mu, sigma)
     vcond, vbody = jax.vmap(cond), jax.vmap(body)
 

@@ -145,8 +145,11 @@ class _Decider:
 
 
 def _mirror_plan(keys: list[tuple], known: dict[int, list], sigma, unordered: bool) -> tuple:
-    """(representative of each key, the representatives, their positions, known witnesses of
-    the representatives) for :func:`_run_mirrored`."""
+    """The mirror-pair plan of :func:`_run_mirrored`.
+
+    Returns (representative of each key, the representatives, their positions, known witnesses
+    of the representatives).
+    """
     rep = symmetry.representatives(keys, sigma, unordered)
     reps = [n for n in range(len(keys)) if rep[n] == n]
     pos = {n: r for r, n in enumerate(reps)}
@@ -195,8 +198,11 @@ def _tag(tag) -> list:
 
 
 def _first_rows(key: np.ndarray, base: int) -> np.ndarray:
-    """Index of the first occurrence of every distinct row of an int array (N, c) with values
-    in [0, base), in increasing order of the rows (as base-``base`` numbers)."""
+    """Index of the first occurrence of every distinct row of an int array [N, c].
+
+    Values lie in [0, base); the result is in increasing order of the rows (as base-``base``
+    numbers).
+    """
     code = np.zeros(len(key), np.int64)
     for col in key.T:
         code = code * base + col
@@ -380,9 +386,12 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
 
 
 def _face_adjacency(calc, atoms, astate, live) -> np.ndarray:
-    """Boundary-inclusive calculi: relations are neighbours iff one lies in the closure of the
-    other (the face order). For an arrangement of lines (convex cells) face j lies in the
-    closure of cell i iff j's sign vector is i's with some signs set to zero."""
+    """Adjacency of a boundary-inclusive calculus: the face order.
+
+    Relations are neighbours iff one lies in the closure of the other. For an arrangement of lines
+    (convex cells) face j lies in the closure of cell i iff j's sign vector is i's with some signs
+    set to zero.
+    """
     if any(p.terms.get((0, 0, 1)) or p.weighted_degree() > 1 for p in calc.constraints):
         raise NotImplementedError("face adjacency needs line constraints")
     Q = calc.num_states

@@ -22,8 +22,11 @@ from ..calculi.calculus import Calculus, _pattern_index
 
 @lru_cache(maxsize=64)
 def _integer_forms(calc: Calculus) -> tuple:
-    """Each constraint f as integer terms (c, i, j, k, l) of L·n^D f(u/n, v/n, m/n) =
-    Σ c·u^i v^j m^k n^l (D its degree, L > 0 the lcm of its coefficients' denominators)."""
+    """Each constraint f as integer terms (c, i, j, k, l).
+
+    The terms are those of L·n^D f(u/n, v/n, m/n) = Σ c·u^i v^j m^k n^l (D its degree, L > 0
+    the lcm of its coefficients' denominators).
+    """
     out = []
     for poly in calc.constraints:
         top = poly.weighted_degree()

@@ -57,11 +57,13 @@ class Solution:
 
 
 def _tables(A, b, c, sign, active):
-    """Per-problem coefficient table (P, 4·nv + npairs + 2, K), constraint axis minor: rows
-    ``A_ii`` (nv), ``b_i`` (nv), the vertex ``v_i = −b_i / 2A_ii`` of each univariate part
-    (nv; +inf where A_ii = 0) and its value ``A_ii v_i² + b_i v_i`` there (nv), ``2 A_ij`` for
-    i < j (npairs), ``c``, sign. What a row group of the frontier gathers (one packed gather;
-    inactive constraints become ``0 ≥ 0``)."""
+    """Per-problem coefficient table [P, 4·nv + npairs + 2, K], constraint axis minor.
+
+    Rows ``A_ii`` (nv), ``b_i`` (nv), the vertex ``v_i = −b_i / 2A_ii`` of each univariate part (nv;
+    +inf where A_ii = 0) and its value ``A_ii v_i² + b_i v_i`` there (nv), ``2 A_ij`` for i < j
+    (npairs), ``c``, sign. What a row group of the frontier gathers (one packed gather; inactive
+    constraints become ``0 ≥ 0``).
+    """
     nv = b.shape[-1]
     A = jnp.where(active[..., None, None], A, 0.0)
     b = jnp.where(active[..., None], b, 0.0)
@@ -116,8 +118,10 @@ def _upper(T, l, u, cls):
 
 
 def _values(T, x, cls):
-    """The constraints of one support class at points x (M, G, R, nv) of each row group's
-    problem → (M, G, R, k)."""
+    """The constraints of one support class at points x of each row group's problem.
+
+    x is [M, G, R, nv]; the result is [M, G, R, k].
+    """
     off, k, variables, pairs = cls
     col = slice(off, off + k)
     val = T["c"][..., col]
@@ -211,9 +215,11 @@ def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
 
 
 def _all_hold(classes, ok_of):
-    """Where every constraint of every support class holds: ``ok_of(cls, cols)`` gives one
-    class's (..., k) booleans (``cols`` its constraint columns). Reduced as float mins (XLA's
-    CPU code for boolean reductions is slow)."""
+    """Where every constraint of every support class holds.
+
+    ``ok_of(cls, cols)`` gives one class's [..., k] booleans (``cols`` its constraint columns).
+    Reduced as float mins (XLA's CPU code for boolean reductions is slow).
+    """
     m = [jnp.min(jnp.where(ok_of(cls, slice(cls[0], cls[0] + cls[1])), 1.0, 0.0), -1)
          for cls in classes]
     return functools.reduce(jnp.minimum, m) > 0
@@ -224,8 +230,9 @@ def _align(x, group):
 
 
 def _admit(st, lo0, hi0, n, pool, group):
-    """Queue the next problems (one root box each, a fresh row group) into the free rows,
-    keeping Σ_{in flight, not oldest} rows(min(pool, 2·boxes)) ≤ rows − pool: the oldest
+    """Queue the next problems (one root box each, a fresh row group) into the free rows.
+
+    Admission keeps Σ_{in flight, not oldest} rows(min(pool, 2·boxes)) ≤ rows − pool: the oldest
     problem can always grow to a full pool, and the others rarely wait for rows."""
     P = st["nbox"].shape[0]
     N = st["own"].shape[0]
@@ -251,9 +258,11 @@ def _admit(st, lo0, hi0, n, pool, group):
 
 
 def _evaluate(T, l, u, own, xs, *, classes: tuple, group: int):
-    """Prune and probe every row of the frontier: ``keep`` [N] where every constraint can
-    hold in the box, ``good`` [M, N] where probe point m of a kept box satisfies every
-    constraint. Each row group's problem table is gathered once."""
+    """Prune and probe every row of the frontier.
+
+    ``keep`` [N] where every constraint can hold in the box, ``good`` [M, N] where probe point m of
+    a kept box satisfies every constraint. Each row group's problem table is gathered once.
+    """
     N, nv = l.shape
     M = xs.shape[0]
     G = N // group

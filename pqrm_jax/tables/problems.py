@@ -58,8 +58,10 @@ def frame(atom_abc) -> dict[str, Point]:
 
 @lru_cache(maxsize=4)
 def _frame(kind: str) -> dict[str, Point]:
-    """One set of point polynomials per frame kind: problems share them, so the relation
-    caches below hit by identity."""
+    """One set of point polynomials per frame kind.
+
+    Problems share them, so the relation caches below hit by identity.
+    """
     z, one = _const(0), _const(1)
     D = (_var(2), _var(3))
     if kind == "dou":
@@ -177,8 +179,11 @@ def _simplified(calc: Calculus, atom, X: Point, Y: Point, Z: Point) -> tuple | N
 
 
 def _merge(parts) -> list[tuple[Poly, int]] | None:
-    """``simplify`` of concatenated simplified parts (no constants left, boundaries already
-    normalized): the same list, first occurrences in order; None on a sign conflict."""
+    """``simplify`` of concatenated simplified parts; None on a sign conflict.
+
+    The parts have no constants left and their boundaries already normalized: the result is
+    the same list, first occurrences in order.
+    """
     kept: dict[Poly, int] = {}
     for part in parts:
         for poly, s in part:
