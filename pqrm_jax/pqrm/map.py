@@ -48,13 +48,14 @@ def ordered_triplets(num_landmarks: int) -> np.ndarray:
 class MapState(NamedTuple):
     """State of a PQRM map (a pytree).
 
-    probs: representation name → [T, Q] ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
-    mapped: [T] bool, the triplet has been initialised.
-    num_updates: [T] int32, measurements incorporated (including the initialisation).
-    num_conflicts: name → [T] int32, eq. 2.10 products that were zero everywhere (prior kept).
-    num_rejected: [T] int32, measurements with no defined sample (not incorporated).
-    num_dropped: () int32, visible landmarks dropped for non-finite positions.
-    step: () int32, number of update calls.
+    Attributes:
+        probs: representation name → [T, Q] ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
+        mapped: [T] bool, the triplet has been initialised.
+        num_updates: [T] int32, measurements incorporated (including the initialisation).
+        num_conflicts: name → [T] int32, eq. 2.10 products that were zero everywhere (prior kept).
+        num_rejected: [T] int32, measurements with no defined sample (not incorporated).
+        num_dropped: () int32, visible landmarks dropped for non-finite positions.
+        step: () int32, number of update calls.
     """
 
     probs: dict[str, jax.Array]

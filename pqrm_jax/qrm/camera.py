@@ -33,8 +33,9 @@ _EPS = 2e-5  # relative safety margin on certain signs (float32 rounding ~1e-7)
 class TripleMeasurement(NamedTuple):
     """Kernel output for T triples (slot order near, mid, far).
 
-    sets: [T, 3] uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
-    undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded).
+    Attributes:
+        sets: [T, 3] uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
+        undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded).
     """
 
     sets: jax.Array
@@ -44,12 +45,13 @@ class TripleMeasurement(NamedTuple):
 class ImageMeasurement(NamedTuple):
     """One image's measurement (M§IV) of the ``n`` nearest visible landmarks.
 
-    ids: [S] int32 landmark id of each slot, nearest first; −1 for empty slots.
-    triples: [T, 3] int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
-    sets: [T, 3] uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
-        ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
-    valid: [T] bool, all three slots hold a visible landmark.
-    undecided: [T, 3] uint32 states kept undecided at the depth limit.
+    Attributes:
+        ids: [S] int32 landmark id of each slot, nearest first; −1 for empty slots.
+        triples: [T, 3] int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
+        sets: [T, 3] uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
+            ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
+        valid: [T] bool, all three slots hold a visible landmark.
+        undecided: [T, 3] uint32 states kept undecided at the depth limit.
     """
 
     ids: jax.Array

@@ -36,11 +36,12 @@ __all__ = ["LidarParams", "LidarScan", "lidar_scan", "rasterize_discs"]
 class LidarParams(NamedTuple):
     """Lidar parameters. ``n_beams`` is static; the others may be traced.
 
-    n_beams: number of beams, spread evenly over ``fov`` (centred on the heading; for
-        ``fov >= 2 pi`` they cover the full circle without repeating the first beam).
-    max_range: beams that hit nothing report ``max_range``.
-    fov: field of view in radians.
-    sigma: std of Gaussian noise added to the ranges of beams that hit (then clipped at 0).
+    Attributes:
+        n_beams: number of beams, spread evenly over ``fov`` (centred on the heading; for
+            ``fov >= 2 pi`` they cover the full circle without repeating the first beam).
+        max_range: beams that hit nothing report ``max_range``.
+        fov: field of view in radians.
+        sigma: std of Gaussian noise added to the ranges of beams that hit (then clipped at 0).
     """
 
     n_beams: int = 180

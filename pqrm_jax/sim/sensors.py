@@ -25,10 +25,11 @@ __all__ = ["SensorParams", "Observation", "CameraObservation", "observe", "camer
 class SensorParams(NamedTuple):
     """Sensor parameters (a pytree; fields may be traced).
 
-    max_range: detection range in metres (Padgett's study uses 60 m).
-    fov: field of view in radians, centred on the heading; ``>= 2*pi`` is omnidirectional.
-    landmark_radius: physical radius of a landmark, used for occlusion (0 disables occlusion).
-    sigma: std of isotropic Gaussian noise added to each relative position (metres).
+    Attributes:
+        max_range: detection range in metres (Padgett's study uses 60 m).
+        fov: field of view in radians, centred on the heading; ``>= 2*pi`` is omnidirectional.
+        landmark_radius: physical radius of a landmark, used for occlusion (0 disables occlusion).
+        sigma: std of isotropic Gaussian noise added to each relative position (metres).
     """
 
     max_range: float = 60.0
@@ -40,10 +41,11 @@ class SensorParams(NamedTuple):
 class Observation(NamedTuple):
     """Result of :func:`observe`.
 
-    rel: [N, 2] noisy landmark positions in the robot frame (noise is drawn for every landmark;
-        entries of invisible landmarks are meaningless, use ``visible``).
-    true_rel: [N, 2] noise-free positions in the robot frame.
-    visible: [N] bool, in range and field of view and not occluded.
+    Attributes:
+        rel: [N, 2] noisy landmark positions in the robot frame (noise is drawn for every landmark;
+            entries of invisible landmarks are meaningless, use ``visible``).
+        true_rel: [N, 2] noise-free positions in the robot frame.
+        visible: [N] bool, in range and field of view and not occluded.
     """
 
     rel: jax.Array
@@ -54,12 +56,13 @@ class Observation(NamedTuple):
 class CameraObservation(NamedTuple):
     """Result of :func:`camera`.
 
-    bearings: [N] angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
-        counter-clockwise from the heading (computed for every landmark; meaningful where
-        ``visible``).
-    range_rank: [N] int32, 0 for the nearest visible landmark, 1 for the next, ...;
-        -1 where not visible. Ties are broken by landmark index.
-    visible: [N] bool, as in :class:`Observation`.
+    Attributes:
+        bearings: [N] angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
+            counter-clockwise from the heading (computed for every landmark; meaningful where
+            ``visible``).
+        range_rank: [N] int32, 0 for the nearest visible landmark, 1 for the next, ...;
+            -1 where not visible. Ties are broken by landmark index.
+        visible: [N] bool, as in :class:`Observation`.
     """
 
     bearings: jax.Array
