@@ -98,8 +98,21 @@ def lidar_scan(
 ) -> LidarScan:
     """Cast ``params.n_beams`` beams from ``pose`` into the occupancy ``grid``.
 
-    ``params.max_range`` must be concrete (it fixes the number of march samples,
-    ``ceil(oversample * max_range / resolution)``).
+    Args:
+        key: PRNG key of the range noise.
+        pose: ``[3]`` sensor pose ``(x, y, theta)``.
+        grid: [rows, cols] bool occupancy grid (rows along y, columns along x).
+        resolution: cell size (positive).
+        origin: world position of the grid's corner ``(x, y)``.
+        params: lidar parameters; ``params.max_range`` must be concrete (it fixes the number of
+            march samples, ``ceil(oversample * max_range / resolution)``).
+        oversample: march samples per cell (at least 1).
+
+    Returns:
+        A :class:`LidarScan` (beam angles, ranges, hits).
+
+    Raises:
+        ValueError: for a bad pose, grid, origin, resolution or parameters.
 
     >>> grid = jnp.zeros((10, 10), bool).at[:, 7].set(True)     # a wall at x in [7, 8)
     >>> scan = lidar_scan(jax.random.key(0), jnp.array([2.0, 5.0, 0.0]), grid, 1.0,
@@ -151,6 +164,19 @@ def rasterize_discs(
     """Occupancy grid of ``shape`` (rows along y, columns along x) from disc landmarks.
 
     A cell is occupied when its centre lies within ``radius`` of a landmark centre.
+
+    Args:
+        landmarks: [N, 2] disc centres.
+        radius: disc radius (non-negative).
+        shape: ``(rows, cols)`` of the grid.
+        resolution: cell size (positive).
+        origin: world position of the grid's corner ``(x, y)``.
+
+    Returns:
+        [rows, cols] bool occupancy grid.
+
+    Raises:
+        ValueError: for bad landmarks, radius, resolution or shape.
 
     >>> g = rasterize_discs(jnp.array([[2.5, 1.5]]), 0.6, (3, 4), 1.0)
     >>> g.astype(int).tolist()

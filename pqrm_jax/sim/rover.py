@@ -117,8 +117,18 @@ def reset(
 ) -> RoverState:
     """Initial state at ``pose``, or (``pose=None``) at a pose drawn from ``key``; ``t = 0``.
 
-    A drawn pose has its position uniform over ``[0, size[0]] x [0, size[1]]`` and its heading
-    uniform in ``[-pi, pi)``.
+    Args:
+        key: PRNG key (used only when ``pose`` is None).
+        params: rover parameters (checked; defaults to ``RoverParams()``).
+        pose: ``[3]`` initial pose ``(x, y, theta)``.
+        size: box of a drawn pose: position uniform over ``[0, size[0]] x [0, size[1]]``,
+            heading uniform in ``[-pi, pi)``.
+
+    Returns:
+        The initial :class:`RoverState`.
+
+    Raises:
+        ValueError: for bad parameters or a ``pose`` of the wrong shape or with NaN/inf.
 
     >>> s = reset(jax.random.key(0), RoverParams(), pose=jnp.array([1.0, 2.0, 0.0]))
     >>> s.pose.tolist(), float(s.t)
@@ -151,6 +161,17 @@ def step(
 ) -> RoverState:
     """Advance one ``params.dt`` under the (clipped) constant control ``(v, omega)``.
 
+    Args:
+        state: current :class:`RoverState`.
+        control: ``[2]`` control ``(v, omega)``, clipped to the parameters' limits.
+        params: rover parameters (defaults to ``RoverParams()``).
+
+    Returns:
+        The next :class:`RoverState` (exact unicycle motion, docs/sim.md §rover).
+
+    Raises:
+        ValueError: for bad parameters or a ``control`` of the wrong shape or with NaN/inf.
+
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> step(s, jnp.array([1.0, 0.0]), RoverParams(dt=2.0)).pose.tolist()
     [2.0, 0.0, 0.0]
@@ -166,9 +187,18 @@ def step(
 def rollout(
     state: RoverState, controls: jax.Array, params: RoverParams | None = None
 ) -> tuple[RoverState, jax.Array]:
-    """Apply ``controls`` [T, 2] in sequence.
+    """Apply ``controls`` [T, 2] in sequence (a ``lax.scan`` over :func:`step`).
 
-    Returns ``(final_state, poses (T + 1, 3))`` with ``poses[0] = state.pose``.
+    Args:
+        state: initial :class:`RoverState`.
+        controls: [T, 2] controls ``(v, omega)``.
+        params: rover parameters (defaults to ``RoverParams()``).
+
+    Returns:
+        ``(final_state, poses)`` with ``poses`` [T + 1, 3] and ``poses[0] = state.pose``.
+
+    Raises:
+        ValueError: for bad parameters or ``controls`` of the wrong shape or with NaN/inf.
 
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> final, poses = rollout(s, jnp.tile(jnp.array([1.0, 0.0]), (20, 1)), RoverParams(dt=0.25))

@@ -165,12 +165,26 @@ def observe(
 ) -> Observation:
     """Noisy relative-position measurement of all landmarks from ``pose`` = (x, y, theta).
 
+    ``vmap`` over runs: ``jax.vmap(observe, (0, 0, None, None))(keys, poses, lm, params)``.
+
+    Args:
+        key: PRNG key of the position noise.
+        pose: ``[3]`` robot pose ``(x, y, theta)``.
+        landmarks: [N, 2] landmark positions.
+        params: sensor parameters (defaults to ``SensorParams()``).
+
+    Returns:
+        An :class:`Observation`: noisy and true positions in the robot frame and visibility
+        (range, field of view, occlusion; docs/sim.md §sensors).
+
+    Raises:
+        ValueError: for inputs of the wrong shape, and (when concrete) NaN/inf values or
+            negative parameters.
+
     >>> lm = jnp.array([[10.0, 0.0], [0.0, 100.0]])
     >>> obs = observe(jax.random.key(0), jnp.zeros(3), lm, SensorParams(max_range=60.0))
     >>> obs.visible.tolist(), obs.true_rel[0].tolist()
     ([True, False], [10.0, 0.0])
-
-    ``vmap`` over runs: ``jax.vmap(observe, (0, 0, None, None))(keys, poses, lm, params)``.
     """
     pose, landmarks, params = _prepare(pose, landmarks, params)
     return _observe(key, pose, landmarks, params)
@@ -181,7 +195,20 @@ def camera(
 ) -> CameraObservation:
     """Camera measurement (M §IV): bearings of landmarks and range ordering of the visible ones.
 
-    ``params.sigma`` is not used (bearings and ordering are exact, as assumed in M §IV).
+    Bearings and ordering are exact, as assumed in M §IV, so ``params.sigma`` is not used.
+
+    Args:
+        pose: ``[3]`` camera pose ``(x, y, theta)``.
+        landmarks: [N, 2] landmark positions.
+        params: sensor parameters (range, field of view, occlusion radius).
+
+    Returns:
+        A :class:`CameraObservation` (bearings in the camera frame, range rank of each visible
+        landmark, ``-1`` for the others).
+
+    Raises:
+        ValueError: for inputs of the wrong shape, and (when concrete) NaN/inf values or
+            negative parameters.
 
     >>> lm = jnp.array([[0.0, 5.0], [2.0, 0.0], [90.0, 0.0]])
     >>> cam = camera(jnp.zeros(3), lm, SensorParams(max_range=60.0))
