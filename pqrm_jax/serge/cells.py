@@ -84,6 +84,24 @@ def initial_cells(
 ) -> Problem:
     """Build ``C_init`` (one contiguous region per belief) and the SERGE problem.
 
+    Args:
+        beliefs: the K beliefs (Gaussian or sample sets).
+        grid: the fine grid of cells.
+        key: PRNG key of the quasi-samples of Gaussian cell masses.
+        n_mc: quasi-samples per Gaussian belief.
+        unseparated: ``"error"`` raises for a belief the grid cannot separate; ``"attach"``
+            assigns it to the region holding most of its mass (the map then starts with fewer
+            than K regions).
+        min_saliency: the share of a belief's mass its own cells must hold for it to count as
+            separated.
+
+    Returns:
+        The :class:`Problem` on the initial regions (decisions: docs/serge.md §cells).
+
+    Raises:
+        ValueError: for an unknown ``unseparated`` mode, or (with ``"error"``) beliefs that win
+            no grid cell holding at least ``min_saliency`` of their mass.
+
     >>> import numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
     >>> b = GaussianBeliefs(np.array([[0., 0.], [4., 0.]]), np.tile(np.eye(2) * .1, (2, 1, 1)))

@@ -360,10 +360,24 @@ def serge(
 ) -> SergeResult:
     """Run SERGE (Alg. 2) with ``trials`` random-order trials batched; keep the best map.
 
-    ``trials`` defaults to 100·K + 1 (P§3.3 suggests T > 100·K). ``active`` [R0] bool
-    restricts the search to some initial regions and their beliefs (a branch of the resolution
-    tree, P§3.3.1); ``start`` [R0] starts from a coarser contiguous partition instead of
-    ``C_init`` (used by the relaxed optimiser).
+    Args:
+        problem: the SERGE problem (initial regions, masses, adjacency; :func:`initial_cells`).
+        mu: the count prior's mean number of regions, an integer in 1..min(K, N).
+        sigma: the count prior's standard deviation (finite, ≥ 0).
+        key: PRNG key; trial i depends only on its own key, so results do not depend on
+            ``chunk`` or on the number of queues.
+        trials: number of trials T; defaults to 100·K + 1 (P§3.3 suggests T > 100·K).
+        active: [R0] bool, restricts the search to some initial regions and their beliefs (a
+            branch of the resolution tree, P§3.3.1).
+        start: [R0] a coarser contiguous partition to start from instead of ``C_init`` (used by
+            the relaxed optimiser).
+        chunk: trials per key split (keeps the key derivation independent of T).
+
+    Returns:
+        The best trial by log ψ as a :class:`SergeResult` (with every trial's log ψ).
+
+    Raises:
+        ValueError: for ``trials < 1``, ``mu`` outside 1..min(K, N) or a bad ``sigma``.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells, serge

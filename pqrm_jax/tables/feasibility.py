@@ -397,17 +397,32 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
           ids: np.ndarray | None = None) -> Solution:
     """Solve every problem of ``batch`` in jit-compiled work-queue programs (float64).
 
-    The boxes of all problems in flight share one frontier of ``frontier`` rows; each problem
-    keeps at most ``pool`` boxes and runs at most ``max_iters`` rounds. A decided problem
-    frees its rows for the next ones of the queue, so easy problems never wait for hard ones
-    and the work per round follows the live boxes. The problems are dealt to ``parts`` queues
-    (default: one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`) run side
-    by side in threads by one compiled program; ``chunk`` problems go to the device per call
-    (progress). Probe points are drawn at (problem id, round, box, coordinate), with ``ids``
-    the problems' ids (default: their positions), so verdicts and witnesses do not depend on
-    ``parts``, ``chunk`` or which problems share a batch. ``classes``: a batch already put in
-    the form of :func:`support_classes` and its class list (so that its problems can be solved
-    one at a time by one compiled program); by default every chunk is reordered here.
+    The boxes of all problems in flight share one frontier; a decided problem frees its rows for
+    the next ones of the queue, so easy problems never wait for hard ones and the work per round
+    follows the live boxes (docs/tables.md §feasibility).
+
+    Args:
+        batch: the problems (box, quadratic constraints, signs, active masks).
+        pool: the most boxes one problem may hold.
+        max_iters: the most rounds one problem may run.
+        min_width: boxes narrower than this are no longer split.
+        frontier: rows of the shared frontier of boxes.
+        probes: random probe points per surviving box and round.
+        seed: seed of the probe-point hash.
+        chunk: problems sent to the device per call (progress is reported per chunk).
+        progress: show a progress bar.
+        desc: the progress bar's label.
+        classes: a batch already in the form of :func:`support_classes` and its class list (so
+            that its problems can be solved one at a time by one compiled program); by default
+            every chunk is reordered here.
+        parts: number of queues run side by side in threads by one compiled program (default:
+            one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`).
+        ids: the problems' ids (default: their positions). Probe points are drawn at (problem
+            id, round, box, coordinate), so verdicts and witnesses do not depend on ``parts``,
+            ``chunk`` or which problems share a batch.
+
+    Returns:
+        A :class:`Solution`: per problem FEASIBLE (with a witness), INFEASIBLE or UNDECIDED.
 
     >>> from pqrm_jax import calculi
     >>> from pqrm_jax.tables import problems as pb
