@@ -23,11 +23,13 @@ from .grid import Grid, connected_components
 class Problem:
     """A SERGE problem on R0 initial regions (all arrays static-shaped).
 
-    * ``grid`` and ``cell_region`` [N]: initial region of every fine cell;
-    * ``mass`` [K, R0]: ``∫_{C_r} B_k`` for belief k and initial region r;
-    * ``adj`` [R0, R0] bool: 4-adjacency of initial regions;
-    * ``belief_region`` [K]: initial region of each belief (``L^B_init``);
-    * ``cell_mass`` [K, N]: the fine cell masses (for plotting and diagnostics).
+    Attributes:
+        grid: the fine grid of cells.
+        cell_region: [N] initial region of every fine cell.
+        mass: [K, R0] ``∫_{C_r} B_k`` for belief k and initial region r.
+        adj: [R0, R0] bool, 4-adjacency of initial regions.
+        belief_region: [K] initial region of each belief (``L^B_init``).
+        cell_mass: [K, N] the fine cell masses (for plotting and diagnostics).
     """
 
     grid: Grid

@@ -284,10 +284,19 @@ def _one_trial(init, mu, sigma, key, branch=True):
 class SergeResult:
     """Best SR map of a SERGE run.
 
-    * ``region_of_init`` [R0]: compact region 0..|R|−1 of every initial region (−1 inactive);
-    * ``cell_labels`` [N]: region of every fine cell (−1 outside the active part);
-    * ``belief_labels`` [K]: ``L^B`` (−1 for beliefs outside the active part);
-    * ``log_psi = log_psi1 + log_psi3`` (ψ2 = 1); ``trial_log_psi`` [T] of every trial.
+    Attributes:
+        problem: the problem that was solved.
+        mu: the count prior's mean used.
+        sigma: the count prior's standard deviation used.
+        region_of_init: [R0] compact region 0..|R|−1 of every initial region (−1 inactive).
+        cell_labels: [N] region of every fine cell (−1 outside the active part).
+        belief_labels: [K] ``L^B`` (−1 for beliefs outside the active part).
+        n_regions: |R|, the number of regions of the best map.
+        log_psi: ``log_psi1 + log_psi3`` (ψ2 = 1) of the best trial.
+        log_psi1: log of the count prior ψ1 of the best map.
+        log_psi3: log of the saliency term ψ3 of the best map.
+        trial_log_psi: [T] log ψ of every trial.
+        iterations: [T] merge-search steps of every trial.
     """
 
     problem: Problem
