@@ -161,9 +161,18 @@ def cut_tree(triplets: Iterable[Iterable[Landmark]],
              landmarks: Iterable[Landmark] | None = None) -> CutTree | None:
     """Decide whether ``triplets`` is composable under ``landmarks`` (Z Def. 3.2.4).
 
-    Returns the certificate (a :class:`CutTree`) or ``None``. ``landmarks`` defaults to
-    ``L(T)``; a landmark space that is not inside ``L(T)`` makes the answer ``None``.
-    Runs in about O(|T|·|L|) set operations.
+    Runs in about O(|T|·|L|) set operations (docs/compositions.md §composable).
+
+    Args:
+        triplets: the source triplets T (each three distinct hashable landmarks).
+        landmarks: the landmark space; defaults to ``L(T)``. A landmark space that is not inside
+            ``L(T)`` makes the answer ``None``.
+
+    Returns:
+        The certificate (a :class:`CutTree`), or ``None`` when T is not composable.
+
+    Raises:
+        ValueError: for a triplet with a repeated landmark or an empty source set.
 
     >>> cut_tree(["ABC", "BCD", "ADE"]) is not None
     True
@@ -332,9 +341,18 @@ def _recursion(depth: int):
 def compose_from_cut_tree(tree: CutTree, target: Iterable[Landmark]) -> CompositionTree:
     """Constructive proof of Z Thm. 3.1: a composition tree for ``target`` from ``tree``'s sources.
 
-    ``target`` must lie in ``L(T)`` (``ValueError`` otherwise). The tree is valid (leaves are
-    sources, every step obeys Lemma 2.4.1) but not optimal; use
+    The tree is valid (leaves are sources, every step obeys Lemma 2.4.1) but not optimal; use
     :func:`pqrm_jax.compositions.optimal_composition_tree` for the optimal one (Alg. 1).
+
+    Args:
+        tree: a cut tree (:func:`cut_tree`).
+        target: the triplet to compose.
+
+    Returns:
+        The :class:`CompositionTree` of ``target`` (a DAG: repeated subtrees are shared).
+
+    Raises:
+        ValueError: when ``target`` has a landmark outside ``L(T)``.
 
     >>> t = compose_from_cut_tree(cut_tree(["ABC", "BCD"]), "ABD")
     >>> [(fmt(a), fmt(b), fmt(c)) for a, b, c in t.steps()]

@@ -105,9 +105,16 @@ def _log(x):
 
 
 def compose(p1, p2, tensor) -> jax.Array:
-    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)`` (``[..., Q]`` each, broadcast).
+    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)``.
 
-    The result is renormalised; an impossible pair (zero mass) returns all zeros.
+    Args:
+        p1: [..., Q] distribution of ``AB:C``.
+        p2: [..., Q] distribution of ``BC:D`` (broadcast against ``p1``).
+        tensor: [Q, Q, Q] probabilistic composition tensor, ``T[a, b, c] = P(AB:D = c | a, b)``.
+
+    Returns:
+        [..., Q] renormalised distribution of ``AB:D``; all zeros for an impossible pair (zero
+        mass).
     """
     t = jnp.asarray(tensor, jnp.float32)
     r = jnp.einsum("...a,...b,abc->...c", jnp.asarray(p1, jnp.float32),
@@ -117,10 +124,20 @@ def compose(p1, p2, tensor) -> jax.Array:
 
 
 def fuse(dists, weights=None, eps: float = DEFAULT_EPS, axis: int = 0) -> jax.Array:
-    """Smoothed tempered product of experts over ``axis`` of ``dists`` (module doc).
+    """Smoothed tempered product of experts over ``axis`` of ``dists``.
 
-    ``weights`` (broadcast against ``dists`` without its last axis) gives ``w_s``; a weight
-    of 0 removes a source. Assumes the sources are conditionally independent given the state.
+    Assumes the sources are conditionally independent given the state; the rule is described
+    in docs/compositions.md §propagation.
+
+    Args:
+        dists: the source distributions, [..., Q] with the sources along ``axis``.
+        weights: the exponents ``w_s``, broadcast against ``dists`` without its last axis; a
+            weight of 0 removes a source. Default 1 each.
+        eps: smoothing of every source towards uniform, ``(1 − ε)·p + ε/Q``.
+        axis: the axis of the sources.
+
+    Returns:
+        The fused distribution (a proper distribution: no NaN, no negative entries).
 
     >>> print(np.asarray(fuse(np.array([[0.7, 0.3], [0.6, 0.4]]), eps=0.0)).round(3))
     [0.778 0.222]

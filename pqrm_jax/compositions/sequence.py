@@ -271,9 +271,20 @@ def optimal_composition_tree(sources: Iterable[Iterable[Hashable]] | Mapping,
                              target: Iterable[Hashable],
                              source_cost: Callable[[Triplet], float] | float = 0.0,
                              comp_cost: CompCost | float = 1.0) -> CompositionTree | None:
-    """Z Alg. 1: the optimal composition tree of ``target`` from ``sources`` (``None`` if none).
+    """Z Alg. 1: the optimal composition tree of ``target`` from ``sources``.
 
-    ``target`` must lie in ``L(T)`` (``ValueError`` otherwise).
+    Args:
+        sources: the source triplets, or a mapping from source triplet to its cost.
+        target: the triplet to compose.
+        source_cost: ``C_source`` of each source, a callable or a constant (finite, ≥ 0).
+        comp_cost: ``C_comp(τ_L, τ_R, τ)``, a callable or a constant (finite, ≥ 0).
+
+    Returns:
+        The optimal :class:`CompositionTree`, or ``None`` when ``target`` cannot be composed.
+
+    Raises:
+        ValueError: when ``target`` has a landmark outside ``L(T)``, or for negative or
+            non-finite costs.
 
     >>> t = optimal_composition_tree(["ABC", "BCD", "ADE"], "BCE")
     >>> t.num_compositions(), t.cost
