@@ -247,10 +247,26 @@ def mapper(
     ``update`` samples eq. 2.9 for all T triplets (static shapes) and masks the unseen ones.
     ``update_batch(states, keys, positions, visible, sigma, groups=1)`` updates R maps at once
     (sigma: scalar, [R] or [R, M]): with the EDC as root it gathers the seen triplets of all R
-    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so
-    the sampling work is proportional to what is seen (in Padgett's study about 1 triplet in
-    8), with results identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static)
-    compacts that many slices of the R maps independently (one per device when sharded).
+    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so the sampling
+    work is proportional to what is seen (in Padgett's study about 1 triplet in 8), with results
+    identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static) compacts that many
+    slices of the R maps independently (one per device when sharded).
+
+    Args:
+        representations: the calculi mapped at once (objects or registered names); all must be
+            merges of one root calculus.
+        num_landmarks: M, the landmark capacity (T = M(M−1)(M−2) ordered triplets).
+        num_samples: S, samples per triplet per update.
+        chunk_triplets: triplets per sampling block (bounds the working set).
+        sparse_block: rows per piece of the batched sparse update.
+
+    Returns:
+        A :class:`Mapper` of pure functions (``init``, ``update``, ``update_batch``).
+
+    Raises:
+        ValueError: for no or duplicate representations, representations without a common root
+            calculus, or a non-positive ``num_samples``; the returned functions raise for inputs
+            of the wrong shape and bad ``sigma``.
 
     >>> import jax, jax.numpy as jnp
     >>> pq = mapper(("edc", "lr"), num_landmarks=4, num_samples=64)
@@ -333,8 +349,21 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
                     sigma) -> MapState:
     """Eager convenience: update with the landmarks ``ids`` [K] seen at ``positions`` [K, 2].
 
-    Raises ``ValueError`` for duplicate or out-of-range ids, NaN/inf positions and bad sigma.
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
+
+    Args:
+        pq: the mapper (:func:`mapper`).
+        state: the current :class:`MapState`.
+        key: PRNG key of this update's samples.
+        ids: [K] int landmark ids, distinct, in ``[0, num_landmarks)``.
+        positions: [K, 2] measured positions (robot frame).
+        sigma: noise std, scalar or [K] (one per id).
+
+    Returns:
+        The updated :class:`MapState`.
+
+    Raises:
+        ValueError: for duplicate or out-of-range ids, NaN/inf positions and bad ``sigma``.
     """
     ids = np.asarray(ids)
     positions = np.asarray(positions, dtype=np.float32)

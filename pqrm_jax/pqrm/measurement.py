@@ -266,8 +266,20 @@ def fine_counts(
 ) -> jax.Array:
     """Sample counts [N, Q_root] of ``root_of(calculus)`` states (eq. 2.9 before normalising).
 
-    Rows sum to the number of defined samples (≤ ``num_samples``; rejected samples — a zero
-    constraint or a non-finite value — are in no state).
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+
+    Returns:
+        [N, Q_root] int32 counts; rows sum to the number of defined samples (≤ ``num_samples``;
+        rejected samples — a zero constraint or a non-finite value — are in no state).
+
+    Raises:
+        ValueError: for bad input when called eagerly (see :func:`check_measurement_inputs`).
     """
     calc = calculi.get(calculus)
     check_measurement_inputs(means, sigma, num_samples)
@@ -326,6 +338,20 @@ def multi_state_probabilities(
     num_samples: int, *, chunk_triplets: int = 4096,
 ) -> dict[str, jax.Array]:
     """``state_probabilities`` for several merges of one root calculus from one sampling pass.
+
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculi_: the calculi (objects or registered names), all merges of one root calculus.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+
+    Returns:
+        A dict from calculus name to its [N, Q] float32 probabilities.
+
+    Raises:
+        ValueError: for calculi without a common root calculus, or bad input when eager.
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])
