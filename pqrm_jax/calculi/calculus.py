@@ -60,7 +60,7 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
 
 
 class Calculus:
-    """A ternary qualitative calculus; see the module docstring.
+    """A ternary qualitative calculus; see docs/calculi.md §calculus.
 
     >>> from pqrm_jax import calculi
     >>> edc = calculi.get("edc")
@@ -289,7 +289,7 @@ class Calculus:
     def classify(self, a, b, c) -> jax.Array:
         """State index of ``AB:C`` for points of shape [..., 2] (broadcast); jit-able.
 
-        Returns an int32 array of the broadcast batch shape; sentinels as in the module doc.
+        Returns an int32 array of the broadcast batch shape; sentinels as in docs/decisions.md §2.
         """
         a, b, c = (jnp.asarray(x) for x in (a, b, c))
         for nm, x in (("a", a), ("b", b), ("c", c)):

@@ -111,7 +111,10 @@ class CutTree:
 
 
 def _merge_clusters(T: frozenset[Triplet]) -> list[CutTree]:
-    """Greedy 2-common merging; returns the final clusters as cut trees (see module doc)."""
+    """Greedy 2-common merging; returns the final clusters as cut trees.
+
+    Why the merge order does not matter: docs/compositions.md §composable.
+    """
     order = sorted(T, key=fmt)  # deterministic
     nodes: dict[int, CutTree] = {}
     by_landmark: dict[Landmark, set[int]] = {}
@@ -198,7 +201,8 @@ def is_composable(triplets: Iterable[Iterable[Landmark]],
 def composable_triplets(triplets: Iterable[Iterable[Landmark]]) -> set[Triplet]:
     """Every triplet that some sequence of compositions from ``triplets`` can produce.
 
-    Exactly the triplets inside one cluster's landmark space (module doc).
+    Exactly the triplets inside one cluster's landmark space; see
+    docs/compositions.md §composable.
     """
     from itertools import combinations
 

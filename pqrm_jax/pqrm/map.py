@@ -306,7 +306,7 @@ def mapper(
 
     def update(state: MapState, key: jax.Array, positions: jax.Array, visible: jax.Array,
                sigma) -> MapState:
-        """Incorporate one measurement of all landmarks (eq. 2.10); see the module doc."""
+        """Incorporate one measurement of all landmarks (eq. 2.10); see docs/pqrm.md §map."""
         if np.shape(positions) != (num_landmarks, 2):
             raise ValueError(f"positions must have shape ({num_landmarks}, 2), "
                              f"got {tuple(np.shape(positions))}")

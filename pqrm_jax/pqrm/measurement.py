@@ -318,7 +318,7 @@ def state_probabilities(
 
     Returns:
         [N, Q] float32 probabilities; each row sums to 1, or is all zeros when no sample had a
-        defined state (see the module docstring).
+        defined state (see docs/pqrm.md §measurement).
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])      # C right of AB
