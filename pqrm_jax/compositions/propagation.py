@@ -227,8 +227,8 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
     """Fill in / sharpen a PQRM map by probabilistic composition (Z eq. 2.4, 4.28).
 
     Args:
-        probs: ``[L, L, L, Q]`` map, ``probs[i, j, k] = P(ij:k)`` (docs/compositions.md
-            §propagation).
+        probs: ``[L, L, L, Q]`` map, ``probs[i, j, k] = P(ij:k)``; layout in
+            docs/compositions.md §propagation.
         observed: ``[L, L, L]`` bool, the measured triplets; other rows are ignored.
         tensor: ``[Q, Q, Q]`` probabilistic composition tensor
             (``calc.tables.prob_compose``).
