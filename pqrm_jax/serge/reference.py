@@ -103,9 +103,25 @@ def serge_reference(
     """Plain NumPy SERGE (Alg. 2, P§3.3), one trial at a time.
 
     The trials of :func:`serge` (same arguments, same seeds for trial i) run one after another;
-    the best map by log ψ is kept.
+    the best map by log ψ is kept (docs/serge.md §reference).
 
-    With ``return_trials`` also returns the [T, R0] final labels of every trial.
+    Args:
+        problem: the SERGE problem.
+        mu: the count prior's mean number of regions.
+        sigma: the count prior's standard deviation.
+        key: PRNG key, split as :func:`serge` splits it.
+        trials: number of trials; defaults to 100·K + 1 as in :func:`serge`.
+        active: [R0] bool, restrict the search to some initial regions.
+        start: [R0] a coarser contiguous partition to start from.
+        chunk: trials per key split, as in :func:`serge`.
+        return_trials: also return the final labels of every trial.
+
+    Returns:
+        The best trial as a :class:`~pqrm_jax.serge.search.SergeResult`; with ``return_trials``
+        also the [T, R0] final labels of every trial.
+
+    Raises:
+        ValueError: for ``trials < 1`` or bad prior parameters.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells

@@ -94,7 +94,28 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
                   steps: int = 300, restarts: int = 8, polish_trials: int = 32,
                   tau0: float = 1.0, tau1: float = 0.05, lr: float = 0.1,
                   smooth: float = 0.05) -> RelaxedResult:
-    """Relaxed optimiser + projection + merge-search polish (see the module docstring).
+    """Relaxed optimiser, projection onto contiguous regions and merge-search polish.
+
+    The method (not in Padgett) is described in the module docstring.
+
+    Args:
+        problem: the SERGE problem.
+        mu: the count prior's mean number of regions (the number of region slots).
+        sigma: the count prior's standard deviation.
+        key: PRNG key of the restarts and of the polish.
+        steps: Adam steps per restart.
+        restarts: random initialisations, run as one vmap.
+        polish_trials: merge-search trials of the polish.
+        tau0: initial softmax temperature.
+        tau1: final temperature (annealed geometrically from ``tau0``).
+        lr: Adam learning rate.
+        smooth: weight λ of the contiguity surrogate.
+
+    Returns:
+        A :class:`RelaxedResult` whose ``result`` is the polished SERGE map.
+
+    Raises:
+        ValueError: for bad prior parameters.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
