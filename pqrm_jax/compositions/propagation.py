@@ -171,8 +171,8 @@ class PropagationResult:
 def _paths_for_j(pj, pij, aj, aij, tensor, eps, prior_log, j):
     """All paths ``(ij:k, jk:d) → ij:d`` through one middle landmark ``j``.
 
-    ``pj = P(jk:d)`` (k, d, Q), ``pij = P(ij:k)`` (i, k, Q), ``aj``/``aij`` their availability.
-    Returns the summed log-evidence (i, d, Q) and the path counts (i, d).
+    ``pj = P(jk:d)`` [k, d, Q], ``pij = P(ij:k)`` [i, k, Q], ``aj``/``aij`` their availability.
+    Returns the summed log-evidence [i, d, Q] and the path counts [i, d].
     """
     n, q = pij.shape[0], pij.shape[-1]
     # N[k, d, a, c] = Σ_b P(jk:d = b) T[a, b, c]   (independent of i)

@@ -137,7 +137,7 @@ def _variadic_sum(ops, axis):
 def _edc_block_counts(mT, sT, zc):
     """Counts in key order for one block: mT [6, B], sT [3, B] → [B, 20] int32.
 
-    ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
+    ``zc`` is the sample bank, [c, C, 6] shared by the B triplets, or [c, C, 6, B] with one bank
     per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
     """
     def col(x):
@@ -164,7 +164,7 @@ def _edc_block_counts(mT, sT, zc):
 
 
 def _sample_bank(key, num_samples: int, dtype):
-    """Standard-normal bank (c, C, 6), padded with NaN (rejected) up to c·C ≥ num_samples."""
+    """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples."""
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
     z = jax.random.normal(key, (num_samples, 6), dtype)

@@ -89,7 +89,7 @@ class GaussianBeliefs:
         return cls(np.array(means), np.array(covs))
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """(K, n, 2) samples."""
+        """[K, n, 2] samples."""
         chol = np.linalg.cholesky(self.covs)
         z = jax.random.normal(key, (self.k, n, 2), jnp.float32)
         return jnp.asarray(self.means, jnp.float32)[:, None, :] + jnp.einsum(

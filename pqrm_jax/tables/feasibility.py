@@ -85,9 +85,9 @@ def _unpack(T, nv):
 
 
 def _upper(T, l, u, cls):
-    """Upper bounds of the (one-sided) constraints of one support class over every box: (G, R, k).
+    """Upper bounds of the (one-sided) constraints of one support class over every box: [G, R, k].
 
-    ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: (G, R, nv) boxes;
+    ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: [G, R, nv] boxes;
     ``cls`` = (offset, k, variables, pairs): the class's constraint columns and the variables
     and variable pairs they use (other terms are zero and skipped). Exact for the separable
     part (each ``A_ii x_i² + b_i x_i`` at both ends and the interior vertex), interval

@@ -38,8 +38,8 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
               pid: int = 0) -> tuple[int, np.ndarray, int]:
     """Branch-and-bound for one problem with K *active* constraints over nv variables.
 
-    ``A`` (K, nv, nv) symmetric, ``b`` (K, nv), ``c`` [K], ``sign`` [K], box ``lo0``/``hi0``
-    (nv,). Returns (status, witness (nv,), rounds). Each round is this problem's round of
+    ``A`` [K, nv, nv] symmetric, ``b`` [K, nv], ``c`` [K], ``sign`` [K], box ``lo0``/``hi0``
+    [nv]. Returns (status, witness [nv], rounds). Each round is this problem's round of
     ``feasibility._round`` (same bound, prune, probes, split and termination); ``pid`` is the
     problem's id in the probe stream.
     """
@@ -48,7 +48,7 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
     c = np.asarray(c, np.float64)
     sign = np.asarray(sign)
     nv = b.shape[-1]
-    # separable part in (nv, B, K) layout: the reduction over nv adds contiguous blocks
+    # separable part in [nv, B, K] layout: the reduction over nv adds contiguous blocks
     a = np.diagonal(A, axis1=-2, axis2=-1).T[:, None, :]  # (nv, 1, K)
     bs = b.T[:, None, :]
     has_a = a != 0
