@@ -183,7 +183,7 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
 def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
-    z (Rg, c, C, 6) banks of the Rg maps; m (Rg·N, 6), s (Rg·N, 3), mask (Rg·N,) per triplet
+    z [Rg, c, C, 6] banks of the Rg maps; m [Rg·N, 6], s [Rg·N, 3], mask [Rg·N] per triplet
     row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
     the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
     ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, so every seen row is updated and nothing
