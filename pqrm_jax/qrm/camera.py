@@ -291,11 +291,22 @@ def measure_triples(
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV), batched.
 
-    ``bearings`` [T, 3]: bearings of each triple's landmarks in *range order* (nearest
-    first; ties allowed). ``target`` [T, 3] uint32 state masks restricts the work to states
-    still open in the map (others are returned as possible, unchecked); default all states.
+    Args:
+        bearings: [T, 3] bearings of each triple's landmarks in *range order* (nearest first;
+            ties allowed).
+        calc: the calculus (object, name or prepared spec).
+        target: [T, 3] uint32 state masks restricting the work to states still open in the
+            map (the others are returned as possible, unchecked); default all states.
+        pool: boxes per triple in the branch-and-bound.
+        depth: refinement rounds.
 
-    Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
+    Returns:
+        A :class:`TripleMeasurement`: state masks of ``01:2, 12:0, 20:1`` (slots 0 = near,
+        1 = mid, 2 = far) and the states left undecided; sound (docs/qrm.md §camera).
+
+    Raises:
+        ValueError: for bearings of the wrong shape or with NaN/inf, a ``target`` of the wrong
+            shape, ``pool < 4`` or ``depth < 1``.
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
@@ -402,10 +413,25 @@ def measure_image(
 ) -> ImageMeasurement:
     """Measure every triple of the ``n`` nearest visible landmarks of one image (M§IV).
 
-    ``bearings``, ``range_rank``, ``visible``: a :class:`sim.sensors.CameraObservation`'s
-    fields. ``target_map`` [N, N, N] uint32: the current map relations (only their open
-    states are tested). Checks (when concrete, ``check=True``): finite bearings of visible
-    landmarks, distinct ranks, at least three visible landmarks — each raises ``ValueError``.
+    Args:
+        bearings: [N] bearings of a :class:`~pqrm_jax.sim.sensors.CameraObservation`.
+        range_rank: [N] its range ranks.
+        visible: [N] its visibility.
+        n: landmarks used per image (an int ≥ 3).
+        calc: the calculus (object, name or prepared spec).
+        target_map: [N, N, N] uint32, the current map relations (only their open states are
+            tested).
+        pool: boxes per triple in the branch-and-bound.
+        depth: refinement rounds.
+        check: check the observation when it is concrete.
+
+    Returns:
+        The :class:`ImageMeasurement` of the image.
+
+    Raises:
+        ValueError: for ``n < 3``, and (when concrete, ``check=True``) arrays of unequal
+            length, non-finite bearings of visible landmarks, a visible landmark without a
+            rank, repeated ranks or fewer than three visible landmarks.
 
     >>> import jax, sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 6)

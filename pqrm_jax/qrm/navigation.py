@@ -133,8 +133,26 @@ def navigate(
 ) -> NavResult:
     """Drive the simulated rover from ``start`` (x, y, θ) to ``goal`` (x, y) (M§VII.B).
 
-    ``landmarks`` are the true positions (the simulator's world; the controller sees them
-    only through :func:`sim.camera` bearings and range ranks).
+    The strategy is described in docs/qrm.md §navigation.
+
+    Args:
+        landmarks: [N, 2] true landmark positions (the simulator's world; the controller sees
+            them only through :func:`pqrm_jax.sim.camera` bearings and range ranks).
+        rng: the RNG estimate to plan on (:func:`pqrm_jax.qrm.rng_estimate`).
+        start: ``[3]`` start pose.
+        goal: ``[2]`` goal position.
+        params: rover parameters.
+        sensor: camera parameters.
+        n_steps: the most simulation steps.
+        lam: weight of the Alg. 2 edge cost against the hop count in the plan.
+        k_turn: heading gain of the bearing controller.
+        tol: distance to ``goal`` that counts as arrived.
+
+    Returns:
+        The :class:`NavResult` of the run.
+
+    Raises:
+        ValueError: for inputs of the wrong shape or with NaN/inf.
 
     >>> import jax, jax.numpy as jnp
     >>> from pqrm_jax.qrm.hypergraph import true_map
