@@ -253,8 +253,28 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                solver=solve) -> dict:
     """Exact tables of a calculus defined by constraints (not a merge).
 
-    ``solver`` decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
-    benchmark passes a recording wrapper to time the build's own batches)."""
+    The four-stage pipeline is described in docs/tables.md §build.
+
+    Args:
+        calc: the constraint-defined calculus.
+        box: the branch-and-bound domain |x| ≤ ``box``, with pairwise distances at least
+            |AB|/``box``.
+        progress: show progress bars.
+        seed: seed of the witness pre-pass and the probe points.
+        n_samples: random configurations of the witness pre-pass (open calculi).
+        pool: the most boxes one problem may hold.
+        max_iters: the most branch-and-bound rounds per problem.
+        adjacency_radius: radius of the probe disks of the adjacency test.
+        certify_all: confirm every refutation with z3 on the whole plane (as for the shipped
+            tables), not only the undecided problems.
+        solver: decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
+            benchmark passes a recording wrapper to time the build's own batches).
+
+    Returns:
+        A dict with the ``left``, ``right``, ``inverse``, ``compose`` and ``adjacency`` tables,
+        the witnesses of every present entry, the ``undecided`` problems with their verdicts,
+        build statistics and the settings used.
+    """
     t_start = time.perf_counter()
     atoms, astate = pb.atoms(calc)
     na, Q = len(atoms), calc.num_states
