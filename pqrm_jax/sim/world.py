@@ -1,7 +1,7 @@
 """Landmark worlds for the rover simulator (docs/decisions.md §9).
 
 Every generator is a pure function of an explicit PRNG key and static sizes, returns an
-``(n, 2)`` float array of landmark centres (metres, world frame) and can be ``vmap``-ed over
+``[n, 2]`` float array of landmark centres (metres, world frame) and can be ``vmap``-ed over
 keys to draw a batch of worlds::
 
     keys = jax.random.split(jax.random.key(0), 1000)
