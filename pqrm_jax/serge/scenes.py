@@ -24,11 +24,19 @@ from .beliefs import GaussianBeliefs, SampleBeliefs
 
 
 def to_frame(d, e, f):
-    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11), NumPy or JAX arrays [..., 2].
+    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11).
 
     Uses the calculus core's orientation (right of DE is α > 0): with v = E − D, w = F − D,
-    α = (w × v)/|v|², β = (w · v)/|v|². (P's Γ_k as printed is a reflection; the core's
-    frame is the orientation-preserving one, so SERGE QSRs and core calculi agree on sides.)
+    α = (w × v)/|v|², β = (w · v)/|v|². (P's Γ_k as printed is a reflection; the core's frame
+    is the orientation-preserving one, so SERGE QSRs and core calculi agree on sides.)
+
+    Args:
+        d: [..., 2] positions of D (NumPy or JAX).
+        e: [..., 2] positions of E.
+        f: [..., 2] positions of F.
+
+    Returns:
+        [..., 2] coordinates (α, β) of F.
 
     >>> to_frame(np.array([1., 1.]), np.array([1., 3.]), np.array([3., 1.])).tolist()
     [1.0, 0.0]
