@@ -1,18 +1,10 @@
 """A relaxed SERGE optimiser: soft assignments by gradient (optax), then merge-search polish.
 
-Not in Padgett; an alternative to the random-order merge search of Alg. 2. Each initial
-region r gets a soft assignment ``p_r = softmax(W_r / τ)`` over μ region slots. Beliefs follow
-their initial region, so the soft saliency of belief k is
-``S_k = Σ_j p_{r_k j} Σ_r p_{rj} ∫_{C_r} B_k``. The loss is
+Not in Padgett; an alternative to the random-order merge search of Alg. 2: soft assignments
+of the initial regions to μ region slots are optimised with Adam under an annealed
+temperature, projected onto contiguous regions and polished by the merge search.
 
-    −Σ_k log S_k  +  (E|R| − μ)² / 2σ²  +  λ Σ_{r~s adjacent} ‖p_r − p_s‖²
-
-(E|R| = Σ_j [1 − ∏_r (1 − p_rj)] the expected number of used slots; the last term is a
-contiguity surrogate). It is minimised with Adam while the temperature τ is annealed
-geometrically from ``tau0`` to ``tau1``; ``restarts`` random initialisations run as one vmap.
-The hard assignment ``argmax p`` is then *projected* onto contiguous regions (every connected
-component of a slot becomes its own region, so ψ2 = 1) and *polished* by the merge search of
-Alg. 2 started from that partition (:func:`pqrm_jax.serge.serge` with ``start=``).
+The loss, the annealing and the projection: docs/serge.md §relaxed.
 """
 
 from __future__ import annotations
@@ -96,7 +88,7 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
                   smooth: float = 0.05) -> RelaxedResult:
     """Relaxed optimiser, projection onto contiguous regions and merge-search polish.
 
-    The method (not in Padgett) is described in the module docstring.
+    The method (not in Padgett) is described in docs/serge.md §relaxed.
 
     Args:
         problem: the SERGE problem.
