@@ -305,8 +305,8 @@ def measure_triples(
         1 = mid, 2 = far) and the states left undecided; sound (docs/qrm.md §camera).
 
     Raises:
-        ValueError: for bearings of the wrong shape or with NaN/inf, a ``target`` of the wrong
-            shape, ``pool < 4`` or ``depth < 1``.
+        ValueError: for an empty batch (T = 0), bearings of the wrong shape or with NaN/inf,
+            a ``target`` of the wrong shape, ``pool < 4`` or ``depth < 1``.
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
@@ -319,6 +319,9 @@ def measure_triples(
     bearings = jnp.asarray(bearings)
     if bearings.ndim != 2 or bearings.shape[-1] != 3:
         raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
+    if bearings.shape[0] == 0:
+        raise ValueError("measure_triples: bearings holds no triple (shape (0, 3)); an image "
+                         "with fewer than three landmarks has nothing to measure")
     if not jnp.issubdtype(bearings.dtype, jnp.floating):
         bearings = bearings.astype(jnp.float32)
     if not isinstance(bearings, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(bearings))):

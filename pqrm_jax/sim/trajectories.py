@@ -62,11 +62,15 @@ def perimeter_loop(
     dtheta: float = math.radians(16.0),
     start_angle: float = 0.0,
     clockwise: bool = False,
+    max_poses: int = 1_000_000,
 ) -> jax.Array:
     """Poses ``[T, 3]`` on one loop of a circle, one every ``dtheta`` radians.
 
     Pose ``i`` sits at polar angle ``start_angle +- i * dtheta`` around ``center`` and faces
-    along the direction of travel (tangent to the circle).
+    along the direction of travel (tangent to the circle). A ``dtheta`` that would give more
+    than ``max_poses`` poses (a million by default: e.g. ``dtheta=1e-9`` asks for 6.3·10⁹)
+    raises ``ValueError`` instead of returning a huge lazy array that can only fail later;
+    raise ``max_poses`` deliberately if you need more.
 
     Args:
         center: centre of the circle, ``(x, y)``.
@@ -74,14 +78,15 @@ def perimeter_loop(
         dtheta: angle between poses in radians; must be a concrete number (it fixes the shape).
         start_angle: polar angle of the first pose.
         clockwise: direction of travel.
+        max_poses: the most poses allowed.
 
     Returns:
         [T, 3] poses ``(x, y, theta)`` with ``T = ceil(2 pi / dtheta)`` (23 for the default
         16 degrees).
 
     Raises:
-        ValueError: for a non-positive or non-finite ``dtheta``, a bad ``center`` or a
-            non-positive ``radius``.
+        ValueError: for a non-positive or non-finite ``dtheta``, more than ``max_poses``
+            poses, a bad ``center`` or a non-positive ``radius``.
 
     >>> poses = perimeter_loop()            # Padgett: 100 m square, a pose every 16 degrees
     >>> poses.shape, [round(float(v), 3) for v in poses[0]]
@@ -94,6 +99,10 @@ def perimeter_loop(
     check_finite("center", center)
     check_positive("radius", radius)
     n = math.ceil(2 * math.pi / dtheta - 1e-9)
+    if n > max_poses:
+        raise ValueError(f"dtheta={dtheta:g} gives {n} poses per loop, more than "
+                         f"max_poses={max_poses}; use dtheta ≥ {2 * math.pi / max_poses:.3g} "
+                         "or raise max_poses")
     sign = -1.0 if clockwise else 1.0
     return _circle(jnp.asarray(center, _float()), radius, start_angle, sign * dtheta, n)
 
