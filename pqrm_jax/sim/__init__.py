@@ -59,3 +59,15 @@ __all__ = [
     "perimeter_loop", "random_imaging_points", "traverse",
     "ControllerGains", "FollowResult", "waypoint_controller", "follow_waypoints",
 ]
+
+from pqrm_jax.sim import corridors  # noqa: E402
+from pqrm_jax.sim.corridors import (  # noqa: E402
+    INTERSECTIONS,
+    intersection_rectangles,
+    plus_image,
+    render_free_rectangles,
+    room_doorway_rectangles,
+)
+
+__all__ += ["corridors", "INTERSECTIONS", "intersection_rectangles", "plus_image",
+            "render_free_rectangles", "room_doorway_rectangles"]
