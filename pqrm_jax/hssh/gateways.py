@@ -305,8 +305,13 @@ def find_gateways(branches: list[Branch], dist2: np.ndarray, occupied: np.ndarra
             continue
         radii = np.sqrt(dist2[nodes[:, 0], nodes[:, 1]].astype(float))
         tang = _tangents(nodes)
-        left, right = _closest_sides(nodes, tang, radii, kd, cells, side_slack)
         e = br.edge_index
+        # sides are needed in S_e and where Alg. 6.3 may move (a few radii of e)
+        near = np.hypot(*(nodes - nodes[e]).T) <= 3.0 * radii[e] + 2.0
+        left = np.full(len(nodes), -1)
+        right = np.full(len(nodes), -1)
+        left[near], right[near] = _closest_sides(nodes[near], tang[near], radii[near], kd,
+                                                 cells, side_slack)
         absd = np.abs(br.pos)
         anchor = None
         if method == "constriction":

@@ -19,7 +19,8 @@ from typing import NamedTuple
 
 import networkx as nx
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
 
 __all__ = ["PrunedSkeleton", "skeleton_graph", "prune_skeleton"]
 
@@ -88,36 +89,78 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     border[0, :] = border[-1, :] = border[:, 0] = border[:, -1] = True
     exit_mask = sk & (border | near_unknown)
     rows, cols = np.nonzero(sk)
+    n = len(rows)
     d2 = (rows - robot_cell[0]) ** 2 + (cols - robot_cell[1]) ** 2
     order = np.lexsort((cols, rows, d2))
-    c = (int(rows[order[0]]), int(cols[order[0]]))
-    g = skeleton_graph(sk)
-    # crawl from c, not expanding beyond exits
-    seen = {c}
-    stack = [c]
-    while stack:
-        u = stack.pop()
-        if exit_mask[u] and u != c:
-            continue
-        for v in g.neighbors(u):
-            if v not in seen:
-                seen.add(v)
-                stack.append(v)
-    exits = sorted(v for v in seen if exit_mask[v])
-    tree = nx.minimum_spanning_tree(g.subgraph(seen))
-    terminals = set(exits)
-    if len(exits) <= 1:
-        terminals.add(c)
-    leaves = [v for v in tree.nodes if tree.degree(v) <= 1 and v not in terminals]
+    ci = int(order[0])
+    c = (int(rows[ci]), int(cols[ci]))
+    # 8-neighbour edges as index arrays (sparse graph work in scipy: the skeleton of a noisy
+    # 600 x 600 grid has ~10^4 cells, too slow for pure-Python graph code)
+    index = np.full((h, w), -1)
+    index[rows, cols] = np.arange(n)
+    us, vs, ws = [], [], []
+    for di, dj, wt in _STEPS:
+        r2, c2 = rows + di, cols + dj
+        ok = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        ok[ok] = sk[r2[ok], c2[ok]]
+        us.append(np.nonzero(ok)[0])
+        vs.append(index[r2[ok], c2[ok]])
+        ws.append(np.full(int(ok.sum()), wt))
+    u, v, wgt = np.concatenate(us), np.concatenate(vs), np.concatenate(ws)
+    is_exit = exit_mask[rows, cols]
+    # crawl from c without passing through exits: components of the non-exit graph
+    inner = ~is_exit[u] & ~is_exit[v]
+    adj = sparse.coo_matrix((np.ones(int(inner.sum())), (u[inner], v[inner])), shape=(n, n))
+    _, lab = csgraph.connected_components(adj, directed=False)
+    if is_exit[ci]:
+        nb = np.concatenate([v[u == ci], u[v == ci]])
+        seeds = {int(lab[k]) for k in nb if not is_exit[k]}
+    else:
+        seeds = {int(lab[ci])}
+    core_nodes = np.isin(lab, list(seeds)) & ~is_exit
+    touch = (core_nodes[u] & is_exit[v]) | (core_nodes[v] & is_exit[u])
+    seen_mask = core_nodes.copy()
+    seen_mask[u[touch]] = True
+    seen_mask[v[touch]] = True
+    seen_mask[ci] = True
+    keep = seen_mask[u] & seen_mask[v]
+    # a crawl never steps from one exit to another unless one of them is c
+    keep &= ~(is_exit[u] & is_exit[v]) | (u == ci) | (v == ci)
+    mst = csgraph.minimum_spanning_tree(
+        sparse.coo_matrix((wgt[keep], (u[keep], v[keep])), shape=(n, n)).tocsr())
+    mst = mst.tocoo()
+    seen_idx = np.nonzero(seen_mask)[0]
+    nbrs: dict[int, set[int]] = {int(k): set() for k in seen_idx}
+    for a, b in zip(mst.row.tolist(), mst.col.tolist(), strict=True):
+        nbrs[a].add(b)
+        nbrs[b].add(a)
+    exit_idx = {int(k) for k in seen_idx if is_exit[k]}
+    if len(nbrs) > 1:  # guard: keep the part holding c
+        comp, stack = {ci}, [ci]
+        while stack:
+            for b in nbrs[stack.pop()]:
+                if b not in comp:
+                    comp.add(b)
+                    stack.append(b)
+        nbrs = {a: nb for a, nb in nbrs.items() if a in comp}
+        exit_idx &= comp
+    terminals = set(exit_idx) | ({ci} if len(exit_idx) <= 1 else set())
+    leaves = [a for a, nb in nbrs.items() if len(nb) <= 1 and a not in terminals]
     while leaves:
-        v = leaves.pop()
-        if v not in tree:
+        a = leaves.pop()
+        if a not in nbrs:
             continue
-        nbrs = list(tree.neighbors(v))
-        tree.remove_node(v)
-        for u in nbrs:
-            if tree.degree(u) <= 1 and u not in terminals:
-                leaves.append(u)
+        for b in nbrs.pop(a):
+            nbrs[b].discard(a)
+            if len(nbrs[b]) <= 1 and b not in terminals:
+                leaves.append(b)
+    rl, cl = rows.tolist(), cols.tolist()
+    tree = nx.Graph()
+    tree.add_nodes_from((rl[a], cl[a]) for a in nbrs)
+    tree.add_weighted_edges_from(
+        ((rl[a], cl[a]), (rl[b], cl[b]), math.hypot(rl[a] - rl[b], cl[a] - cl[b]))
+        for a, nb in nbrs.items() for b in nb if a < b)
+    exits = sorted((rl[a], cl[a]) for a in exit_idx if a in nbrs)
     nodes = np.array(sorted(tree.nodes), int).reshape(-1, 2)
     d2 = (nodes[:, 0] - robot_cell[0]) ** 2 + (nodes[:, 1] - robot_cell[1]) ** 2
     c = tuple(int(x) for x in nodes[int(np.argmin(d2))])

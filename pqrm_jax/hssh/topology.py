@@ -27,7 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from pqrm_jax.hssh.cellular import CellularMaps, cellular_stages
-from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
+from pqrm_jax.hssh.gateways import (
+    SIDE_SLACK,
+    Core,
+    Gateway,
+    core,
+    find_gateways,
+    search_spaces,
+)
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton
 from pqrm_jax.hssh.star import StarEntry, build_star
 
@@ -148,7 +155,7 @@ def _check_radius(robot_radius) -> float:
 
 def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np.ndarray,
                        dist2: np.ndarray, skeleton: np.ndarray, robot_cell: tuple[int, int],
-                       method: str = "anchor") -> LocalTopology:
+                       method: str = "anchor", side_slack: float = SIDE_SLACK) -> LocalTopology:
     """Host graph stages for one grid's :class:`~pqrm_jax.hssh.cellular.CellularMaps` slice.
 
     Raises ``ValueError`` when the robot is not in free space after island removal or when no
@@ -166,7 +173,7 @@ def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np
         return LocalTopology(*empty, 0, (), "enclosed", (), pr, None, ())
     cr = core(pr.tree, pr.closest, dist2)
     branches = search_spaces(pr.tree, pr.closest, cr, dist2)
-    gws = find_gateways(branches, dist2, occupied, method=method)
+    gws = find_gateways(branches, dist2, occupied, method=method, side_slack=side_slack)
     ends = np.array([g.ends for g in gws], float).reshape(-1, 2, 2)
     outward = np.array([g.outward for g in gws], float).reshape(-1, 2)
     entries = build_star(ends, outward, cr.centre)
@@ -182,8 +189,8 @@ def _unstack(maps: CellularMaps, i: int) -> dict:
 
 
 def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 0.0,
-                         unknown=None, method: str = "anchor",
-                         m_cap: float | None = None) -> list[LocalTopology]:
+                         unknown=None, method: str = "anchor", m_cap: float | None = None,
+                         side_slack: float = SIDE_SLACK) -> list[LocalTopology]:
     """Local topology of a stack of equal-size grids ``[B, H, W]`` (B ch. 5--6).
 
     The cellular stages run once, batched, in JAX; the graph stages per grid on the host.
@@ -196,6 +203,7 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
             skeleton cells next to them are exits).
         method: ``"anchor"`` (B §6.3.2) or ``"constriction"`` (B §6.2).
         m_cap: EVG cap ``M`` in cells (default ``min(H, W) / 5``, B §6.3.1).
+        side_slack: side-obstacle search slack (:data:`~pqrm_jax.hssh.gateways.SIDE_SLACK`).
 
     Returns:
         list of :class:`LocalTopology`.
@@ -225,15 +233,16 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
     out = []
     for i, rc in enumerate(cells):
         try:
-            out.append(topology_from_maps(**_unstack(maps, i), robot_cell=rc, method=method))
+            out.append(topology_from_maps(**_unstack(maps, i), robot_cell=rc, method=method,
+                                          side_slack=side_slack))
         except ValueError as e:
             raise ValueError(f"grid {i}: {e}") from None
     return out
 
 
 def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0,
-                   unknown=None, method: str = "anchor",
-                   m_cap: float | None = None) -> LocalTopology:
+                   unknown=None, method: str = "anchor", m_cap: float | None = None,
+                   side_slack: float = SIDE_SLACK) -> LocalTopology:
     """Gateways, star and place kind of one grid (B ch. 5--6).
 
     Args:
@@ -243,6 +252,7 @@ def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0
         unknown: optional bool mask of unknown cells.
         method: ``"anchor"`` or ``"constriction"``.
         m_cap: EVG cap ``M`` in cells (default ``min(H, W) / 5``).
+        side_slack: side-obstacle search slack (see :data:`~pqrm_jax.hssh.gateways.SIDE_SLACK`).
 
     Returns:
         :class:`LocalTopology`.
@@ -259,4 +269,5 @@ def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0
         raise ValueError(f"grid must be 2-D, got shape {g.shape}")
     unk = None if unknown is None else np.asarray(unknown)[None]
     return local_topology_batch(g[None], [robot_cell], robot_radius=robot_radius,
-                                unknown=unk, method=method, m_cap=m_cap)[0]
+                                unknown=unk, method=method, m_cap=m_cap,
+                                side_slack=side_slack)[0]
