@@ -183,14 +183,14 @@ def test_left_and_right_of_a_path():
 
 
 def test_batch_equals_single_and_scale_free():
-    grids = np.stack([_grid("T"), _grid("plus", rot=10.0), _grid("L")])
-    batch = hssh.local_topology_batch(grids, [_centre()] * 3)
+    grids = np.stack([_grid("T"), _grid("plus", rot=10.0)])
+    batch = hssh.local_topology_batch(grids, [_centre()] * 2)
     for g, lt in zip(grids, batch, strict=True):
         one = hssh.local_topology(g, _centre())
         assert one.star == lt.star
         np.testing.assert_allclose(one.gateways, lt.gateways)
-    big = hssh.local_topology(_grid("T", side=121), _centre(121))
-    assert hssh.star_isomorphisms(big.star, batch[0].star)
+    small = hssh.local_topology(_grid("T", side=61), _centre(61))
+    assert hssh.star_isomorphisms(small.star, batch[0].star)
     turned = hssh.local_topology(np.rot90(grids[0]).copy(), _centre())
     assert hssh.star_isomorphisms(turned.star, TEE)
 

@@ -63,10 +63,6 @@ class CellularMaps(NamedTuple):
     skeleton: jax.Array
 
 
-# neighbour bit weights, clockwise from north-west (the scikit-image convention)
-_OFFSETS = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
-
-
 def zhang_suen_lut() -> np.ndarray:
     """The Zhang--Suen deletion table ``[256]`` (uint8): bit 0 = deletable in sub-iteration 1,
     bit 1 = deletable in sub-iteration 2.
@@ -98,9 +94,6 @@ def zhang_suen_lut() -> np.ndarray:
         if n * e * w == 0 and n * s * w == 0:
             lut[code] |= 2
     return lut
-
-
-_LUT = zhang_suen_lut()
 
 
 def _shift(x: jax.Array, di: int, dj: int, fill) -> jax.Array:
@@ -185,11 +178,25 @@ def squared_distance_transform(occupied: jax.Array, cap: int | None = None) -> j
     return jax.lax.fori_loop(0, 2 * k_max + 1, body, g2)
 
 
-def _neighbour_code(x: jax.Array, pad: bool) -> jax.Array:
-    code = jnp.zeros(x.shape, jnp.int32)
-    for k, (di, dj) in enumerate(_OFFSETS):
-        code = code + (_shift(x, di, dj, pad).astype(jnp.int32) << k)
-    return code
+def _ring(x: jax.Array, pad: bool) -> list[jax.Array]:
+    """The 8 neighbours P2..P9 (N, NE, E, SE, S, SW, W, NW) of every cell, one pad."""
+    h, w = x.shape[-2:]
+    xp = jnp.pad(x, [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)], constant_values=pad)
+    order = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
+    return [xp[..., 1 + di:1 + di + h, 1 + dj:1 + dj + w] for di, dj in order]
+
+
+def _deletable(x: jax.Array, pad: bool, first: bool) -> jax.Array:
+    """Zhang--Suen deletion test (the rules of :func:`zhang_suen_lut`) as fused array ops."""
+    p = _ring(x, pad)
+    b = sum(q.astype(jnp.int8) for q in p)
+    a = sum((~p[k] & p[(k + 1) % 8]).astype(jnp.int8) for k in range(8))
+    n, e, s, w = p[0], p[2], p[4], p[6]
+    if first:
+        c = ~(n & e & s) & ~(e & s & w)
+    else:
+        c = ~(n & e & w) & ~(n & s & w)
+    return x & (b >= 2) & (b <= 6) & (a == 1) & c
 
 
 @partial(jax.jit, static_argnames="pad")
@@ -205,17 +212,14 @@ def zhang_suen_thin(fg: jax.Array, protect: jax.Array | None = None,
     >>> zhang_suen_thin(img)[0].astype(int).tolist()[2]
     [0, 0, 1, 1, 1, 1, 0, 0, 0]
     """
-    lut = jnp.asarray(_LUT)
     keep = jnp.zeros(fg.shape, bool) if protect is None else protect
 
-    def sub(x, bit):
-        code = _neighbour_code(x, pad)
-        deletable = ((lut[code] >> bit) & 1).astype(bool)
-        return x & ~(deletable & ~keep)
+    def sub(x, first):
+        return x & ~(_deletable(x, pad, first) & ~keep)
 
     def body(state):
         x, _ = state
-        y = sub(sub(x, 0), 1)
+        y = sub(sub(x, True), False)
         return y, jnp.any(y != x)
 
     out, _ = jax.lax.while_loop(lambda s: s[1], body, (fg, jnp.array(True)))
@@ -276,9 +280,14 @@ def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: fl
     unknown = jnp.asarray(unknown, bool)
     h, w = occupied.shape[-2:]
     m = float(min(h, w) / 5.0 if m_cap is None else m_cap)
+    cap = int(np.ceil(m + 2.0 + robot_radius))
+    return _cellular(occupied, unknown, float(robot_radius), m, cap)
+
+
+@partial(jax.jit, static_argnames=("radius", "m", "cap"))
+def _cellular(occupied, unknown, radius, m, cap):
     occ, unk = remove_islands(occupied, unknown)
     free_space = ~(occ | unk)
-    cap = int(np.ceil(m + 2.0 + robot_radius))
-    occ_b, dist2 = _bleed_and_distance(occ, float(robot_radius), cap)
+    occ_b, dist2 = _bleed_and_distance(occ, radius, cap)
     skel = evg_skeleton(~occ_b, dist2, m)
     return CellularMaps(occ_b, unk & ~occ_b, free_space, dist2, skel)

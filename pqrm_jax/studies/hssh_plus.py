@@ -41,7 +41,7 @@ HELP = "HSSH anchor gateways on the +-intersection corpus: rotation x size x noi
 ROTATIONS = [5.0 * k for k in range(10)]
 SIZES = list(range(9, 600, 10))
 NOISE = [round(0.05 * k, 2) for k in range(20)]
-REDUCED = {"rotations": [0.0, 30.0], "sizes": [29, 39, 69], "noise": [0.0, 0.3]}
+REDUCED = {"rotations": [0.0, 30.0], "sizes": [29, 49], "noise": [0.0, 0.3]}
 
 PLUS_STAR = [(0, 1, True), (1, 1, True), (0, -1, True), (1, -1, True)]
 
@@ -59,7 +59,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pqrm-jax study hssh-plus", description=HELP)
     p.add_argument("--out", default="results/hssh-plus", help="output directory")
     p.add_argument("--reduced", action="store_true",
-                   help="small corpus (2 rotations x 3 sizes x 2 noise levels)")
+                   help="small corpus (2 rotations x 2 sizes x 2 noise levels)")
     p.add_argument("--sizes", default=None,
                    help="comma list of sizes to run (default: all of the corpus)")
     p.add_argument("--rotations", default=None,
