@@ -182,15 +182,13 @@ def test_left_and_right_of_a_path():
     assert all(not entries[r].traversable for r in rights)
 
 
-def test_batch_equals_single_and_scale_free():
+def test_batch_equals_single_and_rotation_free():
     grids = np.stack([_grid("T"), _grid("plus", rot=10.0)])
     batch = hssh.local_topology_batch(grids, [_centre()] * 2)
     for g, lt in zip(grids, batch, strict=True):
         one = hssh.local_topology(g, _centre())
         assert one.star == lt.star
         np.testing.assert_allclose(one.gateways, lt.gateways)
-    small = hssh.local_topology(_grid("T", side=61), _centre(61))
-    assert hssh.star_isomorphisms(small.star, batch[0].star)
     turned = hssh.local_topology(np.rot90(grids[0]).copy(), _centre())
     assert hssh.star_isomorphisms(turned.star, TEE)
 
@@ -220,9 +218,9 @@ def test_unknown_cells_make_exits():
 
 
 def test_enclosed_robot():
-    grid = np.ones((20, 20), bool)
-    grid[5:15, 5:15] = False
-    lt = hssh.local_topology(grid, (10, 10))
+    grid = np.ones((SIDE, SIDE), bool)
+    grid[20:60, 20:60] = False
+    lt = hssh.local_topology(grid, (40, 40))
     assert lt.kind == "enclosed" and lt.gateways.shape == (0, 2, 2) and lt.num_paths == 0
 
 

@@ -15,11 +15,12 @@ def test_registered():
 
 
 def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
-    assert study.main(["--reduced", "--out", str(tmp_path)]) == 0
+    argv = ["--reduced", "--sizes", "49", "--out", str(tmp_path)]   # one size: one compile
+    assert study.main(argv) == 0
     units = sorted((tmp_path / "units").glob("*.json"))
-    assert len(units) == 4                                    # 2 sizes x 2 rotations
+    assert len(units) == 2                                    # 1 size x 2 rotations
     rows = [r for u in units for r in json.loads(u.read_text())]
-    assert len(rows) == 8 and {r["noise"] for r in rows} == {0.0, 0.3}
+    assert len(rows) == 4 and {r["noise"] for r in rows} == {0.0, 0.3}
     # noise-free + at 49 cells (paths 16 cells wide, above B's 13-cell bound) is correct
     assert all(r["success"] for r in rows if r["side"] == 49 and r["noise"] == 0.0)
     assert all(r["reason"] for r in rows if not r["success"])
@@ -32,7 +33,7 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
     for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png"):
         assert (tmp_path / fig).stat().st_size > 0
     before = {u.name: u.read_text() for u in units}
-    assert study.main(["--reduced", "--out", str(tmp_path)]) == 0       # resume: nothing new
+    assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before
     with pytest.raises(SystemExit, match="different config"):
-        study.main(["--reduced", "--out", str(tmp_path), "--supersample", "2"])
+        study.main(argv + ["--supersample", "2"])

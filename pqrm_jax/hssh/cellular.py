@@ -134,7 +134,7 @@ def remove_islands(occupied: jax.Array, unknown: jax.Array) -> tuple[jax.Array, 
     def body(state):
         reached, _ = state
         new = reached
-        for _ in range(8):  # several fronts per loop trip: fewer loop-condition round trips
+        for _ in range(4):  # several fronts per loop trip: fewer loop-condition round trips
             new = nonfree & _dilate4(new)
         return new, jnp.any(new != reached)
 
