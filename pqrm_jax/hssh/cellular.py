@@ -269,12 +269,8 @@ def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: fl
         m_cap: EVG cap ``M`` in cells; default ``min(H, W) / 5`` (B §6.3.1, ``c = 5``).
 
     Returns:
-        :class:`CellularMaps`.
-
-    >>> occ = jnp.ones((1, 9, 9), bool).at[0, 3:6, :].set(False)   # a horizontal corridor
-    >>> maps = cellular_stages(occ, jnp.zeros_like(occ))
-    >>> maps.skeleton[0].astype(int).sum(axis=1).tolist()
-    [0, 0, 0, 0, 9, 0, 0, 0, 0]
+        :class:`CellularMaps` (a horizontal corridor through the grid thins to its midline
+        row, reaching both borders; see ``tests/test_hssh.py``).
     """
     occupied = jnp.asarray(occupied, bool)
     unknown = jnp.asarray(unknown, bool)
