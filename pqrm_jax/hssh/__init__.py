@@ -10,9 +10,11 @@
   left/right (B §5.1--5.2).
 * :mod:`~pqrm_jax.hssh.topology` -- :func:`local_topology` (one grid) and
   :func:`local_topology_batch` (a stack), place detection (B §5.3).
+* :mod:`~pqrm_jax.hssh.lpm` -- the scrolling local perceptual map: log-odds occupancy,
+  whole-cell scrolling, per-scan lidar updates, ``vmap``-able over runs (B §3.3, §4.1).
 """
 
-from pqrm_jax.hssh import cellular, gateways, skeleton, star, topology
+from pqrm_jax.hssh import cellular, gateways, lpm, skeleton, star, topology
 from pqrm_jax.hssh.cellular import (
     CellularMaps,
     cellular_stages,
@@ -22,6 +24,7 @@ from pqrm_jax.hssh.cellular import (
     zhang_suen_thin,
 )
 from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
+from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
 from pqrm_jax.hssh.star import (
     StarEntry,
@@ -43,7 +46,8 @@ from pqrm_jax.hssh.topology import (
 )
 
 __all__ = [
-    "cellular", "skeleton", "gateways", "star", "topology",
+    "cellular", "skeleton", "gateways", "star", "topology", "lpm",
+    "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
     "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",
     "zhang_suen_thin", "evg_skeleton",
     "PrunedSkeleton", "prune_skeleton", "skeleton_graph",
