@@ -12,9 +12,11 @@
   :func:`local_topology_batch` (a stack), place detection (B §5.3).
 * :mod:`~pqrm_jax.hssh.lpm` -- the scrolling local perceptual map: log-odds occupancy,
   whole-cell scrolling, per-scan lidar updates, ``vmap``-able over runs (B §3.3, §4.1).
+* :mod:`~pqrm_jax.hssh.motion` -- the 21-parameter turn--travel--turn action model with the
+  Table 4.1 presets (B §4.3.1).
 """
 
-from pqrm_jax.hssh import cellular, gateways, lpm, skeleton, star, topology
+from pqrm_jax.hssh import cellular, gateways, lpm, motion, skeleton, star, topology
 from pqrm_jax.hssh.cellular import (
     CellularMaps,
     cellular_stages,
@@ -25,6 +27,7 @@ from pqrm_jax.hssh.cellular import (
 )
 from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
 from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
+from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
 from pqrm_jax.hssh.star import (
     StarEntry,
@@ -46,7 +49,8 @@ from pqrm_jax.hssh.topology import (
 )
 
 __all__ = [
-    "cellular", "skeleton", "gateways", "star", "topology", "lpm",
+    "cellular", "skeleton", "gateways", "star", "topology", "lpm", "motion",
+    "ACTION_MODELS", "decompose", "sample_motion",
     "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
     "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",
     "zhang_suen_thin", "evg_skeleton",
