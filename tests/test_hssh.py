@@ -255,3 +255,20 @@ def test_bad_input():
 def test_resolution_bound_matches_worked_example():
     assert hssh.resolution_bound(300.0, 30.0) == (20.0, 17)
     assert hssh.resolution_bound(3.0, 0.3) == (0.2, 17)     # scale-free
+
+
+def test_corridor_network_places_from_lpm_windows():
+    s, win = 801, 121
+    img = np.asarray(corridors.render_free_rectangles(s, corridors.network_rectangles(),
+                                                      supersample=2))
+    expect = {"plus": PLUS, "L": ELL, "T": TEE, "plus_2": PLUS, "path": STRAIGHT,
+              "dead_end": [(0, 1, True), (0, -1, False)]}
+    crops = []
+    for name in expect:
+        x, y = corridors.NETWORK_PLACES[name]
+        r, c = int((1 - y) * s), int(x * s)
+        crops.append(img[r - win // 2:r + win // 2 + 1, c - win // 2:c + win // 2 + 1])
+    tops = hssh.local_topology_batch(np.stack(crops), [(win // 2, win // 2)] * len(crops))
+    for (name, star), lt in zip(expect.items(), tops, strict=True):
+        assert hssh.star_isomorphisms(lt.star, star), (name, lt.star)
+    assert [lt.kind for lt in tops] == ["place"] * 4 + ["path", "dead_end"]

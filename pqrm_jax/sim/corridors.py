@@ -31,6 +31,8 @@ __all__ = [
     "intersection_rectangles",
     "room_doorway_rectangles",
     "plus_image",
+    "network_rectangles",
+    "NETWORK_PLACES",
     "INTERSECTIONS",
 ]
 
@@ -160,3 +162,30 @@ def plus_image(side: int, rotation_deg: float = 0.0, supersample: int = 4) -> ja
     """
     return render_free_rectangles(side, intersection_rectangles(
         INTERSECTIONS["plus"], 1 / 3, rotation_deg), supersample)
+
+
+# junction points of :func:`network_rectangles` (unit square, x right, y up), by kind
+NETWORK_PLACES: dict[str, tuple[float, float]] = {
+    "plus": (0.35, 0.65), "L": (0.75, 0.65), "T": (0.35, 0.25), "plus_2": (0.75, 0.25),
+    "dead_end": (0.75, 0.1), "path": (0.55, 0.65),
+}
+
+
+def network_rectangles(width: float = 0.06) -> list[tuple]:
+    """A corridor network in the unit square: two + crossings, a T, an L and a dead end.
+
+    Corridors (width ``width``): horizontal at ``y = 0.65`` from the left border to
+    ``x = 0.75``; vertical at ``x = 0.35`` from ``y = 0.25`` to the top border; horizontal at
+    ``y = 0.25`` across the whole square; vertical at ``x = 0.75`` from ``y = 0.1`` (a dead end)
+    up to the first corridor (an L). Junction points: :data:`NETWORK_PLACES`.
+
+    >>> len(network_rectangles())
+    4
+    """
+    h = width / 2
+    return [
+        ((0.75 + h - 0.5) / 2, 0.65, 0.75 + h + 0.5, width, 0.0),
+        (0.35, (0.25 - h + 1.5) / 2, 1.5 - (0.25 - h), width, math.pi / 2),
+        (0.5, 0.25, 2.0, width, 0.0),
+        (0.75, (0.1 + 0.65 + h) / 2, 0.65 + h - 0.1, width, math.pi / 2),
+    ]
