@@ -14,9 +14,20 @@
   whole-cell scrolling, per-scan lidar updates, ``vmap``-able over runs (B §3.3, §4.1).
 * :mod:`~pqrm_jax.hssh.motion` -- the 21-parameter turn--travel--turn action model with the
   Table 4.1 presets (B §4.3.1).
+* :mod:`~pqrm_jax.hssh.localization` -- raw odometry, PF, shrink, grow and shrink-and-grow
+  proposals as fixed particle blocks with masks, likelihood-field scan likelihood (B §4.3.2).
 """
 
-from pqrm_jax.hssh import cellular, gateways, lpm, motion, skeleton, star, topology
+from pqrm_jax.hssh import (
+    cellular,
+    gateways,
+    localization,
+    lpm,
+    motion,
+    skeleton,
+    star,
+    topology,
+)
 from pqrm_jax.hssh.cellular import (
     CellularMaps,
     cellular_stages,
@@ -26,6 +37,7 @@ from pqrm_jax.hssh.cellular import (
     zhang_suen_thin,
 )
 from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
+from pqrm_jax.hssh.localization import METHODS, LocalizeParams, localize, scan_likelihood
 from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
 from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
@@ -50,7 +62,8 @@ from pqrm_jax.hssh.topology import (
 
 __all__ = [
     "cellular", "skeleton", "gateways", "star", "topology", "lpm", "motion",
-    "ACTION_MODELS", "decompose", "sample_motion",
+    "ACTION_MODELS", "decompose", "sample_motion", "localization",
+    "METHODS", "LocalizeParams", "localize", "scan_likelihood",
     "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
     "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",
     "zhang_suen_thin", "evg_skeleton",

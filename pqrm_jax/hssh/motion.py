@@ -67,7 +67,7 @@ def decompose(prev: jax.Array, pose: jax.Array) -> jax.Array:
 
 @jax.jit
 def sample_motion(key: jax.Array, particles: jax.Array, prev_odom: jax.Array,
-                  odom: jax.Array, c: jax.Array) -> jax.Array:
+                  odom: jax.Array, c: jax.Array, noise_scale: jax.Array = 1.0) -> jax.Array:
     """Move every particle ``[P, 3]`` by one sampled action (B §4.3.1).
 
     Args:
@@ -75,6 +75,7 @@ def sample_motion(key: jax.Array, particles: jax.Array, prev_odom: jax.Array,
         particles: ``[P, 3]`` poses.
         prev_odom, odom: ``[3]`` odometry readings before and after the step.
         c: ``[21]`` action-model parameters (e.g. ``ACTION_MODELS["fitted"]``).
+        noise_scale: multiplies every standard deviation (B's *grow*: x2 per stage).
 
     Returns:
         ``[P, 3]`` moved particles (headings wrapped to ``[-pi, pi)``).
@@ -92,7 +93,7 @@ def sample_motion(key: jax.Array, particles: jax.Array, prev_odom: jax.Array,
     mean = jnp.stack([feats @ c[0:3], feats @ c[7:10], feats @ c[14:17]])
     var = jnp.stack([c[3] + sq @ c[4:7], c[10] + sq @ c[11:14], c[17] + sq @ c[18:21]])
     z = jax.random.normal(key, (particles.shape[0], 3), particles.dtype)
-    s, d, phi = (mean + jnp.sqrt(jnp.maximum(var, 0.0)) * z).T
+    s, d, phi = (mean + noise_scale * jnp.sqrt(jnp.maximum(var, 0.0)) * z).T
     th = particles[:, 2] + a
     x = particles[:, 0] + s * jnp.cos(th) + d * jnp.cos(th + jnp.pi / 2)
     y = particles[:, 1] + s * jnp.sin(th) + d * jnp.sin(th + jnp.pi / 2)
