@@ -199,6 +199,7 @@ def test_constriction_baseline_and_bool_input():
     assert len(lt.gateways) == 4 and hssh.star_isomorphisms(lt.star, PLUS)
 
 
+@pytest.mark.slow
 def test_robot_radius_closes_a_narrow_doorway():
     room = np.asarray(corridors.render_free_rectangles(
         SIDE, corridors.room_doorway_rectangles(door=0.05)))
@@ -257,6 +258,7 @@ def test_resolution_bound_matches_worked_example():
     assert hssh.resolution_bound(3.0, 0.3) == (0.2, 17)     # scale-free
 
 
+@pytest.mark.slow
 def test_corridor_network_places_from_lpm_windows():
     s, win = 801, 121
     img = np.asarray(corridors.render_free_rectangles(s, corridors.network_rectangles(),

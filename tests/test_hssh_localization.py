@@ -20,6 +20,7 @@ def _room():
     return jnp.asarray(world)
 
 
+@pytest.mark.slow
 def test_scan_likelihood_peaks_at_the_true_pose():
     world = _room()
     d2 = squared_distance_transform(world[None], cap=20)[0]
