@@ -156,8 +156,18 @@ def table(data: dict, model: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return mean, p, list(METHODS)
 
 
-def orderings(data: dict) -> list[tuple[str, bool, str]]:
-    """B's published orderings, each with whether it holds here and the numbers."""
+def _verdict(pairs) -> str:
+    """'yes' if every difference is > 0 with p < 0.01, 'no' if one is < 0 with p < 0.01,
+    else 'tie (n.s.)'."""
+    if all(d > 0 and p < 0.01 for d, p in pairs):
+        return "yes"
+    if any(d < 0 and p < 0.01 for d, p in pairs):
+        return "no"
+    return "tie (n.s.)"
+
+
+def orderings(data: dict) -> list[tuple[str, str, str]]:
+    """B's published orderings: (ordering, verdict here, the numbers)."""
     checks = []
     idx = {m: i for i, m in enumerate(table(data, "large")[2])}
 
@@ -167,16 +177,16 @@ def orderings(data: dict) -> list[tuple[str, bool, str]]:
 
     for model in MODELS:
         d, p = diff(model, "shrink", "pf")
-        checks.append((f"shrink beats PF ({model})", d > 0, f"{d:+.4f} (p={p:.2g})"))
+        checks.append((f"shrink beats PF ({model})", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
     d, p = diff("large", "shrink", "grow")
-    checks.append(("shrink beats grow (large)", d > 0, f"{d:+.4f} (p={p:.2g})"))
+    checks.append(("shrink beats grow (large)", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
     d, p = diff("small", "grow", "shrink")
-    checks.append(("grow beats shrink (small)", d > 0, f"{d:+.4f} (p={p:.2g})"))
+    checks.append(("grow beats shrink (small)", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
     for model in MODELS:
         ds = [diff(model, "shrink_and_grow", o) for o in ("raw", "pf", "shrink", "grow")]
-        ok = all(x > 0 for x, _ in ds)
-        checks.append((f"shrink-and-grow best ({model})", ok,
-                       ", ".join(f"{x:+.4f}" for x, _ in ds) + " vs raw/pf/shrink/grow"))
+        checks.append((f"shrink-and-grow best ({model})", _verdict(ds),
+                       ", ".join(f"{x:+.4f} (p={q:.2g})" for x, q in ds)
+                       + " vs raw/pf/shrink/grow"))
     return checks
 
 
@@ -202,14 +212,17 @@ def _report(data, cfg, out: Path) -> None:
         lines.append("")
     lines += ["## Published orderings", "", "| ordering (B) | holds here | numbers |",
               "|---|---|---|"]
-    for text, ok, nums in orderings(data):
-        lines.append(f"| {text} | {'yes' if ok else 'no'} | {nums} |")
+    for text, verdict, nums in orderings(data):
+        lines.append(f"| {text} | {verdict} | {nums} |")
     lines += ["", "Mechanisms: grow and shrink-and-grow stop at the first stage with a particle "
               f"above the threshold ({cfg['threshold']}, x{cfg['anneal']} per stage), so grow "
               "often spends 100 of the 500 particles; shrink-and-grow then spends the rest on "
               "the fitted Gaussian. With an overestimating model the proposal already covers "
               "the truth and the extra spread of grow wastes particles; with an "
-              "underestimating one only growing reaches the truth.", "",
+              "underestimating one only growing reaches the truth. Shrink vs PF: the "
+              "likelihood field saturates near the best pose (1-cell sigma), so 500 proposal "
+              "particles already find it and the Gaussian refit adds nothing measurable; B's "
+              "Konolige likelihood on 5 cm cells is far more peaked than its proposals.", "",
               "Figure: `best_likelihood.png`."]
     tmp = out / "report.md.tmp"
     tmp.write_text("\n".join(lines) + "\n")
