@@ -8,6 +8,7 @@ import pytest
 
 from pqrm_jax.studies import discover
 from pqrm_jax.studies import hssh_plus as study
+from pqrm_jax.studies.store import StoreError
 
 
 def test_registered():
@@ -19,7 +20,7 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
     assert study.main(argv) == 0
     units = sorted((tmp_path / "units").glob("*.json"))
     assert len(units) == 2                                    # 1 size x 2 rotations
-    rows = [r for u in units for r in json.loads(u.read_text())]
+    rows = [r for u in units for r in json.loads(u.read_text())["records"]]
     assert len(rows) == 4 and {r["noise"] for r in rows} == {0.0, 0.3}
     # noise-free + at 49 cells (paths 16 cells wide, above B's 13-cell bound) is correct
     assert all(r["success"] for r in rows if r["side"] == 49 and r["noise"] == 0.0)
@@ -35,5 +36,6 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before
-    with pytest.raises(SystemExit, match="different config"):
+    assert (tmp_path / "results.csv").read_text().startswith("study,unit,metric,value")
+    with pytest.raises(StoreError, match="different config"):
         study.main(argv + ["--supersample", "2"])

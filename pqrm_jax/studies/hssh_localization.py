@@ -15,20 +15,19 @@ rows minus run-2 columns, mean over steps, ``*`` when a paired t-test gives p < 
 Compared with B: orderings, not values (published: shrink beats PF on every model; shrink
 beats grow with "large"; grow beats shrink with "small"; shrink-and-grow is best on all).
 Work unit = one (run, model): its five algorithms over all steps, written atomically to
-``units/``; a rerun resumes; a different configuration in the same ``--out`` is refused.
+``units/`` of a :class:`~pqrm_jax.studies.store.Store`; a rerun resumes; a different
+configuration in the same ``--out`` is refused; ``results.csv`` is the tidy table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
-from ._store import guard_config
+from .store import Store, atomic_write_text
 
 NAME = "hssh-localization"
 HELP = "HSSH adaptive particle proposals x action models in simulation (B §4.3.2, Table 4.2)"
@@ -105,12 +104,14 @@ def run_unit(run: int, model: str, cfg: dict) -> dict:
     return out
 
 
-def _unit_path(out: Path, run: int, model: str) -> Path:
-    return out / "units" / f"run{run}_{model}.json"
+def _unit_name(run: int, model: str) -> str:
+    return f"units/run{run}_{model}.json"
 
 
 def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
+
+    from ..hssh.localization import METHODS
 
     args = _parser().parse_args(argv or [])
     out = Path(args.out)
@@ -120,18 +121,17 @@ def main(argv: list[str] | None = None) -> int:
            "max_range": 8.0, "range_sigma": 0.01, "blocks": 5, "block": 100,
            "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
            "models": list(MODELS)}
-    guard_config(out, cfg)
-    (out / "units").mkdir(parents=True, exist_ok=True)
-    todo = [(r, m) for r in range(2) for m in MODELS if not _unit_path(out, r, m).exists()]
-    for run, model in tqdm(todo, desc="hssh-localization", unit="unit"):
-        res = run_unit(run, model, cfg)
-        path = _unit_path(out, run, model)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(res))
-        os.replace(tmp, path)
-    data = {(r, m): json.loads(_unit_path(out, r, m).read_text())
-            for r in range(2) for m in MODELS}
-    _report(data, cfg, out)
+    with Store.open(out, NAME, cfg) as st:
+        todo = [(r, m) for r in range(2) for m in MODELS
+                if st.read_json(_unit_name(r, m), required=METHODS) is None]
+        for run, model in tqdm(todo, desc="hssh-localization", unit="unit"):
+            st.write_json(_unit_name(run, model), run_unit(run, model, cfg))  # atomic
+        data = {(r, m): st.read_json(_unit_name(r, m), required=METHODS)
+                for r in range(2) for m in MODELS}
+        _report(data, cfg, out)
+        st.write_results_csv([(f"run{r}_{m}_{meth}", "mean_best_likelihood",
+                               float(np.mean(data[(r, m)][meth])))
+                              for r in range(2) for m in MODELS for meth in METHODS])
     print(f"wrote {out / 'report.md'}")
     return 0
 
@@ -224,9 +224,7 @@ def _report(data, cfg, out: Path) -> None:
               "particles already find it and the Gaussian refit adds nothing measurable; B's "
               "Konolige likelihood on 5 cm cells is far more peaked than its proposals.", "",
               "Figure: `best_likelihood.png`."]
-    tmp = out / "report.md.tmp"
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, out / "report.md")
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(7, 3.5))
     names = table(data, "large")[2]
     for i, model in enumerate(MODELS):

@@ -15,9 +15,11 @@ stacked. Cells are free iff grey >= 128; then each free cell turns occupied with
 probability (one NumPy generator per image, seeded from ``seed``, size, rotation and noise).
 
 Work unit = one (size, rotation) pair: its 20 noise levels go through the batched JAX cellular
-stages in one call, then the host graph stages image by image. Each unit is written to
-``units/`` atomically (temp file + ``os.replace``); a rerun skips finished units and a
-different configuration in the same ``--out`` is refused. ``--sizes`` / ``--rotations``
+stages in one call, then the host graph stages image by image. Results live in a
+:class:`~pqrm_jax.studies.store.Store` (lock, study marker, config guard): each unit is written
+to ``units/`` atomically; a rerun skips finished units (a corrupt one is set aside and
+recomputed) and a different configuration in the same ``--out`` is refused; ``results.csv``
+is the tidy table. ``--sizes`` / ``--rotations``
 choose a subset of units (merged into ``config.json``); ``--reduced`` is a small corpus for the
 tests. The run ends with ``report.md`` (measured vs published) and figures.
 """
@@ -25,15 +27,13 @@ tests. The run ends with ``report.md`` (measured vs published) and figures.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ._store import guard_config
+from .store import Store, atomic_write_json, atomic_write_text, tidy_rows
 
 NAME = "hssh-plus"
 HELP = "HSSH anchor gateways on the +-intersection corpus: rotation x size x noise (B §6.3.3)"
@@ -162,8 +162,8 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
     return recs
 
 
-def _unit_path(out: Path, side: int, rot: float) -> Path:
-    return out / "units" / f"s{side:03d}_r{int(round(rot * 10)):03d}.json"
+def _unit_name(side: int, rot: float) -> str:
+    return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,23 +175,29 @@ def main(argv: list[str] | None = None) -> int:
     sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
     rots = _pick(args.rotations, cfg["corpus_rotations"], float)
     cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
-    cfg_all = guard_config(out, cfg_all, selection=("sizes_run", "rotations_run"))
-    (out / "units").mkdir(parents=True, exist_ok=True)
-    todo = [(s, r) for s in sizes for r in rots if not _unit_path(out, s, r).exists()]
-    t_start = time.perf_counter()
-    for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
-        recs = run_unit(side, rot, cfg)
-        path = _unit_path(out, side, rot)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(recs))
-        os.replace(tmp, path)  # atomic: a killed run leaves no half unit
-    wall = time.perf_counter() - t_start
-    rows = []
-    for path in sorted((out / "units").glob("s*_r*.json")):
-        rows.extend(json.loads(path.read_text()))
-    summary = summarise(rows, cfg)
-    _figures(rows, cfg, out)
-    _report(summary, rows, cfg, out, wall, len(todo))
+    with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
+                    legacy=("units", "units/*", "config.json", "report.md", "summary.json",
+                            "*.png")) as st:
+        todo = [(s, r) for s in sizes for r in rots
+                if st.read_json(_unit_name(s, r), required=("records",)) is None]
+        t_start = time.perf_counter()
+        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        wall = time.perf_counter() - t_start
+        rows = []
+        for path in sorted((out / "units").glob("s*_r*.json")):
+            unit = st.read_json(f"units/{path.name}", required=("records",))
+            if unit is not None:
+                rows.extend(unit["records"])
+        summary = summarise(rows, cfg)
+        _figures(rows, cfg, out)
+        _report(summary, rows, cfg, out, wall, len(todo))
+        st.write_results_csv(tidy_rows(
+            [dict(r, success=float(r["success"])) for r in rows],
+            unit=lambda r: f"s{r['side']}_r{r['rotation']:g}_n{r['noise']:g}",
+            skip=("side", "rotation", "noise", "kind", "star", "reason",
+                  "orientation_errors")))
     print(f"wrote {out / 'report.md'}")
     return 0
 
@@ -381,9 +387,5 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
               "so they are a reference, not a target.",
               "", "Figures: `accuracy_size_noise.png`, `accuracy_rotation_size_noise.png`, "
               "`gateway_orientation.png`."]
-    tmp = out / "report.md.tmp"
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, out / "report.md")
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(s, indent=1))
-    os.replace(tmp, out / "summary.json")
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    atomic_write_json(out / "summary.json", s)
