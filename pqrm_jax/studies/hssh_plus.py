@@ -376,10 +376,9 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
               "- *misaligned pair*: four gateways whose path-continuity rays miss each other. "
               "Two mechanisms, both named by B §6.3.3: noise near the anchors bends the "
               "skeleton, and Alg. 6.3's collinearity iteration walks a gateway outward along "
-              "its branch onto noise attached to the walls, up to the LPM edge (seen here at "
-              "0° rotation with 5 % noise, sides 249-339: the up and left gateways end a few "
-              "cells from the border, tilted, while the core sits on two of the four ring "
-              "junctions).",
+              "its branch onto noise attached to the walls, up to the LPM edge (inspected at "
+              "0° rotation, 5 % noise, side 249: the up and left gateways end a few cells from "
+              "the border, tilted, while the core sits on two of the four ring junctions).",
               "- *n gateways*: noise spurs or a core reaching the LPM edge change the number "
               "of branches leaving the core (small sides: the core covers the whole image).",
               "- Gateway orientation statistics depend on the skeleton: this thinning differs "
