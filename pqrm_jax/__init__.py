@@ -29,7 +29,7 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp"]
+           "triplets", "cli", "qlink", "bsp", "hssh"]
 SUBPACKAGES = tuple(__all__)
 
 
