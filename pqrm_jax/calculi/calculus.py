@@ -1,23 +1,12 @@
-"""Ternary point calculi as polynomial sign constraints (SPEC §2, P2.2.1, MT App. C).
+"""Ternary point calculi as polynomial sign constraints (docs/decisions.md §2, P2.2.1, MT App. C).
 
-A relation ``AB:C`` places C in the frame of the ordered pair (A, B). In the canonical frame
-A=(0,0), B=(0,1), C=(α, β) (right of AB is α > 0), a calculus is k polynomial constraints
-``f_a(α, β, ρ)`` (ρ = α² + β²) and a map from their sign patterns in {−,0,+}^k to states.
+Offers :class:`Calculus`: a calculus defined by k polynomial constraints in the canonical
+frame and a map from sign patterns to states, or by merging the states of another calculus;
+a division-free, jit-able ``classify`` with documented sentinels; and the definition hash
+that keys its tables.
 
-``classify`` never divides: with d = B − A, e = C − A, u = e×d, v = e·d, m = |e|², n = |d|²
-we have α = u/n, β = v/n, ρ = m/n, and every constraint is multiplied by n^D (D its weighted
-degree), which keeps its sign. Integer coordinates are therefore classified exactly (in float64
-up to |x| ≲ 2^12 for degree-one constraints), so collinear, perpendicular and coincident
-configurations get their boundary relations.
-
-Sentinel results (documented, never a silent wrong state):
-
-* ``BOUNDARY`` (−1): C lies on a boundary of an *open* calculus (measure zero).
-* ``DEGENERATE`` (−2): A = B in an open calculus (the frame does not exist).
-* ``INVALID`` (−3): a NaN or infinite coordinate.
-
-Boundary-inclusive calculi (``dcc``, ``lr_full``) give a state for every configuration,
-including A = B ≠ C (``dou``) and A = B = C (``tri``).
+The canonical frame, division-free classification and the sentinels:
+docs/calculi.md §calculus and docs/decisions.md §2.
 """
 
 from __future__ import annotations
@@ -43,8 +32,11 @@ def pattern_index(signs: Sequence[int]) -> int:
 
 
 def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarray:
-    """Sign table for an open calculus: full patterns from ``full``; a pattern with zeros gets
-    a state only when every realisable completion of its zeros is that same state."""
+    """Sign table for an open calculus: full patterns from ``full``.
+
+    A pattern with zeros gets a state only when every realisable completion of its zeros is that
+    same state.
+    """
     table = np.full(3**k, BOUNDARY, dtype=np.int32)
     for signs in itertools.product((-1, 0, 1), repeat=k):
         zeros = [a for a, s in enumerate(signs) if s == 0]
@@ -65,7 +57,7 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
 
 
 class Calculus:
-    """A ternary qualitative calculus; see the module docstring.
+    """A ternary qualitative calculus; see docs/calculi.md §calculus.
 
     >>> from pqrm_jax import calculi
     >>> edc = calculi.get("edc")
@@ -292,9 +284,9 @@ class Calculus:
         return jnp.where(finite, state, INVALID)
 
     def classify(self, a, b, c) -> jax.Array:
-        """State index of ``AB:C`` for points of shape (..., 2) (broadcast); jit-able.
+        """State index of ``AB:C`` for points of shape [..., 2] (broadcast); jit-able.
 
-        Returns an int32 array of the broadcast batch shape; sentinels as in the module doc.
+        Returns an int32 array of the broadcast batch shape; sentinels as in docs/decisions.md §2.
         """
         a, b, c = (jnp.asarray(x) for x in (a, b, c))
         for nm, x in (("a", a), ("b", b), ("c", c)):
@@ -318,7 +310,7 @@ class Calculus:
 
     @property
     def adjacency(self) -> np.ndarray:
-        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1).
+        """[Q, Q] bool conceptual neighbourhood computed from geometry (P§2.3.1).
 
         Read from :attr:`tables`, so the first access may build them.
         """
@@ -326,7 +318,7 @@ class Calculus:
 
     @property
     def neighbor_distance(self) -> np.ndarray:
-        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph.
+        """[Q, Q] int shortest-path length in the conceptual neighbourhood graph.
 
         Read from :attr:`tables`, so the first access may build them.
         """

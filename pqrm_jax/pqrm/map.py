@@ -1,31 +1,12 @@
 """The online PQRM map: a recursive Bayes filter per ordered landmark triplet (P §2.2.3).
 
-The map holds ``p(R^n | Z^n_{1:t})`` for every ordered triplet n = (i, j, k) of distinct
-landmarks (P §2.3: "the reported results record all possible orderings"), for one or several
-representations at once. An update with the landmarks seen at time t (Alg. 1):
+Offers the map state over every ordered triplet of M landmarks (T = M(M−1)(M−2) rows, for one
+or several representations at once) and the mapper's pure ``init``/``update`` functions
+(P eq. 2.10, Alg. 1), with static shapes so that ``update`` runs under ``jit``, ``lax.scan``
+and ``vmap``. Degenerate evidence never gives a NaN map; it is counted.
 
-* every triplet whose three landmarks are all seen gets the measurement distribution
-  ``p(R^n | Z^n_t)`` (eq. 2.9, :mod:`.measurement`) — one sampling pass for all
-  representations, which must be merges of one root calculus (the EDC for Padgett's six);
-* a triplet already in the map is updated by eq. 2.10,
-  ``p_t(q) ∝ p(q | Z_t) · p_{t-1}(q)``; a triplet seen for the first time is initialised with
-  ``p(q | Z_t)``; triplets not seen keep their distribution.
-
-Everything has static shapes (T = M(M−1)(M−2) rows for M landmarks, masks for what was seen),
-so ``update`` runs under ``jit``, ``lax.scan`` over time and ``vmap`` over Monte Carlo runs.
-
-Documented handling of degenerate evidence (never a NaN map):
-
-* **Conflict** — the product in eq. 2.10 is zero for every state (the sampled likelihood is
-  zero on all states the prior allows; with finite S this happens at low noise near state
-  boundaries): the prior is kept and ``num_conflicts`` of that triplet and representation is
-  incremented.
-* **Rejected measurement** — no sample had a defined state (σ = 0 with a landmark exactly on a
-  boundary or two landmarks coincident): the triplet is not updated, ``num_rejected`` counts it.
-* **Non-finite positions** of a landmark flagged visible: the landmark is treated as not seen
-  at this step and ``num_dropped`` counts it. Eager :func:`update_observed` raises instead.
-* Negative or NaN ``sigma`` raises ``ValueError`` when concrete; inside ``jit`` a NaN sigma makes
-  every sample undefined, i.e. every seen triplet is a rejected measurement.
+The update rule and the handling of conflicts, rejected measurements and non-finite
+positions: docs/pqrm.md §map.
 """
 
 from __future__ import annotations
@@ -59,13 +40,14 @@ __all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed"
 class MapState(NamedTuple):
     """State of a PQRM map (a pytree).
 
-    probs: representation name → (T, Q) ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
-    mapped: (T,) bool, the triplet has been initialised.
-    num_updates: (T,) int32, measurements incorporated (including the initialisation).
-    num_conflicts: name → (T,) int32, eq. 2.10 products that were zero everywhere (prior kept).
-    num_rejected: (T,) int32, measurements with no defined sample (not incorporated).
-    num_dropped: () int32, visible landmarks dropped for non-finite positions.
-    step: () int32, number of update calls.
+    Attributes:
+        probs: representation name → [T, Q] ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
+        mapped: [T] bool, the triplet has been initialised.
+        num_updates: [T] int32, measurements incorporated (including the initialisation).
+        num_conflicts: name → [T] int32, eq. 2.10 products that were zero everywhere (prior kept).
+        num_rejected: [T] int32, measurements with no defined sample (not incorporated).
+        num_dropped: () int32, visible landmarks dropped for non-finite positions.
+        step: () int32, number of update calls.
     """
 
     probs: dict[str, jax.Array]
@@ -81,8 +63,8 @@ class Mapper(NamedTuple):
     """A PQRM map's pure functions and static description (like an optax transformation).
 
     init() -> MapState
-    update(state, key, positions (M, 2), visible (M,), sigma) -> MapState (jitted)
-    update_batch(states, keys (R,), positions (R, M, 2), visible (R, M), sigma) -> MapState
+    update(state, key, positions [M, 2], visible [M], sigma) -> MapState (jitted)
+    update_batch(states, keys [R], positions [R, M, 2], visible [R, M], sigma) -> MapState
         R independent maps at once (leading axis R on every leaf), equal to ``vmap(update)``
         bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``).
     """
@@ -108,7 +90,7 @@ def _bayes(prior, meas, mapped, seen):
 
 
 def _prepare(positions, visible, sigma, triplets):
-    """Per-call inputs of the kernel: (means (T,3,2), sigma (T,3), seen (T,), dropped ())."""
+    """Per-call inputs of the kernel: (means [T, 3, 2], sigma [T, 3], seen [T], dropped ())."""
     m = positions.shape[0]
     dtype = jnp.result_type(positions, jnp.float32)
     positions = positions.astype(dtype)
@@ -124,7 +106,7 @@ def _prepare(positions, visible, sigma, triplets):
 
 
 def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
-    """Eq. 2.10 for every seen triplet from its root-calculus sample counts (T, Q_root)."""
+    """Eq. 2.10 for every seen triplet from its root-calculus sample counts [T, Q_root]."""
     defined = jnp.sum(counts, axis=-1) > 0
     use = seen & defined
     fine = counts.astype(jnp.float32)
@@ -193,7 +175,7 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
 def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
-    z (Rg, c, C, 6) banks of the Rg maps; m (Rg·N, 6), s (Rg·N, 3), mask (Rg·N,) per triplet
+    z [Rg, c, C, 6] banks of the Rg maps; m [Rg·N, 6], s [Rg·N, 3], mask [Rg·N] per triplet
     row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
     the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
     ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, so every seen row is updated and nothing
@@ -256,11 +238,27 @@ def mapper(
 
     ``update`` samples eq. 2.9 for all T triplets (static shapes) and masks the unseen ones.
     ``update_batch(states, keys, positions, visible, sigma, groups=1)`` updates R maps at once
-    (sigma: scalar, (R,) or (R, M)): with the EDC as root it gathers the seen triplets of all R
-    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so
-    the sampling work is proportional to what is seen (in Padgett's study about 1 triplet in
-    8), with results identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static)
-    compacts that many slices of the R maps independently (one per device when sharded).
+    (sigma: scalar, [R] or [R, M]): with the EDC as root it gathers the seen triplets of all R
+    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so the sampling
+    work is proportional to what is seen (in Padgett's study about 1 triplet in 8), with results
+    identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static) compacts that many
+    slices of the R maps independently (one per device when sharded).
+
+    Args:
+        representations: the calculi mapped at once (objects or registered names); all must be
+            merges of one root calculus.
+        num_landmarks: M, the landmark capacity (T = M(M−1)(M−2) ordered triplets).
+        num_samples: S, samples per triplet per update.
+        chunk_triplets: triplets per sampling block (bounds the working set).
+        sparse_block: rows per piece of the batched sparse update.
+
+    Returns:
+        A :class:`Mapper` of pure functions (``init``, ``update``, ``update_batch``).
+
+    Raises:
+        ValueError: for no or duplicate representations, representations without a common root
+            calculus, or a non-positive ``num_samples``; the returned functions raise for inputs
+            of the wrong shape and bad ``sigma``.
 
     >>> import jax, jax.numpy as jnp
     >>> pq = mapper(("edc", "lr"), num_landmarks=4, num_samples=64)
@@ -300,7 +298,7 @@ def mapper(
 
     def update(state: MapState, key: jax.Array, positions: jax.Array, visible: jax.Array,
                sigma) -> MapState:
-        """Incorporate one measurement of all landmarks (eq. 2.10); see the module doc."""
+        """Incorporate one measurement of all landmarks (eq. 2.10); see docs/pqrm.md §map."""
         if np.shape(positions) != (num_landmarks, 2):
             raise ValueError(f"positions must have shape ({num_landmarks}, 2), "
                              f"got {tuple(np.shape(positions))}")
@@ -341,10 +339,23 @@ def mapper(
 
 def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
                     sigma) -> MapState:
-    """Eager convenience: update with the landmarks ``ids`` (K,) seen at ``positions`` (K, 2).
+    """Eager convenience: update with the landmarks ``ids`` [K] seen at ``positions`` [K, 2].
 
-    Raises ``ValueError`` for duplicate or out-of-range ids, NaN/inf positions and bad sigma.
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
+
+    Args:
+        pq: the mapper (:func:`mapper`).
+        state: the current :class:`MapState`.
+        key: PRNG key of this update's samples.
+        ids: [K] int landmark ids, distinct, in ``[0, num_landmarks)``.
+        positions: [K, 2] measured positions (robot frame).
+        sigma: noise std, scalar or [K] (one per id).
+
+    Returns:
+        The updated :class:`MapState`.
+
+    Raises:
+        ValueError: for duplicate or out-of-range ids, NaN/inf positions and bad ``sigma``.
     """
     ids = np.asarray(ids)
     positions = np.asarray(positions, dtype=np.float32)

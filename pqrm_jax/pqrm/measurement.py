@@ -1,44 +1,12 @@
 """The PQRM measurement model: ``p(R^n = q | Z^n)`` by sampling (P §2.2.2, eq. 2.9).
 
-For each landmark triplet n the three measured positions ``means[n] = (A, B, C)`` (robot frame)
-are the centres of an isotropic Gaussian inverse sensor model ``p(L^n | Z^n)`` with standard
-deviation ``sigma[n, i]`` per landmark. Eq. 2.9 is estimated by drawing S landmark
-configurations, evaluating the k constraint signs of each and counting the samples per state:
-``p̂(q) = #{s : state(s) = q} / #{s : state(s) is defined}``.
+Offers the state probabilities of N triplets (``means`` ``[N, 3, 2]``, ``sigma`` ``[N, 3]``)
+for one calculus or for several at once, the fused EDC sign kernel and its per-state counts,
+and the aggregation of EDC counts into any calculus that merges the EDC. Eager calls raise
+``ValueError`` for bad input; inside ``jit`` a row with no defined sample is all zeros.
 
-**One sampling pass for every representation.** All of Padgett's representations (P Fig. 2.2)
-are merges of the 20-state EDC, so the kernel counts EDC states once and every coarser
-calculus is an exact aggregation of those counts (``calc.parent_map``): the six
-representations of the Monte Carlo study cost one pass. A calculus that is not a merge of the
-EDC takes a generic (slower) path through ``Calculus.classify``.
-
-**The fused EDC kernel.** Per sample the kernel computes ``u = e×d``, ``v = e·d``, ``m = |e|²``,
-``n = |d|²`` (d = B−A, e = C−A), the six homogenised EDC constraints and from their strict signs
-an arithmetic state key (side × band × circle count) — no table lookup, no division. It equals
-``edc.classify`` on every sample whose constraint values are all non-zero and finite (a test
-checks this); a sample with a zero constraint (C exactly on a boundary, A = B) or a non-finite
-value is *rejected* (counted in no state), which is what ``classify`` does for EDC boundaries.
-Because every representation is aggregated from EDC counts, a sample on an EDC boundary is
-rejected for a coarser calculus too, even where that boundary is internal to a coarse state
-(e.g. β = ½ for LR); with σ > 0 this has probability zero, with σ = 0 it affects only inputs
-exactly on an EDC boundary.
-The counts are accumulated with a single variadic XLA reduction into byte fields packed four
-per uint32 word (chunks of at most 255 samples, so a field never overflows) — a histogram
-without scatter and without a one-hot tensor.
-
-**Common random numbers.** One bank of S standard-normal draws (S, 3, 2) is shared by all
-triplets of a call and scaled by each triplet's means and sigmas. Every row is therefore
-exactly the S-sample Monte Carlo estimator of eq. 2.9 (same distribution as with independent
-draws); only the errors of different rows are correlated. Use a fresh key per call.
-
-**Bounded memory.** The sample axis is reduced inside the fusion (chunks of ≤ 255 samples) and
-the triplet axis is processed in blocks of ``chunk_triplets`` with ``lax.map``, so the working
-set is O(chunk_triplets · 255) regardless of N·S; the output is (N, Q).
-
-**Bad input.** ``means`` must be (N, 3, 2); eager calls raise ``ValueError`` for NaN/inf
-means, negative or NaN sigma and non-positive ``num_samples``. Inside ``jit``/``vmap`` values
-are not inspected: a row whose samples are all rejected (non-finite input, σ = 0 with C exactly
-on a boundary or A = B) is all zeros — never NaN — and ``valid`` reports 0 samples for it.
+One sampling pass for every representation, the fused kernel, common random numbers, bounded
+memory and bad input: docs/pqrm.md §measurement.
 """
 
 from __future__ import annotations
@@ -67,7 +35,8 @@ _WORDS = math.ceil(EDC_NUM_STATES * _FIELD_BITS / 32)  # 5 uint32 words
 _REJECT_KEY = 2 * 10  # keys 0..19 are states; 20 = rejected sample (in no counted word)
 
 # Realisable (inside A-circle, inside B-circle) pairs per band, behind A .. in front of B; the
-# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5, SPEC §2.1).
+# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5,
+# docs/decisions.md §2.1).
 _BAND_CIRCLES = (
     ((0, 0), (1, 0)),
     ((0, 0), (1, 0), (1, 1)),
@@ -115,7 +84,7 @@ def key_to_edc_state() -> np.ndarray:
 
 
 def aggregation_matrix(calc: Calculus) -> np.ndarray:
-    """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
+    """[Q_root, Q] 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
     while getattr(c, "parent", None) is not None:
@@ -173,9 +142,9 @@ def _variadic_sum(ops, axis):
 
 
 def edc_block_counts(mT, sT, zc):
-    """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
+    """Counts in key order for one block: mT [6, B], sT [3, B] → [B, 20] int32.
 
-    ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
+    ``zc`` is the sample bank, [c, C, 6] shared by the B triplets, or [c, C, 6, B] with one bank
     per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
     """
     def col(x):
@@ -202,7 +171,7 @@ def edc_block_counts(mT, sT, zc):
 
 
 def sample_bank(key, num_samples: int, dtype):
-    """Standard-normal bank (c, C, 6), padded with NaN (rejected) up to c·C ≥ num_samples."""
+    """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples."""
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
     z = jax.random.normal(key, (num_samples, 6), dtype)
@@ -302,10 +271,22 @@ def fine_counts(
     key: jax.Array, calculus: Calculus | str, means: jax.Array, sigma, num_samples: int,
     *, chunk_triplets: int = 4096,
 ) -> jax.Array:
-    """Sample counts (N, Q_root) of ``root_of(calculus)`` states (eq. 2.9 before normalising).
+    """Sample counts [N, Q_root] of ``root_of(calculus)`` states (eq. 2.9 before normalising).
 
-    Rows sum to the number of defined samples (≤ ``num_samples``; rejected samples — a zero
-    constraint or a non-finite value — are in no state).
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+
+    Returns:
+        [N, Q_root] int32 counts; rows sum to the number of defined samples (≤ ``num_samples``;
+        rejected samples — a zero constraint or a non-finite value — are in no state).
+
+    Raises:
+        ValueError: for bad input when called eagerly (see :func:`check_measurement_inputs`).
     """
     calc = calculi.get(calculus)
     check_measurement_inputs(means, sigma, num_samples)
@@ -322,7 +303,7 @@ def counts_to_probabilities(counts: jax.Array) -> jax.Array:
 
 
 def state_counts(key, calculus, means, sigma, num_samples: int, *, chunk_triplets: int = 4096):
-    """Sample counts (N, Q) of ``calculus`` states (aggregated from one EDC pass)."""
+    """Sample counts [N, Q] of ``calculus`` states (aggregated from one EDC pass)."""
     calc = calculi.get(calculus)
     fine = fine_counts(key, calc, means, sigma, num_samples, chunk_triplets=chunk_triplets)
     return (fine.astype(jnp.float32) @ aggregation_matrix(calc)).astype(jnp.int32)
@@ -337,14 +318,14 @@ def state_probabilities(
     Args:
         key: PRNG key (one bank of draws shared by the rows; use a fresh key per call).
         calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
-        means: (N, 3, 2) measured positions of landmarks A, B, C of each triplet (robot frame).
-        sigma: noise std, scalar, (N,) or (N, 3) (per landmark), isotropic.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet (robot frame).
+        sigma: noise std, scalar, [N] or [N, 3] (per landmark), isotropic.
         num_samples: S, samples per triplet.
         chunk_triplets: triplets per block (bounds the working set).
 
     Returns:
-        (N, Q) float32 probabilities; each row sums to 1, or is all zeros when no sample had a
-        defined state (see the module docstring).
+        [N, Q] float32 probabilities; each row sums to 1, or is all zeros when no sample had a
+        defined state (see docs/pqrm.md §measurement).
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])      # C right of AB
@@ -364,6 +345,20 @@ def multi_state_probabilities(
     num_samples: int, *, chunk_triplets: int = 4096,
 ) -> dict[str, jax.Array]:
     """``state_probabilities`` for several merges of one root calculus from one sampling pass.
+
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculi_: the calculi (objects or registered names), all merges of one root calculus.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+
+    Returns:
+        A dict from calculus name to its [N, Q] float32 probabilities.
+
+    Raises:
+        ValueError: for calculi without a common root calculus, or bad input when eager.
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])

@@ -1,4 +1,6 @@
-"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies.
+
+Decisions: docs/decisions.md §9; how it works: docs/sim.md.
 
 Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
 boundary, ``vmap``-able over runs:

@@ -1,4 +1,4 @@
-"""Corridor-network occupancy worlds rendered as grey images (B §6.3.3, SPEC §9).
+"""Corridor-network occupancy worlds rendered as grey images (B §6.3.3, docs/decisions.md §9).
 
 A world is a union of free rectangles in the unit square (x to the right, y up); everything
 else is wall. :func:`render_free_rectangles` rasterises it into a ``side x side`` grey image
