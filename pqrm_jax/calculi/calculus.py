@@ -50,11 +50,10 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-from collections.abc import Callable, Mapping, Sequence
-from functools import cached_property
-
 import math
+from collections.abc import Callable, Mapping, Sequence
 from fractions import Fraction
+from functools import cached_property
 
 import jax
 import jax.numpy as jnp
@@ -384,11 +383,7 @@ class Calculus:
         e = jnp.where(finite[..., None], e, 0)
         # rescale d and e by the power of two nearest max |component| (exact, keeps signs)
         big = jnp.maximum(jnp.max(jnp.abs(d), axis=-1), jnp.max(jnp.abs(e), axis=-1))
-        _, ex = jnp.frexp(jnp.where(big > 0, big, 1))
-        s1 = _pow2(-(ex // 2), dtype)
-        s2 = _pow2(-ex + ex // 2, dtype)
-        d = d * s1[..., None] * s2[..., None]
-        e = e * s1[..., None] * s2[..., None]
+        d, e = rescale_pow2(big[..., None], d, e)
         dx, dy, ex_, ey = d[..., 0], d[..., 1], e[..., 0], e[..., 1]
         prods = (ex_ * dy, ey * dx, ex_ * dx, ey * dy, ex_ * ex_, ey * ey, dx * dx, dy * dy)
         factors = ((ex_, dy), (ey, dx), (ex_, dx), (ey, dy), (ex_, ex_), (ey, ey), (dx, dx),
@@ -448,7 +443,7 @@ class Calculus:
     def _classify(self, a, b, c):
         """Traced classification (see :meth:`classify`); floats or integers of one shape."""
         a, b, c = (jnp.asarray(x) for x in (a, b, c))
-        int_input = all(jnp.issubdtype(x.dtype, jnp.integer) or x.dtype == bool
+        int_input = all(jnp.issubdtype(x.dtype, jnp.integer) or jnp.issubdtype(x.dtype, jnp.bool_)
                         for x in (a, b, c))
         if int_input:
             dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
@@ -534,7 +529,7 @@ class Calculus:
             dt = x.dtype
             if jnp.issubdtype(dt, jnp.complexfloating):
                 raise TypeError(f"classify: {nm} is complex ({dt}); coordinates must be real")
-            if dt == bool or not (jnp.issubdtype(dt, jnp.integer)
+            if jnp.issubdtype(dt, jnp.bool_) or not (jnp.issubdtype(dt, jnp.integer)
                                   or jnp.issubdtype(dt, jnp.floating)):
                 raise TypeError(f"classify: {nm} has dtype {dt}; coordinates must be real "
                                 "numbers (integer or float)")
@@ -574,6 +569,26 @@ class Calculus:
 
 def _sign(x: Fraction) -> int:
     return (x > 0) - (x < 0)
+
+
+def rescale_pow2(big: jax.Array, *xs: jax.Array) -> tuple[jax.Array, ...]:
+    """``xs`` times the power of two 2^-k that brings ``big`` (≥ 0) into [½, 1) (exactly).
+
+    A power of two changes no bit of a mantissa, so products formed afterwards round exactly
+    as they would at scale one, without overflow or underflow at any scale (used by
+    ``classify`` and the fused PQRM kernel). ``big`` = 0 or non-finite leaves ``xs`` as is.
+    ``big`` broadcasts against each of ``xs``.
+
+    >>> import jax.numpy as jnp
+    >>> rescale_pow2(jnp.float32(3e30), jnp.float32(3e30))[0].item()
+    0.5916456580162048
+    """
+    dtype = jnp.result_type(*xs)
+    ok = (big > 0) & jnp.isfinite(big)
+    _, k = jnp.frexp(jnp.where(ok, big, 1).astype(dtype))
+    s1 = _pow2(-(k // 2), dtype)
+    s2 = _pow2(-k + k // 2, dtype)
+    return tuple(x * s1 * s2 for x in xs)
 
 
 def _pow2(k: jax.Array, dtype) -> jax.Array:
