@@ -288,11 +288,20 @@ def normal_bank_rows(key: jax.Array, start, num_rows: int, dtype=jnp.float32) ->
     >>> bool(jnp.array_equal(normal_bank_rows(k, 5, 4), jax.random.normal(k, (12, 6))[5:9]))
     True
     """
-    words = _threefry_key_data(key)
-    if words is None:
+    if _threefry_key_data(key) is None:
         raise ValueError("normal_bank_rows needs a threefry key with jax_threefry_partitionable")
+    return _bank_rows_jit(key, start, num_rows=int(num_rows), dtype=jnp.dtype(dtype))
+
+
+@partial(jax.jit, static_argnames=("num_rows", "dtype"))
+def _bank_rows_jit(key, start, *, num_rows: int, dtype):
+    return _bank_rows(key, start, num_rows, dtype)
+
+
+def _bank_rows(key, start, num_rows: int, dtype):
     from jax.extend.random import threefry2x32_p
 
+    words = _threefry_key_data(key)
     dtype = jnp.dtype(dtype)
     finfo = jnp.finfo(dtype)
     rows = jnp.asarray(start, jnp.int32) + jnp.arange(num_rows, dtype=jnp.int32)
@@ -386,7 +395,7 @@ def _streamed_bank(key, num_samples: int, block: int, dtype):
 
     def bank(b):
         if words is not None:
-            z = normal_bank_rows(key, b * block, block, dtype)
+            z = _bank_rows(key, b * block, block, dtype)
         else:  # another PRNG: one folded key per block
             z = jax.random.normal(jax.random.fold_in(key, b), (block, 6), dtype)
         idx = b * block + jnp.arange(block)
