@@ -131,9 +131,13 @@ def test_coincidences_exact_for_any_float(name):
 
 def test_true_relations_of_coincident_landmarks():
     lr = calculi.get("lr_full")
-    lm = jnp.array([[0.1, 0.2], [3.3, -1.7], [3.3, -1.7]], jnp.float32)  # landmark 2 = 1
-    st = pqrm.metrics.true_states(lr, lm, np.array([[0, 1, 2], [0, 2, 1], [1, 2, 0]]))
-    assert lr.labels(st) == ["e", "e", "dou"]
+    rng = np.random.default_rng(8)
+    lm = rng.uniform(0, 100, (40, 2)).astype(np.float32)
+    lm = jnp.asarray(np.concatenate([lm, lm[:20]]))  # landmark 40 + j coincides with j
+    j = np.arange(20)
+    tri = np.concatenate([np.stack([j + 20, j, j + 40], -1), np.stack([j, j + 40, j + 20], -1)])
+    st = jax.jit(lambda x: pqrm.metrics.true_states(lr, x, tri))(lm)  # as the studies call it
+    assert lr.labels(st) == ["e"] * 20 + ["dou"] * 20
 
 
 # D12 / S2 -------------------------------------------------------------------------------------
