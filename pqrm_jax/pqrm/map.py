@@ -453,6 +453,7 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
     """
     ids = np.asarray(ids)
+    _check_real(positions, "positions")
     positions = np.asarray(positions, dtype=np.float32)
     if ids.ndim != 1 or positions.shape != (ids.shape[0], 2):
         raise ValueError(f"ids (K,) and positions (K, 2) expected, got {ids.shape} and "
@@ -465,6 +466,11 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
         raise ValueError(f"landmark ids must be in [0, {pq.num_landmarks}), got {ids.tolist()}")
     if not np.all(np.isfinite(positions)):
         raise ValueError("positions contain NaN or infinite measurements")
+    with np.errstate(over="ignore", invalid="ignore"):
+        spread = positions.max(axis=0, initial=0) - positions.min(axis=0, initial=0)
+    if not np.all(np.isfinite(spread)):
+        raise ValueError("differences between observed positions overflow float32; translate "
+                         "or rescale the positions")
     _check_sigma(sigma)
     full = np.zeros((pq.num_landmarks, 2), np.float32)
     vis = np.zeros(pq.num_landmarks, bool)

@@ -332,7 +332,7 @@ def sample_block(chunk_triplets: int, num_triplets: int | None = None) -> int:
     S ≤ this block is computed in one piece (no scan).
 
     >>> sample_block(4096), sample_block(4096, num_triplets=10)
-    (4080, 261885)
+    (4080, 262140)
     """
     blk = max(1, min(int(chunk_triplets), num_triplets or int(chunk_triplets)))
     groups = max(1, min(_BLOCK_PAIRS // (_CHUNK_SAMPLES * blk),
