@@ -371,7 +371,7 @@ class Calculus:
         return best
 
     def _signs_and_flags(self, a, b, c):
-        """Constraint signs (..., k) and an ``invalid`` mask by the scale-free float path."""
+        """Sign-pattern index (...,) and an ``invalid`` mask by the scale-free float path."""
         dtype = a.dtype
         finfo = jnp.finfo(dtype)
         d = b - a
@@ -386,21 +386,22 @@ class Calculus:
         d, e = rescale_pow2(big[..., None], d, e)
         dx, dy, ex_, ey = d[..., 0], d[..., 1], e[..., 0], e[..., 1]
         prods = (ex_ * dy, ey * dx, ex_ * dx, ey * dy, ex_ * ex_, ey * ey, dx * dx, dy * dy)
-        factors = ((ex_, dy), (ey, dx), (ex_, dx), (ey, dy), (ex_, ex_), (ey, ey), (dx, dx),
-                   (dy, dy))
+        # after rescaling every component is ≤ 1, so a product can only underflow when one of
+        # its factors is a non-zero component below 2^(emin/2)
+        small = float(2.0 ** (finfo.minexp // 2))
         underflow = jnp.zeros(big.shape, bool)
-        for pr, (x, y) in zip(prods, factors, strict=True):
-            underflow = underflow | ((x != 0) & (y != 0) & (jnp.abs(pr) < finfo.tiny))
+        for x in (dx, dy, ex_, ey):
+            underflow = underflow | ((x != 0) & (jnp.abs(x) < small))
         u_pos, u_neg, v_a, v_b, m_a, m_b, n_a, n_b = prods
         u = u_pos - u_neg
         v = v_a + v_b
         m = m_a + m_b
         n = n_a + n_b
         base = (u, v, m, n)
-        signs = []
+        idx = jnp.zeros(big.shape, jnp.int32)
         ambiguous = jnp.zeros(big.shape, bool)
         nonfinite = jnp.zeros(big.shape, bool)
-        for terms in self._int_homog:
+        for a_i, terms in enumerate(self._int_homog):
             pos = jnp.zeros_like(n)
             neg = jnp.zeros_like(n)
             for coef, iu, iv, im, pn in terms:
@@ -420,25 +421,24 @@ class Calculus:
                     pos = pos + t
                 else:
                     neg = neg + t
-            signs.append((pos > neg).astype(jnp.int32) - (pos < neg).astype(jnp.int32))
+            # (sign + 1) · 3^a: 0 below, 3^a equal, 2·3^a above
+            idx = idx + jnp.where(pos > neg, 2 * 3**a_i, jnp.where(pos < neg, 0, 3**a_i))
             nonfinite = nonfinite | ~jnp.isfinite(pos) | ~jnp.isfinite(neg)
             ambiguous = ambiguous | (jnp.abs(pos - neg) < jnp.sqrt(finfo.tiny))
-        signs = jnp.stack(signs, axis=-1)
-        signs = jnp.where(c_eq_b[..., None], jnp.asarray(self._signs_c_eq_b), signs)
-        signs = jnp.where(c_eq_a[..., None], jnp.asarray(self._signs_c_eq_a), signs)
+        idx = jnp.where(c_eq_b, _pattern_index(self._signs_c_eq_b.tolist()), idx)
+        idx = jnp.where(c_eq_a, _pattern_index(self._signs_c_eq_a.tolist()), idx)
         coincident = c_eq_a | c_eq_b
         invalid = ~finite | (~coincident & (nonfinite | (underflow & ambiguous)))
-        return signs, invalid
+        return idx, invalid
 
-    def _state_from_signs(self, signs, a_eq_b, c_eq_a):
-        weights = jnp.asarray(3 ** np.arange(self.k), dtype=jnp.int32)
-        idx = jnp.sum((signs + 1) * weights, axis=-1)
-        state = jnp.asarray(self.sign_table)[idx]
+    @cached_property
+    def _extended_table(self) -> np.ndarray:
+        """``sign_table`` + [INVALID, A=B≠C, A=B=C]: one gather gives every result."""
         if self.boundary_inclusive:
-            degen = jnp.where(c_eq_a, self.tri, self.dou)
+            degen = [self.dou, self.tri]
         else:
-            degen = jnp.full_like(state, DEGENERATE)
-        return jnp.where(a_eq_b, degen, state)
+            degen = [DEGENERATE, DEGENERATE]
+        return np.concatenate([self.sign_table, [INVALID, *degen]]).astype(np.int32)
 
     def _classify(self, a, b, c):
         """Traced classification (see :meth:`classify`); floats or integers of one shape."""
@@ -450,10 +450,11 @@ class Calculus:
         else:
             dtype = jnp.result_type(a, b, c, jnp.float32)
         af, bf, cf = (x.astype(dtype) for x in (a, b, c))
-        signs, invalid = self._signs_and_flags(af, bf, cf)
+        idx, invalid = self._signs_and_flags(af, bf, cf)
         a_eq_b = jnp.all(af == bf, axis=-1)
         c_eq_a = jnp.all(cf == af, axis=-1)
-        state = self._state_from_signs(signs, a_eq_b, c_eq_a)
+        full = 3**self.k
+        idx = jnp.where(a_eq_b, jnp.where(c_eq_a, full + 2, full + 1), idx)
         finite = jnp.all(jnp.isfinite(af) & jnp.isfinite(bf) & jnp.isfinite(cf), axis=-1)
         invalid = invalid | ~finite
         if int_input:
@@ -462,7 +463,8 @@ class Calculus:
             big = jnp.maximum(jnp.max(jnp.abs(bf - af), -1), jnp.max(jnp.abs(cf - af), -1))
             huge = jnp.max(jnp.abs(jnp.stack([af, bf, cf])), axis=(0, -1))
             invalid = invalid | (big > bound) | (huge > lim)
-        return jnp.where(invalid, INVALID, state)
+        idx = jnp.where(invalid, full, idx)
+        return jnp.asarray(self._extended_table)[idx]
 
     def _classify_integers(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Exact classification of integer coordinates (NumPy int64, or Python ints)."""
