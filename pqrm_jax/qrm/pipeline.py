@@ -149,7 +149,7 @@ def run_sequence(
     """Map a layout from a sequence of imaging poses (T, 3); per-image metrics (T, ...).
 
     >>> import jax
-    from pqrm_jax import sim
+    >>> from pqrm_jax import sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 8)
     >>> poses = sim.random_imaging_points(jax.random.key(1), 4)
     >>> m, met = run_sequence(lm, poses, n=8)

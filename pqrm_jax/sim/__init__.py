@@ -1,4 +1,4 @@
-"""``sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
 
 Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
 boundary, ``vmap``-able over runs:
@@ -13,7 +13,8 @@ boundary, ``vmap``-able over runs:
 
 Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
 
-    import jax, sim
+    import jax
+    from pqrm_jax import sim
     lm = sim.uniform_landmarks(jax.random.key(0), 30)           # 100 m x 100 m square
     poses = sim.perimeter_loop()                                # a pose every 16 degrees
     keys = jax.random.split(jax.random.key(1), poses.shape[0])
