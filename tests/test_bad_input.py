@@ -28,7 +28,7 @@ from pqrm_jax import calculi, compositions, pqrm, qrm
 from pqrm_jax import sim as psim
 from pqrm_jax.calculi import BOUNDARY, DEGENERATE, INVALID
 
-SETTINGS = settings(max_examples=25, deadline=None, derandomize=True,
+SETTINGS = settings(max_examples=15, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.too_slow,
                                            HealthCheck.function_scoped_fixture])
 NAMES = ("edc", "edc_lune", "triple_cross", "double_cross", "single_cross", "lr", "quadrant",
