@@ -139,7 +139,9 @@ class Mapper(NamedTuple):
     update(state, key, positions (M, 2), visible (M,), sigma) -> MapState (jitted)
     update_batch(states, keys (R,), positions (R, M, 2), visible (R, M), sigma) -> MapState
         R independent maps at once (leading axis R on every leaf), equal to ``vmap(update)``
-        bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``).
+        bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``);
+        it holds one (S, 6) bank per map, so R·(48·S + T·bytes per triplet) must fit
+        ``max_bytes`` (refused up front otherwise).
     """
 
     init: Callable[[], MapState]
@@ -439,6 +441,14 @@ def mapper(
             raise ValueError(f"keys must have leading shape ({r},)")
         _check_real(positions, "positions")
         _check_sigma(sigma)
+        # the sparse path holds one (S, 6) bank per map and R·T rows of state
+        need = r * (int(num_samples) * 6 * 8 + t * map_bytes_per_triplet(cals))
+        if max_bytes is not None and need > max_bytes:
+            raise ValueError(
+                f"update_batch of {r} maps needs about {need / 2**30:.2f} GiB (one bank of "
+                f"num_samples = {num_samples} draws and {t} triplet rows per map) > max_bytes = "
+                f"{max_bytes / 2**30:.2f} GiB: update fewer maps per call, lower num_samples, "
+                "pass triplets=..., or raise max_bytes")
         return batch_impl(state, keys, positions, visible, sigma, groups=int(groups))
 
     return Mapper(init, update, triplets, cals, int(num_landmarks), int(num_samples),
