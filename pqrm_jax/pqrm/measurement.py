@@ -430,6 +430,46 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
     return counts[:, inv]
 
 
+@partial(jax.jit, static_argnames=("num_samples", "block", "dtype"))
+def _bank_block(key, b, *, num_samples: int, block: int, dtype):
+    z = _streamed_bank(key, num_samples, block, dtype)(b)
+    return z.reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6)
+
+
+@partial(jax.jit, static_argnames=("chunk_triplets",))
+def _prepare_edc(means, sigma, *, chunk_triplets: int):
+    n = means.shape[0]
+    sigma = _broadcast_sigma(sigma, n, means.dtype)
+    blk = max(1, min(chunk_triplets, n))
+    return _pad_triplets(means.reshape(n, 6).T, sigma.T, blk, means.dtype)[:2]
+
+
+@partial(jax.jit, static_argnames=("nblk", "blk"), donate_argnums=(0,))
+def _accumulate_block(acc, mT, sT, z, *, nblk: int, blk: int):
+    return acc + _counts_all_blocks(mT, sT, z, nblk, blk)
+
+
+def _fine_counts_edc_eager(key, means, sigma, num_samples: int, chunk_triplets: int):
+    """The streamed EDC counts as a host loop over sample blocks (eager calls only).
+
+    Same blocks, bank rows and kernel as the ``lax.scan`` of :func:`_fine_counts_edc`, so the
+    same counts; XLA compiles the kernel ~2-3x faster as its own program than inside a loop
+    body that also generates the bank, so eager calls take this path.
+    """
+    n = means.shape[0]
+    blk = max(1, min(chunk_triplets, n))
+    nblk = -(-n // blk)
+    block = sample_block(chunk_triplets, n)
+    mT, sT = _prepare_edc(means, sigma, chunk_triplets=chunk_triplets)
+    acc = jnp.zeros((nblk * blk, EDC_NUM_STATES), jnp.int32)
+    for b in range(-(-num_samples // block)):
+        z = _bank_block(key, jnp.int32(b), num_samples=num_samples, block=block,
+                        dtype=means.dtype)
+        acc = _accumulate_block(acc, mT, sT, z, nblk=nblk, blk=blk)
+    inv = np.argsort(_key_to_edc_state())
+    return acc[:n][:, inv]
+
+
 def _fine_counts_generic(key, root: Calculus, means, sigma, num_samples: int, chunk: int):
     q = root.num_states
     n = means.shape[0]
@@ -575,7 +615,12 @@ def fine_counts(
     _check_working_set(calc, int(np.shape(means)[0]), int(num_samples), chunk_triplets,
                        max_bytes)
     means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
-    return _root_counts(key, means, sigma, root=root_of(calc), num_samples=int(num_samples),
+    root = root_of(calc)
+    traced = any(isinstance(x, jax.core.Tracer) for x in (key, means, sigma))
+    if (not traced and _is_edc(root) and _threefry_key_data(key) is not None
+            and int(num_samples) > sample_block(int(chunk_triplets), means.shape[0])):
+        return _fine_counts_edc_eager(key, means, sigma, int(num_samples), int(chunk_triplets))
+    return _root_counts(key, means, sigma, root=root, num_samples=int(num_samples),
                         chunk_triplets=int(chunk_triplets))
 
 
