@@ -108,18 +108,25 @@ _BAND_OFFSET = (0, 2, 5, 8)
 
 
 def root_of(calc: Calculus) -> Calculus:
-    """The finest calculus that ``calc`` is a (chain of) merge(s) of."""
-    while calc.parent is not None:
+    """The finest calculus that ``calc`` is a (chain of) merge(s) of (no ``parent``: itself)."""
+    while getattr(calc, "parent", None) is not None:
         calc = calc.parent
     return calc
 
 
-def _is_edc(calc: Calculus) -> bool:
-    return calc.definition_hash == calculi.get("edc").definition_hash
+def root_identity(calc: Calculus) -> str | int:
+    """What makes two calculi share one root: its ``definition_hash``, else the object itself."""
+    root = root_of(calc)
+    return getattr(root, "definition_hash", None) or id(root)
+
+
+def is_edc(calc: Calculus) -> bool:
+    """Whether ``calc`` is the EDC itself (it gets the fused sampling kernel)."""
+    return getattr(calc, "definition_hash", None) == calculi.get("edc").definition_hash
 
 
 @cache
-def _key_to_edc_state() -> np.ndarray:
+def key_to_edc_state() -> np.ndarray:
     """Permutation key (0..19) → EDC state index, derived from ``edc.sign_table``."""
     edc = calculi.get("edc")
     out = np.full(EDC_NUM_STATES, -1, np.int32)
@@ -141,7 +148,7 @@ def aggregation_matrix(calc: Calculus) -> np.ndarray:
     """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
-    while c.parent is not None:
+    while getattr(c, "parent", None) is not None:
         fine_to = fine_to[np.asarray(c.parent_map)]
         c = c.parent
     mat = np.zeros((c.num_states, calc.num_states), np.float32)
@@ -187,7 +194,7 @@ def edc_states_fused(a: jax.Array, b: jax.Array, c: jax.Array) -> jax.Array:
     d, e = rescale_pow2(big[..., None], d, e)
     zero = jnp.zeros_like(d[..., 0])
     key = _edc_keys(*_uvmn(zero, zero, d[..., 0], d[..., 1], e[..., 0], e[..., 1]))
-    table = jnp.asarray(np.append(_key_to_edc_state(), -1).astype(np.int32))
+    table = jnp.asarray(np.append(key_to_edc_state(), -1).astype(np.int32))
     return table[key.astype(jnp.int32)]
 
 
@@ -200,7 +207,7 @@ def _variadic_sum(ops, axis):
     return jax.lax.reduce(tuple(ops), init, add, (axis,))
 
 
-def _edc_block_counts(mT, sT, zc):
+def edc_block_counts(mT, sT, zc):
     """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
 
     ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
@@ -236,7 +243,7 @@ def _edc_block_counts(mT, sT, zc):
     return counts.reshape(counts.shape[0], _WORDS * 4)[:, :EDC_NUM_STATES]
 
 
-def _sample_bank(key, num_samples: int, dtype):
+def sample_bank(key, num_samples: int, dtype):
     """Standard-normal bank (c, C, 6), padded with NaN (rejected) up to c·C ≥ num_samples."""
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
@@ -385,10 +392,10 @@ def _pad_triplets(mT, sT, blk: int, dtype):
 def _counts_all_blocks(mT, sT, z, nblk: int, blk: int):
     """Key-order counts (nblk·blk, 20) of every triplet block against one bank ``z``."""
     if nblk == 1:
-        return _edc_block_counts(mT, sT, z)
+        return edc_block_counts(mT, sT, z)
     mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
     sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
-    counts = jax.lax.map(lambda ms: _edc_block_counts(ms[0], ms[1], z), (mB, sB))
+    counts = jax.lax.map(lambda ms: edc_block_counts(ms[0], ms[1], z), (mB, sB))
     return counts.reshape(nblk * blk, EDC_NUM_STATES)
 
 
@@ -417,7 +424,7 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
     mT, sT, nblk = _pad_triplets(mT, sT, blk, dtype)
     block = sample_block(chunk_triplets, n)
     if num_samples <= block:
-        counts = _counts_all_blocks(mT, sT, _sample_bank(key, num_samples, dtype), nblk, blk)
+        counts = _counts_all_blocks(mT, sT, sample_bank(key, num_samples, dtype), nblk, blk)
     else:
         bank = _streamed_bank(key, num_samples, block, dtype)
 
@@ -429,7 +436,7 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
         counts, _ = jax.lax.scan(step, zero, jnp.arange(-(-num_samples // block)))
     counts = counts[:n]
     # key order → EDC state order
-    inv = np.argsort(_key_to_edc_state())
+    inv = np.argsort(key_to_edc_state())
     return counts[:, inv]
 
 
@@ -469,7 +476,7 @@ def _fine_counts_edc_eager(key, means, sigma, num_samples: int, chunk_triplets: 
         z = _bank_block(key, jnp.int32(b), num_samples=num_samples, block=block,
                         dtype=means.dtype)
         acc = _accumulate_block(acc, mT, sT, z, nblk=nblk, blk=blk)
-    inv = np.argsort(_key_to_edc_state())
+    inv = np.argsort(key_to_edc_state())
     return acc[:n][:, inv]
 
 
@@ -487,7 +494,7 @@ def _fine_counts_generic(key, root: Calculus, means, sigma, num_samples: int, ch
         def one_block(args):
             mb, sb = args  # (B,3,2), (B,3)
             pts = mb[:, None] + sb[:, None, :, None] * z[None]  # (B,S,3,2)
-            st = root._classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
+            st = root.classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
             return jnp.sum(st[..., None] == jnp.arange(q), axis=1, dtype=jnp.int32)
 
         return jax.lax.map(one_block, (mp, sp)).reshape(nblk * blk, q)
@@ -514,9 +521,9 @@ def _broadcast_sigma(sigma, n: int, dtype):
 
 
 @partial(jax.jit, static_argnames=("root", "num_samples", "chunk_triplets"))
-def _root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
+def root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
     sigma = _broadcast_sigma(sigma, means.shape[0], means.dtype)
-    if _is_edc(root):
+    if is_edc(root):
         return _fine_counts_edc(key, means, sigma, num_samples, chunk_triplets)
     return _fine_counts_generic(key, root, means, sigma, num_samples, max(1, chunk_triplets // 16))
 
@@ -590,7 +597,7 @@ def _check_working_set(calc: Calculus, n: int, num_samples: int, chunk_triplets:
     if max_bytes is None:
         return
     root = root_of(calc)
-    generic = not _is_edc(root)
+    generic = not is_edc(root)
     need = working_set_bytes(n, num_samples, root.num_states, chunk_triplets=chunk_triplets,
                              generic=generic)
     if need > max_bytes:
@@ -620,10 +627,10 @@ def fine_counts(
     means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
     root = root_of(calc)
     traced = any(isinstance(x, jax.core.Tracer) for x in (key, means, sigma))
-    if (not traced and _is_edc(root) and _threefry_key_data(key) is not None
+    if (not traced and is_edc(root) and _threefry_key_data(key) is not None
             and int(num_samples) > sample_block(int(chunk_triplets), means.shape[0])):
         return _fine_counts_edc_eager(key, means, sigma, int(num_samples), int(chunk_triplets))
-    return _root_counts(key, means, sigma, root=root, num_samples=int(num_samples),
+    return root_counts(key, means, sigma, root=root, num_samples=int(num_samples),
                         chunk_triplets=int(chunk_triplets))
 
 
@@ -697,7 +704,7 @@ def multi_state_probabilities(
     cals = [calculi.get(c) for c in calculi_]
     if not cals:
         raise ValueError("multi_state_probabilities needs at least one calculus")
-    roots = {root_of(c).definition_hash for c in cals}
+    roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("multi_state_probabilities needs calculi that share one root calculus")
     fine = fine_counts(key, cals[0], means, sigma, num_samples, chunk_triplets=chunk_triplets,

@@ -431,6 +431,10 @@ def _measure_image(spec, bearings, range_rank, visible, target_map, *, n, pool, 
     return ImageMeasurement(ids, lid, sets, valid, und)
 
 
+#: The raw jit-compiled image measurement (no host-side checks), for callers that trace it.
+measure_image_kernel = _measure_image
+
+
 def measure_image(
     bearings: jax.Array,
     range_rank: jax.Array,

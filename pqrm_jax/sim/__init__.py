@@ -24,7 +24,15 @@ Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
 
 from pqrm_jax.sim import lidar, rover, sensors, trajectories, world
 from pqrm_jax.sim.lidar import LidarParams, LidarScan, lidar_scan, rasterize_discs
-from pqrm_jax.sim.rover import RoverParams, RoverState, clip_control, reset, rollout, step
+from pqrm_jax.sim.rover import (
+    RoverParams,
+    RoverState,
+    clip_control,
+    reset,
+    rollout,
+    step,
+    wrap_angle,
+)
 from pqrm_jax.sim.sensors import (
     CameraObservation,
     Observation,
@@ -53,7 +61,7 @@ from pqrm_jax.sim.world import (
 __all__ = [
     "world", "rover", "sensors", "trajectories", "lidar",
     "uniform_landmarks", "clustered_landmarks", "hallway_landmarks", "corridor_grid_landmarks",
-    "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control",
+    "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control", "wrap_angle",
     "SensorParams", "Observation", "CameraObservation", "observe", "camera",
     "relative_positions", "visibility",
     "LidarParams", "LidarScan", "lidar_scan", "rasterize_discs",
