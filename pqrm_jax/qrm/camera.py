@@ -337,6 +337,7 @@ def measure_triples(
     still open in the map (others are returned as possible, unchecked); default all states.
 
     Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
+    Raises ``ValueError`` for an empty batch (T = 0), a bad shape or NaN/inf bearings.
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
@@ -351,6 +352,9 @@ def measure_triples(
         raise TypeError(f"bearings are complex ({bearings.dtype}); bearings must be real")
     if bearings.ndim != 2 or bearings.shape[-1] != 3:
         raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
+    if bearings.shape[0] == 0:
+        raise ValueError("measure_triples: bearings holds no triple (shape (0, 3)); an image "
+                         "with fewer than three landmarks has nothing to measure")
     if not jnp.issubdtype(bearings.dtype, jnp.floating):
         bearings = bearings.astype(jnp.float32)
     if not isinstance(bearings, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(bearings))):
