@@ -8,9 +8,8 @@ exception. Two properties close the suite: classification is invariant under pow
 scaling (exactly: a power of two changes no mantissa bit) and coincident points get their
 coincidence relation for any float coordinates (a vectorised 100 000-case check).
 
-Inputs owned by open defects of other work (D10 NaN fusion weights, D23 empty triple
-batches, D24 NaN landmarks in navigation) are kept out of the strategies and held by the
-``xfail`` tests at the end, which pass once those fixes land.
+Inputs owned by the entry-point-guard work (D23 empty triple batches, D24 infinite sensor
+sigma) are kept out of the strategies and held by the two plain tests at the end.
 """
 
 from __future__ import annotations
@@ -325,15 +324,13 @@ def test_sim_observe_documented(scale, special, sigma):
         assert leaf.shape[0] == 3 or leaf.ndim == 0
 
 
-# inputs owned by other branches' fixes (non-strict: pass once those land) ---------------------
-@pytest.mark.xfail(strict=False, reason="D23 (entry-point guards): empty triple batch")
-def test_measure_triples_empty_batch():
+# inputs owned by the entry-point-guard work (D23, D24; merged from branch store) -------------
+def test_measure_triples_empty_batch():  # D23, fixed on branch store
     with pytest.raises(ValueError):
         qrm.measure_triples(jnp.zeros((0, 3)), "edc")
 
 
-@pytest.mark.xfail(strict=False, reason="D24 (entry-point guards): sigma = inf")
-def test_sensor_params_infinite_sigma():
+def test_sensor_params_infinite_sigma():  # D24, fixed on branch store
     with pytest.raises(ValueError):
         psim.observe(jax.random.key(0), jnp.zeros(3), jnp.ones((3, 2)),
                      psim.SensorParams(max_range=60.0, sigma=float("inf")))
