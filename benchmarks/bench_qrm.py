@@ -1,4 +1,4 @@
-"""QRM camera-measurement + map-update benchmarks (issue #4, SPEC §10).
+"""QRM camera-measurement + map-update benchmarks (issue #4, docs/decisions.md §10).
 
 1. Per-update time vs n (n nearest of 30 landmarks): the first update (every state open,
    the peak of M Fig. 7d) and the mean over the following images; fitted log-log slope of

@@ -12,7 +12,7 @@ from pqrm_jax.tables.feasibility import FEASIBLE, INFEASIBLE, ProblemBatch, solv
 
 
 def _true_states(spec, P, exact_tol=1e-12):
-    """float64 true state of the three cyclic relations of (T, 3, 2) points; −1 on a
+    """float64 true state of the three cyclic relations of [T, 3, 2] points; −1 on a
     boundary (|constraint| below exact_tol relative)."""
     out = np.full((P.shape[0], 3), -1, np.int64)
     for o, (X, Y, Z) in enumerate(C.CYCLIC):
@@ -84,7 +84,7 @@ def test_true_state_kept_and_sets_small_at_default_depth():
     ok, kept, sets = _check_sound(spec, P)
     assert kept[ok].all()
     # the first measurement removes at least half the states "in almost all cases"
-    # (M§VIII.B; SPEC §11: a statistical statement). Generic configurations only:
+    # (M§VIII.B; docs/decisions.md §11: a statistical statement). Generic configurations only:
     frac = (popcount(sets[1000:].astype(np.uint32)) <= 10).mean()
     assert frac > 0.9, frac
     assert popcount(sets.astype(np.uint32)).mean() < 7

@@ -1,4 +1,6 @@
-"""Deterministic qualitative relational mapping with camera measurements (M, MT; SPEC §4).
+"""Deterministic qualitative relational mapping with camera measurements (M, MT).
+
+Decisions: docs/decisions.md §4; how it works: docs/qrm.md.
 
 * :mod:`~pqrm_jax.qrm.camera` — camera measurement (M§IV, Table III): batched exact
   branch-and-bound over the range-ordering cone, every triple × state × cyclic relation.

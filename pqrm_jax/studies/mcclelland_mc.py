@@ -1,19 +1,10 @@
 """McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7a–d).
 
-Per run: 30 landmarks uniform in a 100 m × 100 m square, 50 random imaging poses
-(``sim.random_imaging_points``), omnidirectional camera (bearings + range ordering, M§IV);
-at every pose the ``n`` nearest landmarks are measured (all their triples, only the states
-still open in the map are tested) and fused into the map with path consistency (M§VI.B);
-n ∈ {6, 9, 12, 18, 24, 30}. Metrics per image: % of incorrect EDC states removed, % of
-fully constrained edges, % of open states not adjacent to the truth, total RNG edge cost
-(Alg. 2), time per update; and the distribution of open-state counts at the first
-measurement of a relation.
+Runs the camera QRM on random 30-landmark layouts with 50 imaging poses, measuring the n
+nearest landmarks per pose for n ∈ {6, 9, 12, 18, 24, 30}, and reports the M§VIII.A metrics
+per image; every finished (n, run) is stored, so a killed study resumes.
 
-Engineering: each finished (n, run) is written to ``runs/n{n}_r{run}.npz`` (a killed study
-resumes); run keys are ``fold_in(seed, run)`` (the same layouts and poses for every n);
-one compiled program per n (``run_sequence``, a ``lax.scan`` over images); per-update times
-come from an extra image-by-image pass of the first ``--timed-runs`` runs. ``report.md`` and
-``fig7.png`` are rewritten at the end (``--report-only`` redoes them from stored results).
+Setup, metrics and engineering: docs/studies.md §mcclelland-mc.
 """
 
 from __future__ import annotations
