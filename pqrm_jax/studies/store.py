@@ -17,7 +17,8 @@ resume and inspect:
 * **atomic writes** — every file goes through a temp file in the same directory and
   ``os.replace``: a kill leaves the old file or the new one, never half of one.
 * **verified reads** — :meth:`Store.read_npz` reads every array (zip CRC checked),
-  :meth:`Store.read_json` and :meth:`Store.records` parse and check each record. A truncated,
+  :meth:`Store.read_json`, :meth:`Store.read_csv` and :meth:`Store.records` parse and check
+  each record. A truncated,
   empty or garbage file, a torn JSONL line, or a valid-JSON line of the wrong shape (``null``,
   ``{"lvl": 2}``) is named in a :class:`CorruptRecordWarning` (file, and line number for
   JSONL); a bad file is moved aside (``*.corrupt``), a bad line is dropped when the file is
@@ -266,10 +267,10 @@ def read_csv(path: Path, fields: Iterable[str], check: Callable[[list[dict]], bo
              *, quarantine: bool = True) -> list[dict] | None:
     """The rows of a CSV file (dicts of strings), or ``None`` when missing, torn or malformed.
 
-    The header must be exactly ``fields``; a row with a missing or extra cell (a torn last
-    line), an undecodable file or rows failing ``check`` (e.g. a wrong row count) make the
-    whole file corrupt: it is named in a :class:`CorruptRecordWarning` and, with
-    ``quarantine``, moved aside, so the unit it holds is recomputed.
+    The header must be exactly ``fields``; a last line without its line end or a row with a
+    missing or extra cell (torn), an undecodable file or rows failing ``check`` (e.g. a wrong
+    row count) make the whole file corrupt: it is named in a :class:`CorruptRecordWarning`
+    and, with ``quarantine``, moved aside, so the unit it holds is recomputed.
     """
     path = Path(path)
     if not path.exists():
@@ -278,13 +279,16 @@ def read_csv(path: Path, fields: Iterable[str], check: Callable[[list[dict]], bo
     why = None
     try:
         with path.open(newline="") as fh:
-            reader = csv.DictReader(fh)
-            rows = list(reader)
-            header = reader.fieldnames
+            text = fh.read()
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        rows = list(reader)
+        header = reader.fieldnames
     except (UnicodeDecodeError, csv.Error) as exc:
         why = f"torn or garbage CSV ({type(exc).__name__}: {exc})"
     else:
-        if header != fields:
+        if text and not text.endswith("\n"):
+            why = "the last line is cut (torn)"
+        elif header != fields:
             why = f"header {header} is not {fields}"
         elif any(None in r or any(v is None for v in r.values()) for r in rows):
             why = "a row with missing or extra cells (torn)"
