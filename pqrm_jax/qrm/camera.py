@@ -67,6 +67,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
+from .exact_camera import range_forms, sweep_witnesses
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
@@ -81,11 +82,14 @@ class TripleMeasurement(NamedTuple):
     """Kernel output for T triples (slot order near, mid, far).
 
     sets: (T, 3) uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
-    undecided: (T, 3) uint32 states kept without a witness (neither proven nor excluded).
+    undecided: (T, 3) uint32 states kept without a witness (neither proven nor excluded);
+        all zero after the exact stage.
+    exact_decisions: number of states the exact stage (z3) decided.
     """
 
     sets: jax.Array
     undecided: jax.Array
+    exact_decisions: int = 0
 
 
 class ImageMeasurement(NamedTuple):
@@ -312,14 +316,17 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     dtype = coef.dtype
     box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
     alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
-    proven = jnp.zeros((T, O), jnp.uint32)
+    # witnesses of the arrangement sweep first: the boxes then only have to exclude states
+    proven = sweep_witnesses(spec, range_forms(spec, bearings.astype(dtype)))  # (T, O)
     cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
     proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
     all_atoms = jnp.uint32(spec.atom_full)
     sets = _atom_masks_to_states(possible & all_atoms, atom_state)
     und = _atom_masks_to_states(remaining & target & ~proven & all_atoms, atom_state)
-    return sets, und
+    # three equal bearings: collinear for every range assignment, no open state (exact)
+    ray = jnp.all(bearings == bearings[:, :1], -1)[:, None]
+    return jnp.where(ray, jnp.uint32(0), sets), jnp.where(ray, jnp.uint32(0), und)
 
 
 def measure_triples(
@@ -329,6 +336,7 @@ def measure_triples(
     *,
     pool: int = 16,
     depth: int = 12,
+    exact: bool = True,
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV), batched.
 
@@ -337,6 +345,18 @@ def measure_triples(
     still open in the map (others are returned as possible, unchecked); default all states.
 
     Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
+
+    ``exact=True`` (concrete input only): the states the batched kernel leaves undecided are
+    then settled by z3 on the exact polynomial systems
+    (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets are exactly the
+    feasible sets; ``exact_decisions`` counts them. ``exact=False`` returns the kernel's
+    sound sets (undecided states kept and reported).
+
+    Bearings all equal (three landmarks on one ray): the points are collinear for every
+    range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
+    the row's sets are empty, which the map update reports as inconsistent). Two equal
+    bearings and ties in the ranges are ordinary input (the cone is closed; ties add no
+    state, see :mod:`pqrm_jax.qrm.exact_camera`).
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
@@ -360,7 +380,20 @@ def measure_triples(
         raise ValueError(f"target must have shape {bearings.shape[:1] + (3,)}, got {target.shape}")
     if pool < 4 or depth < 1:
         raise ValueError(f"pool must be >= 4 and depth >= 1, got pool={pool}, depth={depth}")
+    concrete = not any(isinstance(x, jax.core.Tracer) for x in (bearings, target))
+    if concrete:
+        b = np.asarray(bearings, np.float64)
+        same = (np.remainder(b - b[:, :1] + np.pi, 2 * np.pi) - np.pi == 0).all(-1)
+        if same.any():
+            raise ValueError(f"bearings of triple(s) {np.flatnonzero(same).tolist()} are all "
+                             "equal: three landmarks on one ray are collinear, no open EDC "
+                             "state fits")
     sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth)
+    if exact and concrete:
+        from .camera_oracle import settle_undecided
+
+        sets, n = settle_undecided(spec, bearings, sets, und)
+        return TripleMeasurement(jnp.asarray(sets), jnp.zeros_like(und), n)
     return TripleMeasurement(sets, und)
 
 
