@@ -48,6 +48,19 @@ when a camera sees all landmarks inside a narrow bearing sector (imaging point a
 the field) the curves to resolve are long and the pool fills up, so coarse boxes remain and
 many states stay open (sound, uninformative; a larger ``pool``/``depth`` helps at a cost).
 
+**Exact sets** (issue #14). ``measure_triples(exact=True)`` (the default for concrete input)
+returns exactly the feasible sets: the kernel is first seeded with the witnesses of an
+arrangement sweep of the range-ordering triangle (:mod:`pqrm_jax.qrm.exact_camera`: every
+kept state has a certified range assignment), the boxes then only have to exclude, and every
+state still undecided is settled by z3 on the exact polynomial system
+(:mod:`pqrm_jax.qrm.camera_oracle`; each SAT witness re-verified in rational arithmetic).
+The jitted image path (:func:`measure_image`, the pipeline) runs the kernel alone: sound,
+undecided states kept and counted (``ImageMeasurement.undecided``, ``Metrics.undecided``).
+Measured against the oracle (``benchmarks/bench_camera_exact.py``): the kernel keeps nearly
+all 20 states when the three bearings lie within ~1 rad, because its float32 boxes can
+neither follow the thin cells near range ties nor exclude states whose closure touches the
+cone corner ``d_near = 0, d_mid = d_far`` (where one constraint of every relation vanishes).
+
 Why a specialised kernel rather than :func:`pqrm_jax.tables.feasibility.solve` (which is
 used as the oracle in the tests): the generic solver runs one branch-and-bound per
 (relation, state) in float64 with a pool per problem; an image of 30 landmarks has
@@ -196,8 +209,9 @@ _CHECKPOINTS = (3, 6)
 _MIN_COMPACT_ROWS = 32  # smaller batches run the plain loop (gathers would cost more)
 
 
-@partial(jax.jit, static_argnames=("spec", "pool", "depth"))
-def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
+@partial(jax.jit, static_argnames=("spec", "pool", "depth", "sweep"))
+def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
+            sweep: bool = False):
     T = bearings.shape[0]
     O, K = len(CYCLIC), spec.k
     coef = cone_forms(spec, bearings).reshape(T, O * K, 9)  # (T, OK, 9)
@@ -316,8 +330,10 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     dtype = coef.dtype
     box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
     alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
-    # witnesses of the arrangement sweep first: the boxes then only have to exclude states
-    proven = sweep_witnesses(spec, range_forms(spec, bearings.astype(dtype)))  # (T, O)
+    if sweep:  # witnesses of the arrangement sweep first: the boxes then only exclude
+        proven = sweep_witnesses(spec, range_forms(spec, bearings.astype(dtype)))  # (T, O)
+    else:
+        proven = jnp.zeros((T, O), jnp.uint32)
     cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
     proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
@@ -346,8 +362,9 @@ def measure_triples(
 
     Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
 
-    ``exact=True`` (concrete input only): the states the batched kernel leaves undecided are
-    then settled by z3 on the exact polynomial systems
+    ``exact=True`` (concrete input only): the kernel is seeded with the witnesses of the
+    arrangement sweep (:mod:`pqrm_jax.qrm.exact_camera`), and the states it still leaves
+    undecided are settled by z3 on the exact polynomial systems
     (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets are exactly the
     feasible sets; ``exact_decisions`` counts them. ``exact=False`` returns the kernel's
     sound sets (undecided states kept and reported).
@@ -388,7 +405,7 @@ def measure_triples(
             raise ValueError(f"bearings of triple(s) {np.flatnonzero(same).tolist()} are all "
                              "equal: three landmarks on one ray are collinear, no open EDC "
                              "state fits")
-    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth)
+    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth, sweep=exact)
     if exact and concrete:
         from .camera_oracle import settle_undecided
 

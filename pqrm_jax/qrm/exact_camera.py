@@ -105,8 +105,13 @@ def _lines(crit):
 
 def _witness_atoms(spec: QRMSpec, Q, d):
     """Atom masks (…,) certified at points d (…, P, 3) for forms Q (…, K, 3, 3)."""
-    val = jnp.einsum("...ps,...ksr,...pr->...pk", d, Q, d)
-    mag = jnp.einsum("...ps,...ksr,...pr->...pk", jnp.abs(d), jnp.abs(Q), jnp.abs(d))
+    # dᵀQd as a product of the six monomials with the form coefficients (one matmul)
+    d0, d1, d2 = d[..., 0], d[..., 1], d[..., 2]
+    mono = jnp.stack([d0 * d0, d0 * d1, d1 * d1, d0 * d2, d1 * d2, d2 * d2], -1)
+    coef = jnp.stack([Q[..., 0, 0], 2 * Q[..., 0, 1], Q[..., 1, 1], 2 * Q[..., 0, 2],
+                      2 * Q[..., 1, 2], Q[..., 2, 2]], -1)  # (…, K, 6)
+    val = jnp.einsum("...pm,...km->...pk", mono, coef)
+    mag = jnp.einsum("...pm,...km->...pk", jnp.abs(mono), jnp.abs(coef))
     dd = jnp.sum(jnp.abs(d), -1) ** 2
     tol = REL_MARGIN * mag + ABS_MARGIN * dd[..., None]
     sgn = jnp.where(val > tol, 1, jnp.where(val < -tol, -1, 0))
