@@ -80,7 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
-from .exact_camera import range_forms, sweep_witnesses
+from .exact_camera import corner_rule, range_forms, sweep_witnesses
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
@@ -223,7 +223,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
     weights = jnp.asarray(3 ** np.arange(K), jnp.int32)
     target = _state_masks_to_atoms(target_states, atom_state)  # (T, O)
 
-    def evaluate(cpn, target, box, alive, proven):
+    def evaluate(cpn, target, sig, hst, box, alive, proven):
         R, QK = cpn.shape[0], cpn.shape[1] // 2
         a0, a1, b0, b1 = (box[..., i] for i in range(4))
         nb = box.shape[1]
@@ -239,7 +239,12 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
         tol = _EPS * (hp - hn) + 1e-30  # m_hi · |c|
         val = cp_ + cn_
         tol_c = _EPS * (cp_ - cn_) + 1e-30  # m_centre · |c|
-        cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0)).reshape(R, -1, O, K)
+        cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0))
+        # the corner d_near = 0, d_mid = d_far (a = 0, b = 1): a constraint vanishing there
+        # has the sign of its gradient on small boxes at the corner (exact_camera)
+        at = ((a0 == 0) & (b1 == 1))[..., None] & (a1[..., None] <= hst[:, None]) & \
+            ((1 - b0)[..., None] <= hst[:, None]) & (sig[:, None] != 0)
+        cert = jnp.where(at, sig[:, None], cert).reshape(R, -1, O, K)
         cmask = jnp.where(cert == 1, pos, jnp.where(cert == -1, neg, amb))
         compat = _and_reduce(cmask, 3)  # (R, B, O)
         compat = jnp.where(alive[..., None], compat, jnp.uint32(0))
@@ -286,7 +291,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
     def rounds(rows, st, stop):
         """Refine rows until round ``stop`` or until no row has a useful box. A row without
         useful boxes has no live box left after the split: it is final."""
-        cpn, target = rows
+        cpn, target, sig, hst = rows
 
         def cond(c):
             it, _, alive, _ = c
@@ -294,7 +299,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
 
         def body(c):
             it, box, alive, proven = c
-            _, useful, proven = evaluate(cpn, target, box, alive, proven)
+            _, useful, proven = evaluate(cpn, target, sig, hst, box, alive, proven)
             box, alive = split(box, useful)
             return it + 1, box, alive, proven
 
@@ -335,7 +340,8 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
     else:
         proven = jnp.zeros((T, O), jnp.uint32)
     cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
-    proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
+    sig, hst = corner_rule(spec, coef.reshape(T, O * K, 3, 3))  # (T, OK)
+    proven, remaining = stage((cpn, target, sig, hst), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
     all_atoms = jnp.uint32(spec.atom_full)
     sets = _atom_masks_to_states(possible & all_atoms, atom_state)

@@ -35,7 +35,8 @@ import numpy as np
 
 from .spec import QRMSpec
 
-__all__ = ["range_forms", "sweep_witnesses", "REL_MARGIN", "ABS_MARGIN", "GRID_LINES"]
+__all__ = ["range_forms", "sweep_witnesses", "corner_vanishing", "corner_rule", "REL_MARGIN",
+           "ABS_MARGIN", "GRID_LINES"]
 
 #: the three cyclic relations of a slot triple (near, mid, far) = (0, 1, 2): XY:Z
 CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
@@ -166,3 +167,55 @@ def sweep_witnesses(spec: QRMSpec, Q: jax.Array) -> jax.Array:
     db = jnp.stack([x, ybr, jnp.ones_like(x)], -1).reshape(*x.shape[:-2], -1, 3)
     d = jnp.concatenate([da, db], -2)
     return _witness_atoms(spec, Q, d)
+
+
+def corner_vanishing(spec: QRMSpec) -> np.ndarray:
+    """(O, K) bool: constraints that vanish identically at the cone corner ``d = (0, 1, 1)``.
+
+    There the near landmark is at the camera and the other two are equidistant from it, so
+    e.g. ``|AB| = |AC|`` in ``01:2``. Found structurally: zero (to 1e-12) at that corner for
+    several random bearing triples in float64.
+    """
+    rng = np.random.default_rng(0)
+    d = np.array([0.0, 1.0, 1.0])
+    out = np.ones((3, spec.k), bool)
+    for _ in range(4):
+        b = rng.uniform(-np.pi, np.pi, 3)
+        w = np.stack([np.cos(b), np.sin(b)], -1)
+        P = d[:, None] * w
+        for o, (X, Y, Z) in enumerate(CYCLIC):
+            D, E = P[Y] - P[X], P[Z] - P[X]
+            q = np.array([D @ D, E[0] * D[1] - E[1] * D[0], E @ D, E @ E])
+            out[o] &= np.abs(spec.lin @ q) < 1e-12
+    return out
+
+
+def corner_rule(spec: QRMSpec, coef: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Sign of each corner-vanishing constraint near the corner ``(a, b) = (0, 1)``.
+
+    ``coef`` (T, O·K, 3, 3): monomial coefficients over the box parametrisation ``d = (a·b,
+    b, 1)`` (:func:`pqrm_jax.qrm.camera.cone_forms`). With ``b = 1 − s`` a constraint that
+    vanishes at the corner is ``f = α a + β s + R(a, s)``, every term of ``R`` of total degree
+    ≥ 2 with ``|R| ≤ G·h·(a + s)`` on ``[0, h]²`` (``G`` = sum of their |coefficients|). If
+    ``α`` and ``β`` share the sign σ, then ``σ f ≥ (a + s)(min(|α|, |β|) − G h) > 0`` on the
+    box minus the corner for ``h ≤ h* = min(|α|, |β|) / (2G)``; the corner itself is in no
+    open state (``f = 0`` there). This is what lets the boxes exclude the states whose
+    closure only touches the corner, which no interval bound can. Returns ``(σ, h*)`` (T,
+    O·K): σ = 0 where the rule does not apply (constraint not vanishing there, opposite
+    gradient signs, or a gradient below ``1e-4`` of the coefficient scale).
+    """
+    van = jnp.asarray(corner_vanishing(spec).reshape(-1))  # (OK,)
+    j = np.arange(3)
+    # E[i, l] = Σ_j C[i, j] binom(j, l) (−1)^l   (b^j = (1 − s)^j)
+    binom = np.array([[1, 0, 0], [1, 1, 0], [1, 2, 1]], np.float64)  # [j, l]
+    M = jnp.asarray(binom * (-1.0) ** j[None, :], coef.dtype)
+    E = jnp.einsum("tkij,jl->tkil", coef, M)  # (T, OK, i, l)
+    alpha, beta = E[..., 1, 0], E[..., 0, 1]
+    deg = j[:, None] + j[None, :]
+    G = jnp.sum(jnp.where(jnp.asarray(deg >= 2), jnp.abs(E), 0.0), (-1, -2))
+    scale = jnp.max(jnp.abs(coef), (-1, -2))
+    m = jnp.minimum(jnp.abs(alpha), jnp.abs(beta))
+    ok = van[None, :] & (jnp.sign(alpha) == jnp.sign(beta)) & (m > 1e-4 * scale)
+    sig = jnp.where(ok, jnp.sign(alpha), 0).astype(jnp.int32)
+    hst = jnp.where(ok, m / (2 * G + 1e-30), 0.0)
+    return sig, hst
