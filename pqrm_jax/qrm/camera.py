@@ -400,7 +400,9 @@ def measure_triples(
     range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
     the row's sets are empty, which the map update reports as inconsistent). Two equal
     bearings and ties in the ranges are ordinary input (the cone is closed; ties add no
-    state, see :mod:`pqrm_jax.qrm.exact_camera`).
+    state, see :mod:`pqrm_jax.qrm.exact_camera`). A camera on a landmark: that landmark's
+    range is 0 and its bearing arbitrary; ``d_near = 0`` lies in the closed cone, so the sets
+    still contain the true states (they are the sets of the reported bearing).
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
