@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     t_multi, _ = best_of(lambda: pqrm.multi_state_probabilities(key, reps, means_j, sigma_j, s),
                        5)
 
-    z = np.asarray(measurement._sample_bank(key, s, np.float32)).reshape(-1, 3, 2)[:s]
+    z = np.asarray(measurement.sample_bank(key, s, np.float32)).reshape(-1, 3, 2)[:s]
     t_np, p_np = best_of(lambda: numpy_state_probabilities(rng, "edc", means, sigma, s, z=z), 3)
     t_np_ind, _ = best_of(lambda: numpy_state_probabilities(rng, "edc", means, sigma, s), 1)
     ref = numpy_counts("edc", means[:, None] + sigma[:, None, :, None] * z[None])

@@ -1,10 +1,41 @@
 """pqrm-jax: qualitative relational mapping and navigation as vectorised JAX programs.
 
-Subpackages follow the papers' concepts: ``calculi`` (SPEC §2), ``tables`` (exact operator
-tables), ``pqrm`` (P ch. 2), and more as they land. See README.md.
+Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.):
+
+* :mod:`~pqrm_jax.calculi` — ternary qualitative calculi, the registry and their protocol.
+* :mod:`~pqrm_jax.tables` — exact operator tables (unary, compose, adjacency).
+* :mod:`~pqrm_jax.pqrm` — probabilistic qualitative relational mapping (P ch. 2).
+* :mod:`~pqrm_jax.qrm` — camera-based deterministic QRM and RNG navigation (M, MT).
+* :mod:`~pqrm_jax.serge` — salient region generation (P ch. 3).
+* :mod:`~pqrm_jax.compositions` — composable sets and composition propagation (Z).
+* :mod:`~pqrm_jax.sim` — the JAX 2D rover simulator.
+* :mod:`~pqrm_jax.studies` — long studies run by ``pqrm-jax study NAME``.
+* :mod:`~pqrm_jax.triplets` — the triplet layouts (rows, dense) and their converters.
+
+>>> import pqrm_jax
+>>> pqrm_jax.calculi.get("lr").states
+('l', 'r')
+>>> sorted(pqrm_jax.__all__)[:3]
+['calculi', 'cli', 'compositions']
 """
+
+from __future__ import annotations
+
+import importlib
 
 from . import calculi
 
-__all__ = ["calculi"]
 __version__ = "0.1.0"
+__all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
+           "triplets", "cli"]
+SUBPACKAGES = tuple(__all__)
+
+
+def __getattr__(name: str):
+    if name in SUBPACKAGES:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *SUBPACKAGES])

@@ -46,7 +46,7 @@ def test_kernel_counts_equal_numpy_on_the_same_draws():
     sigma = np.asarray(jax.random.uniform(jax.random.key(4), (300, 3)) * 20)
     s = 700
     got = np.asarray(pqrm.fine_counts(key, "edc", means, sigma, s))
-    z = np.asarray(M._sample_bank(key, s, jnp.float32)).reshape(-1, 3, 2)[:s]
+    z = np.asarray(M.sample_bank(key, s, jnp.float32)).reshape(-1, 3, 2)[:s]
     ref = numpy_counts("edc", means[:, None] + sigma[:, None, :, None] * z[None])
     assert got.sum() == ref.sum() == 300 * s
     # NumPy divides (α = u/n ...) and the kernel does not: allow rare rounding flips
@@ -146,7 +146,7 @@ def test_bad_inputs_raise_or_give_zero_rows():
         pqrm.state_probabilities(key, "edc", ok, 1.0, 0)
     # inside jit values are not inspected: non-finite rows are all zeros, never NaN
     bad = jnp.asarray(np.concatenate([ok, np.full((1, 3, 2), np.nan, np.float32)]))
-    counts = jax.jit(lambda m: M._root_counts(key, m, 1.0, root=EDC, num_samples=50,
+    counts = jax.jit(lambda m: M.root_counts(key, m, 1.0, root=EDC, num_samples=50,
                                               chunk_triplets=8))(bad)
     p = np.asarray(M.counts_to_probabilities(counts))
     assert np.isfinite(p).all() and p[1].sum() == 0 and abs(p[0].sum() - 1) < 1e-6

@@ -294,7 +294,7 @@ def test_incremental_pair_gains_equal_direct_evaluation(overlapping, steps):
 
     from pqrm_jax.serge import search as S
 
-    args = S._inputs(overlapping, 4, 2.0, None, None)
+    args = S.prepare_inputs(overlapping, 4, 2.0, None, None)
     init = S._init_state(*args[:5])
     for branch in (False, True):
         run = jax.jit(S._run_trial, static_argnames=("max_steps", "branch"))

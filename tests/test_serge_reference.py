@@ -56,7 +56,7 @@ def test_reference_reproduces_batched_trials(problems, scene, mu, sigma):
     assert b.log_psi == pytest.approx(a.log_psi, abs=2e-6)
     assert b.log_psi1 == pytest.approx(a.log_psi1, abs=2e-6)
     # every trial's final labels (not only the best) equal the batched program's
-    args = S._inputs(p, mu, sigma, None, None)
+    args = S.prepare_inputs(p, mu, sigma, None, None)
     lab = np.asarray(S._trials_batched(*args, jax.random.split(KEY, TRIALS), TRIALS)[0])
     np.testing.assert_array_equal(labs, lab)
     # the trials really differ (the comparison is not vacuous)

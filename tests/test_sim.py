@@ -54,7 +54,8 @@ def test_step_tiny_turn_rate_is_finite_and_straight():
         assert np.all(np.isfinite(np.asarray(out.pose)))
         np.testing.assert_allclose(out.pose[:2], [math.cos(0.3), math.sin(0.3)], atol=1e-5)
     # The gradient through the omega -> 0 branch is finite too.
-    g = jax.grad(lambda w: rover._step(s, jnp.array([1.0, w]), sim.RoverParams(dt=1.0)).pose[1])
+    g = jax.grad(
+        lambda w: rover.step_kernel(s, jnp.array([1.0, w]), sim.RoverParams(dt=1.0)).pose[1])
     assert np.isfinite(float(g(0.0)))
     assert float(g(0.0)) == pytest.approx(0.5 * math.cos(0.3), rel=1e-4)  # d y / d omega
 

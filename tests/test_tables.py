@@ -1,6 +1,7 @@
 """Exact operator tables: published fixtures, properties, witnesses, oracle, cache, CLI."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -112,12 +113,12 @@ def test_witnesses_reverify_exactly(name):
 
 def _algebraic_witness_keys(calc, t) -> set[str]:
     """'S1|S2|S3' keys of compose entries whose z3 witness is not exactly representable."""
-    from pqrm_jax.calculi.calculus import _pattern_index
+    from pqrm_jax.calculi.calculus import pattern_index
 
     def label(atom):
         if isinstance(atom, str):
             return atom
-        return calc.states[calc.sign_table[_pattern_index(atom)]]
+        return calc.states[calc.sign_table[pattern_index(atom)]]
 
     return {"|".join(label(a) for a in u["tag"][1:]) for u in t.undecided
             if u["problem"] == "compose" and u.get("exact_witness") is False}
@@ -187,17 +188,20 @@ def test_direct_constraint_calculus_equals_merge(tmp_path, monkeypatch):
     t = tables.load_tables(direct, certify_all=True)
     for op in ("left", "right", "inverse", "compose", "adjacency"):
         np.testing.assert_array_equal(getattr(t, op), getattr(merged, op), err_msg=op)
-    assert (tmp_path / "fdc_direct_t.json").exists()
+    assert tables.cache_path(direct).exists()
+    assert tables.cache_path(direct).parent == tmp_path
+    assert tables.cache_path(direct).name.startswith("fdc_direct_t")
 
 
 def test_cache_corrupt_and_stale(tmp_path, monkeypatch):
     monkeypatch.setenv("PQRM_JAX_CACHE", str(tmp_path))
     lr2 = Calculus.from_rule("lr_cache_t", [-alpha], lambda s: "r" if s[0] < 0 else "l")
     tables.load_tables(lr2)
-    path = tmp_path / "lr_cache_t.json"
+    path = tables.cache_path(lr2)
+    assert path.parent == tmp_path and path.name.startswith("lr_cache_t")
     good = path.read_text()
     path.write_text(good[:-20])  # truncated
-    tables._MEMO.clear()
+    tables.clear_memo()
     with pytest.raises(CacheError, match="corrupt"):
         tables.load_tables(lr2)
     raw = json.loads(good)
@@ -226,3 +230,43 @@ def test_cli_json_export(tmp_path):
     assert len(A) == 2 and isinstance(d["undecided"], list)
     with pytest.raises(KeyError, match="known calculi"):
         main(["tables", "nope", "--json", str(out)])
+
+
+def test_cache_repair_advice_works_for_user_calculi(tmp_path, monkeypatch):
+    """D18: the advice for a user calculus is to delete the file (no CLI command can see it)."""
+    monkeypatch.setenv("PQRM_JAX_CACHE", str(tmp_path))
+    lr2 = Calculus.from_rule("lr_advice_t", [-alpha], lambda s: "r" if s[0] < 0 else "l")
+    tables.load_tables(lr2)
+    path = tables.cache_path(lr2)
+    path.write_text("{not json")
+    tables.clear_memo()
+    with pytest.raises(CacheError, match="rebuilt on next access") as err:
+        tables.load_tables(lr2)
+    assert str(path) in str(err.value) and "pqrm-jax tables" not in str(err.value)
+    path.unlink()  # following the advice repairs it
+    assert tables.load_tables(lr2).definition_hash == lr2.definition_hash
+
+
+def test_cache_keyed_by_definition_and_confined(tmp_path, monkeypatch):
+    """D19: two merges with one name get two files; a name cannot leave the cache directory."""
+    cache = tmp_path / "c"
+    monkeypatch.setenv("PQRM_JAX_CACHE", str(cache))
+    edc = calculi.get("edc")
+    states = [str(i) for i in range(1, 21)]
+    g1 = {"l": "1 3 5 6 7 11 12 13 17 19".split(), "r": "2 4 8 9 10 14 15 16 18 20".split()}
+    g2 = {"a": states[:10], "b": states[10:]}
+    m1, m2 = edc.merge("../escaped", g1), edc.merge("../escaped", g2)
+    p1, p2 = tables.cache_path(m1), tables.cache_path(m2)
+    assert p1 != p2 and p1.parent == cache and p2.parent == cache
+    t1 = tables.load_tables(m1)
+    t2 = tables.load_tables(m2)
+    assert p1.exists() and p2.exists()
+    assert not (tmp_path / "escaped.json").exists()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["c"]
+    tables.clear_memo()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "stale" rebuild when alternating
+        assert tables.load_tables(m1).definition_hash == t1.definition_hash
+        assert tables.load_tables(m2).definition_hash == t2.definition_hash
+    assert tables.safe_file_stem("../../x/y") == "x_y"
+    assert tables.cache_path(edc) == tables.PACKAGE_DIR / "edc.json"

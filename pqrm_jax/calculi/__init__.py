@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from . import library
-from .calculus import BOUNDARY, DEGENERATE, INVALID, Calculus
+from .calculus import Calculus
 from .poly import Poly, alpha, beta, circle, line, rho
+from .protocol import BOUNDARY, DEGENERATE, INVALID, TernaryCalculus, check_calculus
 
 __all__ = [
-    "BOUNDARY", "DEGENERATE", "INVALID", "Calculus", "Poly", "alpha", "beta", "rho", "line",
-    "circle", "get", "names", "register",
+    "BOUNDARY", "DEGENERATE", "INVALID", "Calculus", "TernaryCalculus", "check_calculus", "Poly",
+    "alpha", "beta", "rho", "line", "circle", "get", "is_builtin", "names", "register",
 ]
 
 _BUILDERS: dict[str, Callable[[], Calculus]] = {
@@ -42,10 +43,19 @@ def names() -> tuple[str, ...]:
     return tuple(dict.fromkeys([*_BUILDERS, *_CACHE]))
 
 
-def get(name: str) -> Calculus:
-    """The calculus called ``name``; an unknown name raises ``KeyError`` listing known names."""
-    if isinstance(name, Calculus):
-        return name
+def is_builtin(name: str) -> bool:
+    """Whether ``name`` is one of the calculi shipped with the package (tables in package data)."""
+    return name in _BUILDERS
+
+
+def get(name: str | TernaryCalculus) -> Calculus | TernaryCalculus:
+    """The calculus called ``name``; an unknown name raises ``KeyError`` listing known names.
+
+    A calculus object (anything that is not a string) is checked against
+    :class:`TernaryCalculus` and returned as it is.
+    """
+    if not isinstance(name, str):
+        return check_calculus(name)
     if name not in _CACHE:
         if name not in _BUILDERS:
             raise KeyError(f"unknown calculus {name!r}; known calculi: {', '.join(names())}")
@@ -53,8 +63,13 @@ def get(name: str) -> Calculus:
     return _CACHE[name]
 
 
-def register(calc: Calculus, *, overwrite: bool = False) -> Calculus:
-    """Make a user-defined calculus available through :func:`get`."""
+def register(calc: TernaryCalculus, *, overwrite: bool = False) -> TernaryCalculus:
+    """Make a user-defined calculus available through :func:`get`.
+
+    ``calc`` must implement :class:`TernaryCalculus` (``name``, ``states``, ``num_states``,
+    ``classify``); a missing member raises ``TypeError`` naming it.
+    """
+    check_calculus(calc)
     if not overwrite and (calc.name in _BUILDERS or calc.name in _CACHE):
         raise ValueError(f"a calculus named {calc.name!r} already exists")
     _CACHE[calc.name] = calc

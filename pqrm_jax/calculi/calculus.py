@@ -33,15 +33,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .poly import Poly, as_constraint
-
-BOUNDARY = -1
-DEGENERATE = -2
-INVALID = -3
+from .protocol import BOUNDARY, DEGENERATE, INVALID
 
 SignRule = Callable[[tuple[int, ...]], "str | None"]
 
 
-def _pattern_index(signs: Sequence[int]) -> int:
+def pattern_index(signs: Sequence[int]) -> int:
     return sum((s + 1) * 3**a for a, s in enumerate(signs))
 
 
@@ -52,7 +49,7 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
     for signs in itertools.product((-1, 0, 1), repeat=k):
         zeros = [a for a, s in enumerate(signs) if s == 0]
         if not zeros:
-            table[_pattern_index(signs)] = full.get(signs, BOUNDARY)
+            table[pattern_index(signs)] = full.get(signs, BOUNDARY)
             continue
         seen = set()
         for fill in itertools.product((-1, 1), repeat=len(zeros)):
@@ -63,7 +60,7 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
             if st >= 0:
                 seen.add(st)
         if len(seen) == 1:
-            table[_pattern_index(signs)] = seen.pop()
+            table[pattern_index(signs)] = seen.pop()
     return table
 
 
@@ -168,7 +165,7 @@ class Calculus:
         if boundary_inclusive:
             table = np.full(3**k, BOUNDARY, dtype=np.int32)
             for signs, lab in assign.items():
-                table[_pattern_index(signs)] = index[lab]
+                table[pattern_index(signs)] = index[lab]
         else:
             table = _fill_open_boundaries({s: index[lab] for s, lab in assign.items()}, k)
         return cls(name, labels, constraints, table, boundary_inclusive=boundary_inclusive,
@@ -209,7 +206,7 @@ class Calculus:
         else:
             full = {}
             for signs in itertools.product((-1, 1), repeat=self.k):
-                st = self.sign_table[_pattern_index(signs)]
+                st = self.sign_table[pattern_index(signs)]
                 if st >= 0:
                     full[signs] = int(fine_to_coarse[st])
             table = _fill_open_boundaries(full, self.k)
@@ -310,19 +307,29 @@ class Calculus:
     # operators (computed lazily by pqrm_jax.tables) ----------------------------------------
     @property
     def tables(self):
-        """Exact operator tables (unary, compose, adjacency), loaded from cache or built."""
-        from ..tables import load_tables
+        """Exact operator tables (unary, compose, adjacency), loaded from cache or built.
+
+        A lazy accessor into :func:`pqrm_jax.tables.store.load_tables`: the first access of a
+        user calculus without a cached file runs the exact build (seconds to minutes).
+        """
+        from ..tables.store import load_tables
 
         return load_tables(self)
 
     @property
     def adjacency(self) -> np.ndarray:
-        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1)."""
+        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1).
+
+        Read from :attr:`tables`, so the first access may build them.
+        """
         return self.tables.adjacency
 
     @property
     def neighbor_distance(self) -> np.ndarray:
-        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph."""
+        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph.
+
+        Read from :attr:`tables`, so the first access may build them.
+        """
         return self.tables.neighbor_distance
 
 

@@ -270,7 +270,7 @@ class CompositionTree:
     def is_leaf(self) -> bool:
         return self.children is None
 
-    def _postorder(self) -> Iterator[CompositionTree]:
+    def postorder(self) -> Iterator[CompositionTree]:
         seen: set[int] = set()
         stack: list[tuple[CompositionTree, bool]] = [(self, False)]
         while stack:
@@ -287,16 +287,16 @@ class CompositionTree:
     def steps(self) -> list[tuple[Triplet, Triplet, Triplet]]:
         """Distinct compositions ``(target, τ_L, τ_R)`` in an executable order."""
         return [(n.triplet, n.children[0].triplet, n.children[1].triplet)
-                for n in self._postorder() if not n.is_leaf]
+                for n in self.postorder() if not n.is_leaf]
 
     def sources(self) -> set[Triplet]:
         """The distinct source triplets the tree uses."""
-        return {n.triplet for n in self._postorder() if n.is_leaf}
+        return {n.triplet for n in self.postorder() if n.is_leaf}
 
     def num_compositions(self) -> int:
         """Compositions in the tree counted as a tree (shared subtrees counted each time)."""
         count: dict[int, int] = {}
-        for n in self._postorder():
+        for n in self.postorder():
             count[id(n)] = 0 if n.is_leaf else (
                 1 + count[id(n.children[0])] + count[id(n.children[1])])
         return count[id(self)]
@@ -304,7 +304,7 @@ class CompositionTree:
     def depth(self) -> int:
         """Number of composition levels on the longest root-to-leaf path."""
         dep: dict[int, int] = {}
-        for n in self._postorder():
+        for n in self.postorder():
             dep[id(n)] = 0 if n.is_leaf else 1 + max(dep[id(c)] for c in n.children)
         return dep[id(self)]
 
@@ -319,7 +319,7 @@ class CompositionTree:
     def check(self, sources: Iterable[Iterable[Landmark]]) -> None:
         """``ValueError`` naming the first leaf not in ``sources`` or step breaking Lemma 2.4.1."""
         S = as_triplet_set(sources)
-        for n in self._postorder():
+        for n in self.postorder():
             if n.is_leaf:
                 if n.triplet not in S:
                     raise ValueError(f"leaf {fmt(n.triplet)} is not a source triplet")

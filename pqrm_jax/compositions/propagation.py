@@ -62,6 +62,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..triplets import dense_to_rows, distinct_mask, ordered_triplets, rows_to_dense
+
 __all__ = ["PropagationResult", "compose", "fuse", "propagate", "propagate_loop", "from_pqrm",
            "to_pqrm_rows",
            "check_tensor", "check_map", "DEFAULT_EPS", "DEFAULT_PATH_WEIGHT"]
@@ -90,11 +92,6 @@ def check_tensor(tensor, atol: float = 1e-3) -> jax.Array:
     return jnp.asarray(t, dtype=jnp.float32)
 
 
-def _distinct_mask(n: int) -> np.ndarray:
-    i, j, k = np.ogrid[:n, :n, :n]
-    return (i != j) & (j != k) & (i != k)
-
-
 def check_map(probs, observed, atol: float = 1e-3, renormalize: bool = False):
     """Validate the ``(L, L, L, Q)`` map and ``(L, L, L)`` mask; returns float32 arrays.
 
@@ -110,7 +107,7 @@ def check_map(probs, observed, atol: float = 1e-3, renormalize: bool = False):
         if not np.isin(m, (0, 1)).all():
             raise ValueError("observed must be a boolean mask")
         m = m.astype(bool)
-    rep = m & ~_distinct_mask(p.shape[0])
+    rep = m & ~distinct_mask(p.shape[0])
     if rep.any():
         i, j, k = np.argwhere(rep)[0]
         raise ValueError(f"observed triplet ({i}, {j}, {k}) repeats a landmark; triplets need "
@@ -304,7 +301,7 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
         if pr.shape != (q,) or np.any(pr <= 0) or not np.isclose(pr.sum(), 1, atol=1e-3):
             raise ValueError("prior must be a strictly positive (Q,) distribution")
         prior_log = jnp.log(jnp.asarray(pr / pr.sum(), jnp.float32))
-    distinct = jnp.asarray(_distinct_mask(n))
+    distinct = jnp.asarray(distinct_mask(n))
     eps_ = jnp.float32(eps)
     targets0 = distinct if mode == "fuse" else distinct & ~obs
     known, cur = obs, p
@@ -409,8 +406,6 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
     ``observed`` is ``state.mapped``. Mapped rows are renormalised by :func:`propagate`'s
     checks only if you pass ``renormalize=True``.
     """
-    from ..pqrm import ordered_triplets
-
     trip = ordered_triplets(num_landmarks)
     if representation not in state.probs:
         raise ValueError(f"map has no representation {representation!r}; it has "
@@ -419,17 +414,11 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
     if rows.shape[0] != len(trip):
         raise ValueError(f"map has {rows.shape[0]} rows, {num_landmarks} landmarks need "
                          f"{len(trip)}")
-    n, q = num_landmarks, rows.shape[-1]
-    probs = np.zeros((n, n, n, q), np.float32)
-    observed = np.zeros((n, n, n), bool)
-    probs[trip[:, 0], trip[:, 1], trip[:, 2]] = rows
-    observed[trip[:, 0], trip[:, 1], trip[:, 2]] = np.asarray(state.mapped)
+    probs = rows_to_dense(rows, num_landmarks, fill=0.0)
+    observed = rows_to_dense(np.asarray(state.mapped, bool), num_landmarks, fill=False)
     return probs, observed
 
 
 def to_pqrm_rows(probs, num_landmarks: int) -> np.ndarray:
     """``(T, Q)`` rows in ``pqrm.ordered_triplets`` order from an ``(L, L, L, Q)`` array."""
-    from ..pqrm import ordered_triplets
-
-    trip = ordered_triplets(num_landmarks)
-    return np.asarray(probs)[trip[:, 0], trip[:, 1], trip[:, 2]]
+    return dense_to_rows(np.asarray(probs), num_landmarks)

@@ -238,7 +238,7 @@ class CompositionGraph:
     def tree_cost(self, tree: CompositionTree) -> float:
         """Recompute eq. 3.2 for ``tree`` from this graph's source and composition costs."""
         memo: dict[int, float] = {}
-        for n in tree._postorder():
+        for n in tree.postorder():
             if n.is_leaf:
                 memo[id(n)] = float(self.source_cost[self.triplet_id(n.triplet)])
             else:

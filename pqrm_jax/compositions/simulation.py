@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import triplets as layouts
 from .propagation import DEFAULT_EPS, DEFAULT_PATH_WEIGHT, propagate
 
 __all__ = ["sample_compose_tensor", "random_world", "true_states", "measure_map", "score",
@@ -70,9 +71,11 @@ def random_world(key, num_landmarks: int, size: float = 100.0) -> jax.Array:
 
 
 def true_states(calc, pos) -> np.ndarray:
-    """``(L, L, L)`` true state of every ordered triplet (sentinel < 0 on repeated landmarks)."""
-    pos = jnp.asarray(pos)
-    return np.asarray(calc.classify(pos[:, None, None], pos[None, :, None], pos[None, None, :]))
+    """``(L, L, L)`` true state of every ordered triplet (sentinel < 0 on repeated landmarks).
+
+    The dense layout of :func:`pqrm_jax.triplets.true_states` (repeated entries as classified).
+    """
+    return np.asarray(layouts.true_states(calc, pos, "dense", mask_repeated=False))
 
 
 def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 256):

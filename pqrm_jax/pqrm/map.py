@@ -40,28 +40,20 @@ import numpy as np
 
 from .. import calculi
 from ..calculi import Calculus
+from ..triplets import ordered_triplets  # the rows layout (re-exported as pqrm.ordered_triplets)
 from .measurement import (
-    _edc_block_counts,
-    _is_edc,
-    _key_to_edc_state,
-    _root_counts,
-    _sample_bank,
     aggregation_matrix,
     counts_to_probabilities,
+    edc_block_counts,
+    is_edc,
+    key_to_edc_state,
+    root_counts,
+    root_identity,
     root_of,
+    sample_bank,
 )
 
 __all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed"]
-
-
-def ordered_triplets(num_landmarks: int) -> np.ndarray:
-    """(M(M−1)(M−2), 3) int32: every ordered triplet (i, j, k) of distinct landmark ids."""
-    if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
-        raise ValueError(f"a PQRM map needs at least three landmarks, got {num_landmarks!r}")
-    m = int(num_landmarks)
-    i, j, k = np.meshgrid(np.arange(m), np.arange(m), np.arange(m), indexing="ij")
-    keep = (i != j) & (i != k) & (j != k)
-    return np.stack([i[keep], j[keep], k[keep]], axis=-1).astype(np.int32)
 
 
 class MapState(NamedTuple):
@@ -156,7 +148,7 @@ def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
 def _update_impl(state: MapState, key, positions, visible, sigma, *, triplets, cals, root,
                  num_samples, chunk_triplets):
     means, sig, seen, dropped = _prepare(positions, visible, sigma, triplets)
-    counts = _root_counts(key, means, sig, root=root, num_samples=num_samples,
+    counts = root_counts(key, means, sig, root=root, num_samples=num_samples,
                           chunk_triplets=chunk_triplets)
     return _apply_counts(state, counts, seen, dropped, cals=cals)
 
@@ -170,8 +162,8 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     sigma = jnp.broadcast_to(sigma, (r, m))
     means, sig, seen, dropped = jax.vmap(partial(_prepare, triplets=triplets))(
         positions, visible, sigma)
-    if not _is_edc(root):
-        counts = jax.vmap(partial(_root_counts, root=root, num_samples=num_samples,
+    if not is_edc(root):
+        counts = jax.vmap(partial(root_counts, root=root, num_samples=num_samples,
                                   chunk_triplets=chunk_triplets))(keys, means, sig)
         return jax.vmap(partial(_apply_counts, cals=cals))(state, counts, seen, dropped)
     # sparse path: sample and update only the seen triplets, compacted across the R maps
@@ -179,7 +171,7 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     g = groups
     if g < 1 or r % g:
         raise ValueError(f"{r} maps cannot be split into {g} groups")
-    z = jax.vmap(lambda k: _sample_bank(k, num_samples, means.dtype))(keys)  # (R, c, C, 6)
+    z = jax.vmap(lambda k: sample_bank(k, num_samples, means.dtype))(keys)  # (R, c, C, 6)
     rows = (state.probs, state.mapped, state.num_updates, state.num_conflicts,
             state.num_rejected)
 
@@ -214,7 +206,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
     order = jnp.nonzero(mask, size=total, fill_value=total)[0].astype(jnp.int32)
     order = jnp.concatenate([order, jnp.full(nblk_max * blk - total, total, jnp.int32)])
     num_seen = jnp.sum(mask, dtype=jnp.int32)
-    inv = np.argsort(_key_to_edc_state())
+    inv = np.argsort(key_to_edc_state())
 
     def body(carry):
         p, buf = carry
@@ -222,7 +214,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
         valid = idx < total
         safe = jnp.where(valid, idx, 0)
         zc = jnp.transpose(z[safe // n], (1, 2, 3, 0))  # this block's banks (c, C, 6, blk)
-        counts = _edc_block_counts(m[safe].T, s[safe].T, zc)[:, inv]
+        counts = edc_block_counts(m[safe].T, s[safe].T, zc)[:, inv]
         probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
             lambda x: x[safe], rows)
         sub = MapState(probs, mapped, num_updates, num_conflicts, num_rejected,
@@ -284,7 +276,7 @@ def mapper(
     names = [c.name for c in cals]
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate representations: {names}")
-    roots = {root_of(c).definition_hash for c in cals}
+    roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("all representations of one map must be merges of one root calculus "
                          "(one sampling pass serves them all)")

@@ -78,18 +78,25 @@ _BAND_OFFSET = (0, 2, 5, 8)
 
 
 def root_of(calc: Calculus) -> Calculus:
-    """The finest calculus that ``calc`` is a (chain of) merge(s) of."""
-    while calc.parent is not None:
+    """The finest calculus that ``calc`` is a (chain of) merge(s) of (no ``parent``: itself)."""
+    while getattr(calc, "parent", None) is not None:
         calc = calc.parent
     return calc
 
 
-def _is_edc(calc: Calculus) -> bool:
-    return calc.definition_hash == calculi.get("edc").definition_hash
+def root_identity(calc: Calculus) -> str | int:
+    """What makes two calculi share one root: its ``definition_hash``, else the object itself."""
+    root = root_of(calc)
+    return getattr(root, "definition_hash", None) or id(root)
+
+
+def is_edc(calc: Calculus) -> bool:
+    """Whether ``calc`` is the EDC itself (it gets the fused sampling kernel)."""
+    return getattr(calc, "definition_hash", None) == calculi.get("edc").definition_hash
 
 
 @cache
-def _key_to_edc_state() -> np.ndarray:
+def key_to_edc_state() -> np.ndarray:
     """Permutation key (0..19) → EDC state index, derived from ``edc.sign_table``."""
     edc = calculi.get("edc")
     out = np.full(EDC_NUM_STATES, -1, np.int32)
@@ -111,7 +118,7 @@ def aggregation_matrix(calc: Calculus) -> np.ndarray:
     """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
-    while c.parent is not None:
+    while getattr(c, "parent", None) is not None:
         fine_to = fine_to[np.asarray(c.parent_map)]
         c = c.parent
     mat = np.zeros((c.num_states, calc.num_states), np.float32)
@@ -152,7 +159,7 @@ def edc_states_fused(a: jax.Array, b: jax.Array, c: jax.Array) -> jax.Array:
     """
     a, b, c = (jnp.asarray(x, jnp.result_type(x, jnp.float32)) for x in (a, b, c))
     key = _edc_keys(*_uvmn(a[..., 0], a[..., 1], b[..., 0], b[..., 1], c[..., 0], c[..., 1]))
-    table = jnp.asarray(np.append(_key_to_edc_state(), -1).astype(np.int32))
+    table = jnp.asarray(np.append(key_to_edc_state(), -1).astype(np.int32))
     return table[key.astype(jnp.int32)]
 
 
@@ -165,7 +172,7 @@ def _variadic_sum(ops, axis):
     return jax.lax.reduce(tuple(ops), init, add, (axis,))
 
 
-def _edc_block_counts(mT, sT, zc):
+def edc_block_counts(mT, sT, zc):
     """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
 
     ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
@@ -194,7 +201,7 @@ def _edc_block_counts(mT, sT, zc):
     return counts.reshape(counts.shape[0], _WORDS * 4)[:, :EDC_NUM_STATES]
 
 
-def _sample_bank(key, num_samples: int, dtype):
+def sample_bank(key, num_samples: int, dtype):
     """Standard-normal bank (c, C, 6), padded with NaN (rejected) up to c·C ≥ num_samples."""
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
@@ -208,7 +215,7 @@ def _sample_bank(key, num_samples: int, dtype):
 def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
     n = means.shape[0]
     dtype = means.dtype
-    z = _sample_bank(key, num_samples, dtype)
+    z = sample_bank(key, num_samples, dtype)
     mT = means.reshape(n, 6).T  # (6, N): ax, ay, bx, by, cx, cy
     sT = sigma.T  # (3, N)
     blk = max(1, min(chunk_triplets, n))
@@ -218,15 +225,15 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
         mT = jnp.concatenate([mT, jnp.full((6, pad), jnp.nan, dtype)], axis=1)
         sT = jnp.concatenate([sT, jnp.zeros((3, pad), dtype)], axis=1)
     if nblk == 1:
-        counts = _edc_block_counts(mT, sT, z)
+        counts = edc_block_counts(mT, sT, z)
     else:
         mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
         sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
-        counts = jax.lax.map(lambda ms: _edc_block_counts(ms[0], ms[1], z), (mB, sB))
+        counts = jax.lax.map(lambda ms: edc_block_counts(ms[0], ms[1], z), (mB, sB))
         counts = counts.reshape(nblk * blk, EDC_NUM_STATES)
     counts = counts[:n]
     # key order → EDC state order
-    inv = np.argsort(_key_to_edc_state())
+    inv = np.argsort(key_to_edc_state())
     return counts[:, inv]
 
 
@@ -237,7 +244,7 @@ def _fine_counts_generic(key, root: Calculus, means, sigma, num_samples: int, ch
     def one_block(args):
         mb, sb = args  # (B,3,2), (B,3)
         pts = mb[:, None] + sb[:, None, :, None] * z[None]  # (B,S,3,2)
-        st = root._classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
+        st = root.classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
         return jnp.sum(st[..., None] == jnp.arange(q), axis=1, dtype=jnp.int32)
 
     n = means.shape[0]
@@ -258,9 +265,9 @@ def _broadcast_sigma(sigma, n: int, dtype):
 
 
 @partial(jax.jit, static_argnames=("root", "num_samples", "chunk_triplets"))
-def _root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
+def root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
     sigma = _broadcast_sigma(sigma, means.shape[0], means.dtype)
-    if _is_edc(root):
+    if is_edc(root):
         return _fine_counts_edc(key, means, sigma, num_samples, chunk_triplets)
     return _fine_counts_generic(key, root, means, sigma, num_samples, max(1, chunk_triplets // 16))
 
@@ -303,7 +310,7 @@ def fine_counts(
     calc = calculi.get(calculus)
     check_measurement_inputs(means, sigma, num_samples)
     means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
-    return _root_counts(key, means, sigma, root=root_of(calc), num_samples=int(num_samples),
+    return root_counts(key, means, sigma, root=root_of(calc), num_samples=int(num_samples),
                         chunk_triplets=int(chunk_triplets))
 
 
@@ -365,7 +372,7 @@ def multi_state_probabilities(
     (['edc', 'lr'], [[0.0, 1.0]])
     """
     cals = [calculi.get(c) for c in calculi_]
-    roots = {root_of(c).definition_hash for c in cals}
+    roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("multi_state_probabilities needs calculi that share one root calculus")
     fine = fine_counts(key, cals[0], means, sigma, num_samples, chunk_triplets=chunk_triplets)

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import triplets as layouts
 from ..calculi import Calculus
 
 __all__ = [
@@ -94,9 +95,11 @@ def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax
 
 
 def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
-    """(T,) true state of ``AB:C`` for each triplet (i, j, k) of world landmarks (M, 2)."""
-    tri = jnp.asarray(triplets)
-    return calc._classify(landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]])
+    """(T,) true state of ``AB:C`` for each triplet (i, j, k) of world landmarks (M, 2).
+
+    The rows layout of :func:`pqrm_jax.triplets.true_states`.
+    """
+    return layouts.true_states(calc, landmarks, "rows", triplets=triplets)
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:

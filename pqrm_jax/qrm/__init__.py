@@ -9,6 +9,8 @@
 * :mod:`~pqrm_jax.qrm.association` — data-association candidate filter (M§VI.C).
 * :mod:`~pqrm_jax.qrm.rng` — RNG estimate with edge costs (M Alg. 2).
 * :mod:`~pqrm_jax.qrm.navigation` — RNG navigation between Voronoi cells, closed loop (M§VII.B).
+* :mod:`~pqrm_jax.qrm.mapper` — ``mapper(calc, num_landmarks, n)`` → ``Mapper(init, update,
+  metrics)``, pure functions as :func:`pqrm_jax.pqrm.mapper` (a sequence is a ``lax.scan``).
 * :mod:`~pqrm_jax.qrm.pipeline` — image-by-image mapping in the simulator and the M§VIII.A
   metrics; :mod:`~pqrm_jax.qrm.reference` — one-relation-at-a-time reference update.
 
@@ -25,6 +27,7 @@ Example::
 from .association import association_candidates
 from .camera import ImageMeasurement, measure_image, measure_triples
 from .hypergraph import QRMMap, apply_relations, closure, empty_map, true_map, update_image
+from .mapper import Mapper, mapper
 from .navigation import navigate, navigate_many
 from .pipeline import map_metrics, map_step, run_sequence
 from .rng import rng_estimate, true_rng
@@ -33,4 +36,5 @@ from .spec import QRMSpec, mask_of, qrm_spec, states_of
 __all__ = ["association_candidates", "ImageMeasurement", "measure_image", "measure_triples",
            "QRMMap", "apply_relations", "closure", "empty_map", "true_map", "update_image",
            "navigate", "navigate_many", "map_metrics", "map_step", "run_sequence",
-           "rng_estimate", "true_rng", "QRMSpec", "mask_of", "qrm_spec", "states_of"]
+           "rng_estimate", "true_rng", "QRMSpec", "mask_of", "qrm_spec", "states_of", "Mapper",
+           "mapper"]

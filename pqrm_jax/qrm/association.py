@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
-from .camera import CYCLIC, _measure_image
+from .camera import CYCLIC, measure_image_kernel
 from .hypergraph import QRMMap
 from .spec import QRMSpec, qrm_spec
 
@@ -25,7 +25,7 @@ __all__ = ["association_candidates"]
 
 @partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
 def _candidates(spec, m: QRMMap, bearings, range_rank, visible, unknown, *, n, pool, depth):
-    meas = _measure_image(spec, bearings, range_rank, visible, None, n=n, pool=pool,
+    meas = measure_image_kernel(spec, bearings, range_rank, visible, None, n=n, pool=pool,
                           depth=depth)
     N = m.rel.shape[0]
     involved = meas.valid & jnp.any(meas.triples == unknown, -1)

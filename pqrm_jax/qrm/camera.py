@@ -508,6 +508,10 @@ def _measure_image(spec, bearings, range_rank, visible, target_map, *, n, pool, 
     return ImageMeasurement(ids, lid, sets, valid, und)
 
 
+#: The raw jit-compiled image measurement (no host-side checks), for callers that trace it.
+measure_image_kernel = _measure_image
+
+
 def measure_image(
     bearings: jax.Array,
     range_rank: jax.Array,
@@ -527,7 +531,8 @@ def measure_image(
     states are tested). Checks (when concrete, ``check=True``): finite bearings of visible
     landmarks, distinct ranks, at least three visible landmarks — each raises ``ValueError``.
 
-    >>> import jax, sim
+    >>> import jax
+    >>> from pqrm_jax import sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 6)
     >>> cam = sim.camera(jax.numpy.array([50.0, 50.0, 0.0]), lm, sim.SensorParams(200.0))
     >>> m = measure_image(cam.bearings, cam.range_rank, cam.visible, n=6)

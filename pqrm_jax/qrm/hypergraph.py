@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
+from ..triplets import distinct_mask, states_to_masks, true_states
 from .camera import CYCLIC, ImageMeasurement
 from .spec import QRMSpec, qrm_spec
 
@@ -66,12 +67,6 @@ class UpdateReport(NamedTuple):
 
 def _spec(calc) -> QRMSpec:
     return calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
-
-
-def distinct_mask(n: int) -> np.ndarray:
-    """(n, n, n) bool, True where i, j, k are pairwise distinct."""
-    i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
-    return (i != j) & (j != k) & (i != k)
 
 
 def empty_map(n: int, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
@@ -169,7 +164,7 @@ def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
-def _apply(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
+def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
     n = m.rel.shape[0]
     q = spec.num_states
     tri = jnp.where(valid[:, None], triples, n)  # out of range → dropped
@@ -226,7 +221,7 @@ def apply_relations(
         valid = jnp.ones(triples.shape[:1], bool)
     if not isinstance(triples, jax.core.Tracer):
         _check_ids(np.asarray(triples)[np.asarray(valid)], m.rel.shape[0])
-    return _apply(spec, m, triples, sets, jnp.asarray(valid), max_sweeps=max_sweeps)
+    return apply_relations_kernel(spec, m, triples, sets, jnp.asarray(valid), max_sweeps=max_sweeps)
 
 
 def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSpec = "edc",
@@ -247,21 +242,16 @@ def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
 
 
 def true_relations(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc") -> jax.Array:
-    """(N, N, N) int32 true state index of ``ij:k`` (−2 on repeated indices)."""
-    spec = _spec(calc)
-    p = jnp.asarray(landmarks)
-    n = p.shape[0]
-    a = jnp.broadcast_to(p[:, None, None], (n, n, n, 2))
-    b = jnp.broadcast_to(p[None, :, None], (n, n, n, 2))
-    c = jnp.broadcast_to(p[None, None, :], (n, n, n, 2))
-    st = spec.calc.classify(a, b, c)
-    return jnp.where(jnp.asarray(distinct_mask(n)), st, -2)
+    """(N, N, N) int32 true state index of ``ij:k`` (−2 on repeated indices).
+
+    The dense layout of :func:`pqrm_jax.triplets.true_states`.
+    """
+    return true_states(_spec(calc).calc, landmarks, "dense")
 
 
 def true_map(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
     """The fully constrained map of a layout (singleton sets of the true states)."""
     spec = _spec(calc)
     st = true_relations(landmarks, spec)
-    rel = jnp.where(st >= 0, jnp.uint32(1) << jnp.maximum(st, 0).astype(jnp.uint32),
-                    jnp.uint32(spec.full))
+    rel = states_to_masks(st, spec.full)
     return QRMMap(rel, jnp.ones((st.shape[0],), bool))

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pqrm_jax import sim
-from pqrm_jax.sim.rover import RoverParams, RoverState, _step
+from pqrm_jax.sim.rover import RoverParams, RoverState, step_kernel
 
 from .rng import RNGEstimate
 
@@ -86,7 +86,7 @@ def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, t
 
     def body(carry, _):
         state, k, dist = carry
-        cam = sim.sensors._camera(state.pose, landmarks, sensor)
+        cam = sim.sensors.camera_kernel(state.pose, landmarks, sensor)
         nearest = jnp.argmin(jnp.where(cam.visible, cam.range_rank, n + 1))
         target = path[jnp.clip(k, 0, n - 1)]
         in_cell = (nearest == target) & cam.visible[jnp.maximum(target, 0)]
@@ -95,7 +95,7 @@ def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, t
         at_goal_cell = (target == g) & (nearest == g)
         # bearing-only drive to the next landmark; last leg: drive to END (local planner)
         rel = jnp.where(at_goal_cell, goal, landmarks[jnp.maximum(target, 0)]) - state.pose[:2]
-        err = sim._validate.wrap_angle(jnp.arctan2(rel[1], rel[0]) - state.pose[2])
+        err = sim.wrap_angle(jnp.arctan2(rel[1], rel[0]) - state.pose[2])
         dist_goal = jnp.sqrt(jnp.sum((goal - state.pose[:2]) ** 2))
         done = at_goal_cell & (dist_goal < tol)
         visible_target = cam.visible[jnp.maximum(target, 0)] | at_goal_cell
@@ -103,7 +103,7 @@ def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, t
                       params.max_speed * jnp.maximum(jnp.cos(err), 0.0) ** 2)
         v = jnp.where(at_goal_cell, jnp.minimum(v, dist_goal / params.dt), v)
         u = jnp.stack([v, jnp.where(done, 0.0, k_turn * err)])
-        new = _step(state, u, params)
+        new = step_kernel(state, u, params)
         dist = dist + jnp.sqrt(jnp.sum((new.pose[:2] - state.pose[:2]) ** 2))
         return (new, k, dist), (new.pose, at_goal_cell, done)
 

@@ -22,9 +22,10 @@ import numpy as np
 from pqrm_jax import sim
 
 from ..calculi import Calculus
-from .camera import _measure_image
-from .hypergraph import QRMMap, _apply, empty_map, true_relations
-from .rng import _rng
+from ..triplets import cyclic_mask
+from .camera import measure_image_kernel
+from .hypergraph import QRMMap, apply_relations_kernel, empty_map, true_relations
+from .rng import rng_estimate_kernel
 from .spec import QRMSpec, popcount, qrm_spec
 
 __all__ = ["Metrics", "map_metrics", "map_step", "run_sequence"]
@@ -43,19 +44,11 @@ class Metrics(NamedTuple):
     first_proven: jax.Array  # (Q+1,) same histogram counting only states with a witness
 
 
-def _cyclic_mask(n):
-    i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
-    # one representative per cyclic class of each unordered triple: i < j < k and the two
-    # rotations (j, k, i), (k, i, j) of it
-    inc = (i < j) & (j < k)
-    return inc | np.transpose(inc, (2, 0, 1)) | np.transpose(inc, (1, 2, 0))
-
-
 @partial(jax.jit, static_argnames="spec")
 def _metrics(spec: QRMSpec, m: QRMMap, truth):
     n = m.rel.shape[0]
     q = spec.num_states
-    cyc = jnp.asarray(_cyclic_mask(n))
+    cyc = jnp.asarray(cyclic_mask(n))
     open_ = popcount(m.rel)
     n_rel = cyc.sum()
     removed = jnp.sum(jnp.where(cyc, q - open_, 0)) / (n_rel * (q - 1)) * 100
@@ -73,7 +66,8 @@ def _metrics(spec: QRMSpec, m: QRMMap, truth):
     tot = jnp.sum(jnp.where(sel, open_, 0))
     not_adj = far / jnp.maximum(tot, 1) * 100
     kept = jnp.all(((m.rel >> t.astype(jnp.uint32)) & 1).astype(bool) | (truth < 0))
-    cost = _rng(m.rel, m.known, lune=int(spec.lune)).total_cost if spec.lune else jnp.nan
+    cost = (rng_estimate_kernel(m.rel, m.known, lune=int(spec.lune)).total_cost if spec.lune
+            else jnp.nan)
     return removed, constrained, not_adj, cost, kept, m.known.sum()
 
 
@@ -86,9 +80,9 @@ def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") ->
     return {k: float(v) for k, v in zip(keys, vals, strict=True)}
 
 
-def _step(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
-    cam = sim.sensors._camera(pose, landmarks, sensor)
-    meas = _measure_image(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, n=n,
+def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
+    cam = sim.sensors.camera_kernel(pose, landmarks, sensor)
+    meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, n=n,
                           pool=pool, depth=depth)
     # histogram of open counts of relations measured for the first time
     tri = jnp.maximum(meas.triples, 0)
@@ -100,17 +94,17 @@ def _step(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
     cnt_p = popcount(meas.sets & ~meas.undecided)
     hist_p = jnp.zeros(spec.num_states + 1, jnp.int32).at[cnt_p.ravel()].add(
         jnp.repeat(first, 3).astype(jnp.int32))
-    m, rep = _apply(spec, m, meas.triples, meas.sets, meas.valid, max_sweeps=64)
+    m, rep = apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid, max_sweeps=64)
     vals = _metrics(spec, m, truth)
     return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p)
 
 
 @partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
 def _map_step(spec, m, pose, landmarks, truth, sensor, *, n, pool, depth):
-    return _step(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
+    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
 
 
-def _sensor(sensor):
+def resolve_sensor(sensor):
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     return sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
 
@@ -123,7 +117,7 @@ def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec 
     landmarks = jnp.asarray(landmarks, jnp.float32)
     truth = true_relations(landmarks, spec) if truth is None else truth
     return _map_step(spec, m, jnp.asarray(pose, jnp.float32), landmarks, truth,
-                     _sensor(sensor), n=n, pool=pool, depth=depth)
+                     resolve_sensor(sensor), n=n, pool=pool, depth=depth)
 
 
 @partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
@@ -131,7 +125,7 @@ def _run(spec, poses, landmarks, truth, sensor, *, n, pool, depth):
     m0 = empty_map(landmarks.shape[0], spec)
 
     def body(m, pose):
-        return _step(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
+        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
 
     return jax.lax.scan(body, m0, poses)
 
@@ -149,7 +143,7 @@ def run_sequence(
     """Map a layout from a sequence of imaging poses (T, 3); per-image metrics (T, ...).
 
     >>> import jax
-    from pqrm_jax import sim
+    >>> from pqrm_jax import sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 8)
     >>> poses = sim.random_imaging_points(jax.random.key(1), 4)
     >>> m, met = run_sequence(lm, poses, n=8)
@@ -164,5 +158,5 @@ def run_sequence(
         raise ValueError(f"landmarks must have shape (N >= 3, 2), got {landmarks.shape}")
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
-    return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, _sensor(sensor), n=n,
-                pool=pool, depth=depth)
+    return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, resolve_sensor(sensor),
+                n=n, pool=pool, depth=depth)

@@ -32,7 +32,7 @@ class RNGEstimate(NamedTuple):
 
 
 @partial(jax.jit, static_argnames="lune")
-def _rng(rel, known, *, lune: int):
+def rng_estimate_kernel(rel, known, *, lune: int):
     n = rel.shape[0]
     idx = jnp.arange(n)
     open_ = popcount(rel).astype(jnp.float32)
@@ -63,7 +63,7 @@ def rng_estimate(m: QRMMap, calc: Calculus | str | QRMSpec = "edc") -> RNGEstima
     if spec.lune == 0:
         raise ValueError(f"calculus {spec.calc.name!r} has no lune states; the RNG estimate "
                          "(M Alg. 2) needs 'edc' or 'edc_lune'")
-    return _rng(m.rel, m.known, lune=int(spec.lune))
+    return rng_estimate_kernel(m.rel, m.known, lune=int(spec.lune))
 
 
 def true_rng(points) -> np.ndarray:

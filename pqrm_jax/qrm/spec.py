@@ -126,7 +126,7 @@ def _linear_coefficients(calc: Calculus) -> np.ndarray:
 
 @cache
 def _spec(calc: Calculus) -> QRMSpec:
-    from ..calculi.calculus import _pattern_index
+    from ..calculi.calculus import pattern_index
 
     if calc.num_states > 32:
         raise ValueError(f"calculus {calc.name!r} has {calc.num_states} states; the QRM "
@@ -136,7 +136,7 @@ def _spec(calc: Calculus) -> QRMSpec:
     sign_set = (-1, 0, 1) if calc.boundary_inclusive else (-1, 1)
     atoms, states = [], []
     for signs in itertools.product(sign_set, repeat=k):
-        st = int(calc.sign_table[_pattern_index(signs)])
+        st = int(calc.sign_table[pattern_index(signs)])
         if st >= 0:
             atoms.append(signs)
             states.append(st)
@@ -150,7 +150,7 @@ def _spec(calc: Calculus) -> QRMSpec:
     pattern_atom = np.full(3**k, -1, np.int32)
     for a, signs in enumerate(atoms):
         if all(s != 0 for s in signs):
-            pattern_atom[_pattern_index(signs)] = a
+            pattern_atom[pattern_index(signs)] = a
     t = calc.tables
     lune = 0
     for name, labels in _LUNE.items():

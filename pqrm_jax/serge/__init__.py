@@ -18,11 +18,12 @@ from .beliefs import GaussianBeliefs, SampleBeliefs
 from .cells import Problem, initial_cells, problem_from_partition
 from .grid import Grid, components_per_label, connected_components
 from .potential import SAL_FLOOR, SIGMA_MIN, check_params, direct_log_potential, log_psi1
+from .qsr import SergeCalculus
 from .search import SergeResult, serge, serge_sequential
 
 __all__ = [
     "GaussianBeliefs", "SampleBeliefs", "Problem", "initial_cells", "problem_from_partition",
     "Grid", "components_per_label", "connected_components", "SAL_FLOOR", "SIGMA_MIN",
     "check_params", "direct_log_potential", "log_psi1", "SergeResult", "serge",
-    "serge_sequential",
+    "serge_sequential", "SergeCalculus",
 ]

@@ -2,9 +2,10 @@
 
 Beliefs over the position of F in the frame D=(0,0), E=(0,1) of each landmark triplet
 (:func:`triplet_beliefs`, eq. 3.11) are fed to SERGE; the resulting SRs are the states of a
-calculus, :class:`SergeCalculus`, with the duck-typed interface of
-:class:`pqrm_jax.calculi.Calculus` used by the PQRM engine (``name``, ``states``,
-``num_states``, jit-able ``classify(a, b, c)``). Its compose table is computed by Alg. 3.
+calculus, :class:`SergeCalculus`, implementing :class:`pqrm_jax.calculi.TernaryCalculus`
+(``name``, ``states``, ``num_states``, jit-able ``classify(a, b, c)``), so that once registered
+it works in ``pqrm.state_probabilities`` and ``pqrm.mapper`` (sampled by its own ``classify``,
+as a root calculus: ``parent`` is None). Its compose table is computed by Alg. 3.
 
 Frame: the calculus core's (right of DE is α > 0, see :func:`~pqrm_jax.serge.scenes.to_frame`).
 ``classify`` maps C into the frame of (A, B) and reads the SR of the grid cell it lands in;
@@ -26,16 +27,18 @@ adds what the exact table cannot: the fraction of (F, G) cell pairs landing in e
 
 from __future__ import annotations
 
+import hashlib
+import json
+from functools import cached_property
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..calculi.protocol import DEGENERATE, INVALID
 from .beliefs import SampleBeliefs
 from .grid import Grid
 from .scenes import to_frame
-
-DEGENERATE = -2
-INVALID = -3
 
 
 def triplet_beliefs(d, e, f) -> SampleBeliefs:
@@ -84,6 +87,8 @@ class SergeCalculus:
         if len(self.states) != q:
             raise ValueError(f"SergeCalculus: {q} regions but {len(self.states)} state labels")
         self.description = description or "SERGE salient regions (P§3.3.2)"
+        self.parent = None  # a root calculus (no finer calculus it is a merge of)
+        self.parent_map = None
         self._labels = jnp.asarray(self.cell_labels)
         self._jit_classify = jax.jit(self._classify)
         self._compose_counts: np.ndarray | None = None
@@ -99,6 +104,15 @@ class SergeCalculus:
     @property
     def num_states(self) -> int:
         return len(self.states)
+
+    @cached_property
+    def definition_hash(self) -> str:
+        """Hash of the grid, the cell labels and the state labels (the calculus's identity)."""
+        spec = {"grid": [list(self.grid.lo), list(self.grid.hi), list(self.grid.shape)],
+                "states": list(self.states)}
+        h = hashlib.sha256(json.dumps(spec, sort_keys=True).encode())
+        h.update(self.cell_labels.tobytes())
+        return h.hexdigest()[:16]
 
     def __repr__(self) -> str:
         return f"SergeCalculus({self.name!r}, {self.num_states} states, grid {self.grid.shape})"

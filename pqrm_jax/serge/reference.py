@@ -35,7 +35,7 @@ import numpy as np
 from .._hashrng import mix32, to_unit
 from .cells import Problem
 from .potential import SAL_FLOOR, log_psi1
-from .search import SergeResult, _compact, _inputs
+from .search import SergeResult, compact_result, prepare_inputs
 
 _F32 = np.float32
 _FLOOR = _F32(SAL_FLOOR)
@@ -129,7 +129,7 @@ def serge_reference(
     (4, 0.0)
     """
     mass, adj, belief_region, lab0, act, _, _ = (np.asarray(x) for x in
-                                                 _inputs(problem, mu, sigma, active, start))
+                                                 prepare_inputs(problem, mu, sigma, active, start))
     t = 100 * problem.k + 1 if trials is None else int(trials)
     if t < 1:
         raise ValueError(f"serge_reference: trials must be ≥ 1, got {trials}")
@@ -156,5 +156,5 @@ def serge_reference(
     lp, l1, l3 = (np.array([o[j] for o in outs], _F32) for j in (2, 3, 4))
     it = np.array([o[5] for o in outs], np.int32)
     best = int(np.argmax(lp))
-    res = _compact(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
+    res = compact_result(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
     return (res, lab) if return_trials else res

@@ -327,7 +327,7 @@ class SergeResult:
         return (pm * own).sum(1)
 
 
-def _compact(problem: Problem, lab: np.ndarray, mu, sigma, logs, iters, best) -> SergeResult:
+def compact_result(problem: Problem, lab: np.ndarray, mu, sigma, logs, iters, best) -> SergeResult:
     lab = np.asarray(lab)
     reps = np.unique(lab[lab >= 0])
     remap = np.full(problem.n_init, -1, dtype=np.int64)
@@ -342,7 +342,7 @@ def _compact(problem: Problem, lab: np.ndarray, mu, sigma, logs, iters, best) ->
                        np.asarray(iters))
 
 
-def _inputs(problem: Problem, mu, sigma, active, start):
+def prepare_inputs(problem: Problem, mu, sigma, active, start):
     r0 = problem.n_init
     active = np.ones(r0, bool) if active is None else np.asarray(active, bool)
     if active.shape != (r0,):
@@ -387,7 +387,7 @@ def serge(
     >>> r.n_regions, abs(round(r.log_psi3, 4))
     (4, 0.0)
     """
-    args = _inputs(problem, mu, sigma, active, start)
+    args = prepare_inputs(problem, mu, sigma, active, start)
     t = 100 * problem.k + 1 if trials is None else int(trials)
     if t < 1:
         raise ValueError(f"serge: trials must be ≥ 1, got {trials}")
@@ -405,7 +405,7 @@ def serge(
                         [keys[i * tp // q:(i + 1) * tp // q] for i in range(q)])
     lab, _, lp, l1, l3, it = (np.concatenate(x)[:t] for x in zip(*outs, strict=True))
     best = int(np.argmax(lp))
-    return _compact(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
+    return compact_result(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
 
 
 def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Array,
@@ -416,7 +416,7 @@ def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.
     steps); the default is the branch-free step that the batched program vmaps. On one core
     of a 2-core CPU the two take 13–28 µs per step (noisy; the cond form is the faster),
     against ≈ 1.5 µs per trial-step batched; same results either way."""
-    args = _inputs(problem, mu, sigma, active, start)
+    args = prepare_inputs(problem, mu, sigma, active, start)
     keys = jax.random.split(key, trials)
     mass, adj, belief_region, lab0, active, mu_, sigma_ = args
     init = _init_jit(mass, adj, belief_region, lab0, active)      # shared start, once
@@ -425,4 +425,4 @@ def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.
     lab = np.stack([o[0] for o in outs])
     lp, l1, l3, it = (np.array([o[j] for o in outs]) for j in (2, 3, 4, 5))
     best = int(np.argmax(lp))
-    return _compact(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
+    return compact_result(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)

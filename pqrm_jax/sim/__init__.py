@@ -1,4 +1,4 @@
-"""``sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
 
 Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
 boundary, ``vmap``-able over runs:
@@ -13,7 +13,8 @@ boundary, ``vmap``-able over runs:
 
 Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
 
-    import jax, sim
+    import jax
+    from pqrm_jax import sim
     lm = sim.uniform_landmarks(jax.random.key(0), 30)           # 100 m x 100 m square
     poses = sim.perimeter_loop()                                # a pose every 16 degrees
     keys = jax.random.split(jax.random.key(1), poses.shape[0])
@@ -23,7 +24,15 @@ Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
 
 from pqrm_jax.sim import lidar, rover, sensors, trajectories, world
 from pqrm_jax.sim.lidar import LidarParams, LidarScan, lidar_scan, rasterize_discs
-from pqrm_jax.sim.rover import RoverParams, RoverState, clip_control, reset, rollout, step
+from pqrm_jax.sim.rover import (
+    RoverParams,
+    RoverState,
+    clip_control,
+    reset,
+    rollout,
+    step,
+    wrap_angle,
+)
 from pqrm_jax.sim.sensors import (
     CameraObservation,
     Observation,
@@ -52,7 +61,7 @@ from pqrm_jax.sim.world import (
 __all__ = [
     "world", "rover", "sensors", "trajectories", "lidar",
     "uniform_landmarks", "clustered_landmarks", "hallway_landmarks", "corridor_grid_landmarks",
-    "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control",
+    "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control", "wrap_angle",
     "SensorParams", "Observation", "CameraObservation", "observe", "camera",
     "relative_positions", "visibility",
     "LidarParams", "LidarScan", "lidar_scan", "rasterize_discs",

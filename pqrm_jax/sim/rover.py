@@ -55,7 +55,7 @@ class RoverState(NamedTuple):
     t: jax.Array
 
 
-def _check_params(params: RoverParams | None) -> RoverParams:
+def check_params(params: RoverParams | None) -> RoverParams:
     if params is None:
         return RoverParams()
     if not isinstance(params, RoverParams):
@@ -88,7 +88,7 @@ def clip_control(control: jax.Array, params: RoverParams) -> jax.Array:
     return jnp.clip(control, -lim, lim)
 
 
-def _step(state: RoverState, control, params: RoverParams) -> RoverState:
+def step_kernel(state: RoverState, control, params: RoverParams) -> RoverState:
     x, y, th = state.pose[0], state.pose[1], state.pose[2]
     v, w = clip_control(control, params)
     dt = jnp.asarray(params.dt, state.pose.dtype)
@@ -99,20 +99,20 @@ def _step(state: RoverState, control, params: RoverParams) -> RoverState:
     return RoverState(pose.astype(state.pose.dtype), state.t + dt)
 
 
-_step_jit = jax.jit(_step)
+_step_jit = jax.jit(step_kernel)
 
 
 @jax.jit
 def _rollout(state, controls, params):
     def body(s, u):
-        s = _step(s, u, params)
+        s = step_kernel(s, u, params)
         return s, s.pose
 
     final, poses = jax.lax.scan(body, state, controls)
     return final, jnp.concatenate([state.pose[None], poses], axis=0)
 
 
-def _as_state(state: RoverState) -> RoverState:
+def as_state(state: RoverState) -> RoverState:
     _check_state(state)
     pose = as_float(state.pose)
     return RoverState(pose, jnp.asarray(state.t, pose.dtype))
@@ -131,7 +131,7 @@ def reset(
     >>> s.pose.tolist(), float(s.t)
     ([1.0, 2.0, 0.0], 0.0)
     """
-    _check_params(params)
+    check_params(params)
     if pose is None:
         return _random_reset(key, jnp.asarray(size, jnp.result_type(float)))
     pose = as_float(pose)
@@ -162,8 +162,8 @@ def step(
     >>> step(s, jnp.array([1.0, 0.0]), RoverParams(dt=2.0)).pose.tolist()
     [2.0, 0.0, 0.0]
     """
-    state = _as_state(state)
-    params = _check_params(params)
+    state = as_state(state)
+    params = check_params(params)
     control = as_float(control)
     check_shape("control", control, 1, 2)
     check_finite("control", control)
@@ -181,8 +181,8 @@ def rollout(
     >>> poses.shape, final.pose.tolist()
     ((21, 3), [5.0, 0.0, 0.0])
     """
-    state = _as_state(state)
-    params = _check_params(params)
+    state = as_state(state)
+    params = check_params(params)
     controls = as_float(controls)
     check_shape("controls", controls, 2, 2)
     check_finite("controls", controls)

@@ -133,7 +133,7 @@ def _observe(key, pose, landmarks, params):
 
 
 @jax.jit
-def _camera(pose, landmarks, params):
+def camera_kernel(pose, landmarks, params):
     rel = _relative(pose, landmarks)
     visible = _visibility(rel, params)
     bearings = jnp.arctan2(rel[:, 1], rel[:, 0])
@@ -198,4 +198,4 @@ def camera(
     ([1, 0, -1], 1.5708)
     """
     pose, landmarks, params = _prepare(pose, landmarks, params)
-    return _camera(pose, landmarks, params)
+    return camera_kernel(pose, landmarks, params)

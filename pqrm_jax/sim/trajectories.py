@@ -35,10 +35,10 @@ from pqrm_jax.sim._validate import (
 from pqrm_jax.sim.rover import (
     RoverParams,
     RoverState,
-    _as_state,
-    _check_params,
-    _step,
+    as_state,
+    check_params,
     clip_control,
+    step_kernel,
 )
 
 __all__ = [
@@ -244,7 +244,7 @@ def waypoint_controller(
     check_shape("waypoint", waypoint, 1, 2)
     check_finite("pose", pose)
     check_finite("waypoint", waypoint)
-    params = _check_params(params)
+    params = check_params(params)
     gains = ControllerGains() if gains is None else gains
     return _controller_jit(pose, waypoint.astype(pose.dtype), gains, params)
 
@@ -263,7 +263,7 @@ def _follow(state, waypoints, params, n_steps, tol, gains):
         idx = advance(s.pose, idx)
         u = _controller(s.pose, waypoints[jnp.minimum(idx, w - 1)], gains, params)
         u = jnp.where(idx < w, u, jnp.zeros_like(u))
-        s = _step(s, u, params)
+        s = step_kernel(s, u, params)
         return (s, idx), (s.pose, idx)
 
     (final, idx), (poses, targets) = jax.lax.scan(
@@ -292,8 +292,8 @@ def follow_waypoints(
     >>> int(res.n_reached)
     4
     """
-    state = _as_state(state)
-    params = _check_params(params)
+    state = as_state(state)
+    params = check_params(params)
     gains = ControllerGains() if gains is None else gains
     waypoints = as_float(waypoints)
     check_shape("waypoints", waypoints, 2, 2)

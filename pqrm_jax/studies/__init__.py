@@ -11,6 +11,8 @@ import importlib
 import pkgutil
 from types import ModuleType
 
+__all__ = ["discover"]
+
 
 def discover() -> dict[str, ModuleType]:
     """Map study name → module for every study module in this package."""

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .padgett_mc import BD_BINS, SIGMA_E, load_results
+from .padgett_common import BD_BINS, SIGMA_E, load_results
 
 LUNE = (6, 7, 12, 13)  # EDC states 7, 8, 13, 14 (0-based indices)
 LABELS = {"edc": "EDC (20)", "edc_lune": "EDC lune merged (17)", "triple_cross": "Triple Cross (8)",

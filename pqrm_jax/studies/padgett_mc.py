@@ -38,13 +38,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import calculi
 from ._store import guard_config
+from .padgett_common import BD_BINS, SIGMA_E, boundary_distance, load_done, load_results
 
 NAME = "padgett-mc"
 HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 
-SIGMA_E = 100.0 / math.sqrt(12.0)
-REPS = ("edc", "edc_lune", "triple_cross", "double_cross", "single_cross", "lr")
+REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
 
@@ -343,40 +344,9 @@ def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tu
     return line, arrays
 
 
-BD_BINS = np.array([0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf])
-
-
-def boundary_distance(xy: np.ndarray) -> np.ndarray:
-    """Distance (in |AB| units) of C = (α, β) to the nearest EDC boundary (SPEC §2.1)."""
-    a, b = xy[:, 0], xy[:, 1]
-    da = np.hypot(a, b)  # to A
-    db = np.hypot(a, b - 1.0)  # to B
-    cands = [np.abs(a), np.abs(b), np.abs(b - 0.5), np.abs(b - 1.0), np.abs(da - 1.0),
-             np.abs(db - 1.0)]
-    return np.min(np.stack(cands), axis=0)
-
-
 # --------------------------------------------------------------------------------------
 # storage / resume
 # --------------------------------------------------------------------------------------
-
-
-def _load_done(out: Path) -> list[dict]:
-    path = out / "levels.jsonl"
-    if not path.exists():
-        return []
-    lines = []
-    for raw in path.read_text().splitlines():
-        raw = raw.strip()
-        if not raw:
-            continue
-        try:
-            line = json.loads(raw)
-        except json.JSONDecodeError:  # a torn last line from a kill: ignore, recompute
-            break
-        if (out / f"level_{line['level']:02d}.npz").exists():
-            lines.append(line)
-    return lines
 
 
 def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
@@ -384,7 +354,7 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
     from tqdm.auto import tqdm
 
     guard_config(out, cfg.to_json(), advice="use another --out or --fresh")
-    done = _load_done(out)
+    done = load_done(out)
     # rewrite levels.jsonl without a torn tail
     with open(out / "levels.jsonl", "w") as f:
         for line in done:
@@ -410,16 +380,6 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
               "runs_per_level": cfg.runs, "devices": len(jax.devices())}
     (out / "timing.json").write_text(json.dumps(timing, indent=2))
     return sorted(done, key=lambda d: d["level"])
-
-
-def load_results(out: Path) -> tuple[dict, list[dict], dict[int, dict]]:
-    cfg = json.loads((out / "config.json").read_text())
-    lines = sorted(_load_done(out), key=lambda d: d["level"])
-    arrays = {}
-    for line in lines:
-        with np.load(out / f"level_{line['level']:02d}.npz") as z:
-            arrays[line["level"]] = {k: z[k] for k in z.files}
-    return cfg, lines, arrays
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,8 +32,8 @@ from ..calculi.calculus import Calculus
 from . import certify, exact, symmetry
 from . import problems as pb
 from .feasibility import FEASIBLE, INFEASIBLE, solve
+from .store import UNARY
 
-UNARY = ("left", "right", "inverse")
 _UNARY_KEY = {"left": "bca", "right": "cab", "inverse": "bac"}
 
 

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from .. import calculi
-from . import load_tables
+from .store import load_tables
 
 PUBLISHED_COMPOSE = {("1", "5"): {"1", "5", "11", "12", "17", "19"},
                      ("5", "5"): {"12", "17", "18", "19", "20"},

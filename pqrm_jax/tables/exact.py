@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..calculi.calculus import Calculus, _pattern_index
+from ..calculi.calculus import Calculus, pattern_index
 
 
 @lru_cache(maxsize=64)
@@ -63,7 +63,7 @@ def exact_state(calc: Calculus, X, Y, Z) -> int:
         return calc.dou if calc.boundary_inclusive else -2
     if s == "tri":
         return calc.tri if calc.boundary_inclusive else -2
-    return int(calc.sign_table[_pattern_index(s)])
+    return int(calc.sign_table[pattern_index(s)])
 
 
 def atom_lookup(calc: Calculus, atoms: list) -> np.ndarray:
@@ -71,7 +71,7 @@ def atom_lookup(calc: Calculus, atoms: list) -> np.ndarray:
     lut = np.full(3**calc.k, -1, np.int32)
     for i, a in enumerate(atoms):
         if isinstance(a, tuple):
-            lut[_pattern_index(a)] = i
+            lut[pattern_index(a)] = i
     return lut
 
 

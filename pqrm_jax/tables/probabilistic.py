@@ -21,7 +21,7 @@ from ..calculi.calculus import Calculus
 
 def _state_pool(calc, key, n, window):
     pts = jax.random.uniform(key, (n, 2), minval=-window, maxval=window)
-    st = calc._classify(jnp.zeros(2), jnp.asarray([0.0, 1.0]), pts)
+    st = calc.classify(jnp.zeros(2), jnp.asarray([0.0, 1.0]), pts)
     order = jnp.argsort(st)
     st_sorted = st[order]
     Q = calc.num_states
@@ -49,7 +49,7 @@ def _tensor(calc: Calculus, key, pool: int, per_pair: int, window: float):
         e = C - B
         right = jnp.stack([e[:, 1], -e[:, 0]], -1)
         D = B + Dp[:, 1:2] * e + Dp[:, 0:1] * right
-        s3 = calc._classify(jnp.zeros(2), B, D)
+        s3 = calc.classify(jnp.zeros(2), B, D)
         valid = s3 >= 0
         return jnp.zeros(Q).at[jnp.where(valid, s3, 0)].add(valid.astype(jnp.float32))
 

@@ -112,12 +112,12 @@ def atoms(calc: Calculus) -> tuple[list, list[int]]:
     """The atoms of a calculus defined by constraints, and the state of each atom."""
     import itertools
 
-    from ..calculi.calculus import _pattern_index
+    from ..calculi.calculus import pattern_index
 
     sign_set = (-1, 0, 1) if calc.boundary_inclusive else (-1, 1)
     out, state = [], []
     for signs in itertools.product(sign_set, repeat=calc.k):
-        st = int(calc.sign_table[_pattern_index(signs)])
+        st = int(calc.sign_table[pattern_index(signs)])
         if st >= 0:
             out.append(tuple(signs))
             state.append(st)

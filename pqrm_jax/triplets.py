@@ -1,0 +1,173 @@
+"""One vocabulary for maps over landmark triplets: the layouts and their converters.
+
+A map over ``M`` landmarks holds one relation ``ij:k`` per ordered triplet of distinct
+landmarks. Three layouts are used by the subpackages:
+
+* **rows** (PQRM, :mod:`pqrm_jax.pqrm`): ``[T, ...]`` with ``T = M(M−1)(M−2)`` rows in
+  :func:`ordered_triplets` order (lexicographic in ``(i, j, k)``), e.g. probabilities
+  ``[T, Q]``.
+* **dense** (compositions, :mod:`pqrm_jax.compositions`): ``[M, M, M, ...]`` indexed by
+  ``(i, j, k)``, e.g. probabilities ``[L, L, L, Q]``; entries with a repeated index are not
+  relations (:func:`distinct_mask` is False there).
+* **masks** (QRM, :mod:`pqrm_jax.qrm`): the dense layout ``[N, N, N]`` of uint32 bitmasks, bit
+  ``q`` set when state ``q`` is still possible (:func:`states_to_masks`,
+  :func:`masks_to_sets`).
+
+>>> import numpy as np
+>>> ordered_triplets(3).tolist()
+[[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]]
+>>> rows = np.arange(6)
+>>> dense = rows_to_dense(rows, 3, fill=-1)
+>>> int(dense[1, 2, 0]), int(dense[0, 0, 1])
+(3, -1)
+>>> dense_to_rows(dense, 3).tolist() == rows.tolist()
+True
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .calculi.protocol import DEGENERATE
+
+__all__ = [
+    "LAYOUTS", "num_triplets", "ordered_triplets", "distinct_mask", "cyclic_mask",
+    "rows_to_dense", "dense_to_rows", "states_to_masks", "masks_to_sets", "true_states",
+]
+
+#: The layouts :func:`true_states` can return.
+LAYOUTS = ("rows", "dense")
+
+
+def num_triplets(num_landmarks: int) -> int:
+    """``T = M(M−1)(M−2)``, the number of ordered triplets of distinct landmarks."""
+    m = int(num_landmarks)
+    return m * (m - 1) * (m - 2)
+
+
+def ordered_triplets(num_landmarks: int) -> np.ndarray:
+    """``[M(M−1)(M−2), 3]`` int32: every ordered triplet (i, j, k) of distinct landmark ids.
+
+    The row order of the rows layout (lexicographic in ``(i, j, k)``).
+    """
+    if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
+        raise ValueError(f"a PQRM map needs at least three landmarks, got {num_landmarks!r}")
+    m = int(num_landmarks)
+    i, j, k = np.meshgrid(np.arange(m), np.arange(m), np.arange(m), indexing="ij")
+    keep = (i != j) & (i != k) & (j != k)
+    return np.stack([i[keep], j[keep], k[keep]], axis=-1).astype(np.int32)
+
+
+def distinct_mask(n: int) -> np.ndarray:
+    """``[n, n, n]`` bool, True where i, j, k are pairwise distinct (the dense relations)."""
+    i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
+    return (i != j) & (j != k) & (i != k)
+
+
+def cyclic_mask(n: int) -> np.ndarray:
+    """``[n, n, n]`` bool: one representative per cyclic class of each unordered triple.
+
+    True at ``i < j < k`` and at its two rotations ``(j, k, i)``, ``(k, i, j)``: the cyclic
+    relations ``ij:k``, ``jk:i``, ``ki:j`` of each triple (M§VI.B, used for QRM metrics).
+
+    >>> int(cyclic_mask(4).sum())      # 4 triples x 3 cyclic relations
+    12
+    """
+    i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
+    inc = (i < j) & (j < k)
+    return inc | np.transpose(inc, (2, 0, 1)) | np.transpose(inc, (1, 2, 0))
+
+
+def _xp(x):
+    return jnp if isinstance(x, jax.Array) else np
+
+
+def rows_to_dense(rows, num_landmarks: int, fill=0):
+    """Rows ``[T, ...]`` (:func:`ordered_triplets` order) → dense ``[M, M, M, ...]``.
+
+    Entries with a repeated index get ``fill``. NumPy in, NumPy out; a JAX array gives a JAX
+    array (traceable).
+    """
+    trip = ordered_triplets(num_landmarks)
+    xp = _xp(rows)
+    rows = xp.asarray(rows)
+    if rows.shape[:1] != (len(trip),):
+        raise ValueError(f"rows must have {len(trip)} rows for {num_landmarks} landmarks, got "
+                         f"shape {tuple(rows.shape)}")
+    m = int(num_landmarks)
+    i, j, k = trip[:, 0], trip[:, 1], trip[:, 2]
+    if xp is np:
+        out = np.full((m, m, m, *rows.shape[1:]), fill, rows.dtype)
+        out[i, j, k] = rows
+        return out
+    return jnp.full((m, m, m, *rows.shape[1:]), fill, rows.dtype).at[i, j, k].set(rows)
+
+
+def dense_to_rows(dense, num_landmarks: int):
+    """Dense ``[M, M, M, ...]`` → rows ``[T, ...]`` in :func:`ordered_triplets` order."""
+    trip = ordered_triplets(num_landmarks)
+    xp = _xp(dense)
+    dense = xp.asarray(dense)
+    m = int(num_landmarks)
+    if dense.shape[:3] != (m, m, m):
+        raise ValueError(f"dense map must have leading shape ({m}, {m}, {m}), got "
+                         f"{tuple(dense.shape)}")
+    return dense[trip[:, 0], trip[:, 1], trip[:, 2]]
+
+
+def states_to_masks(states, full):
+    """Dense states ``[N, N, N]`` int → uint32 bitmasks: ``1 << state``, ``full`` where < 0.
+
+    ``full`` is the mask of all states (``(1 << Q) − 1``), i.e. "unknown".
+    """
+    st = jnp.asarray(states)
+    return jnp.where(st >= 0, jnp.uint32(1) << jnp.maximum(st, 0).astype(jnp.uint32),
+                     jnp.uint32(full))
+
+
+def masks_to_sets(masks, num_states: int) -> jax.Array:
+    """uint32 bitmasks ``[...]`` → bool state sets ``[..., Q]`` (bit q ↔ state q)."""
+    m = jnp.asarray(masks, jnp.uint32)
+    return ((m[..., None] >> jnp.arange(num_states, dtype=jnp.uint32)) & 1).astype(bool)
+
+
+def true_states(calc, landmarks, layout: str = "rows", *, triplets=None,
+                mask_repeated: bool = True) -> jax.Array:
+    """True state of ``ij:k`` for a world of landmarks ``[M, 2]``, in the chosen layout.
+
+    Args:
+        calc: a :class:`~pqrm_jax.calculi.TernaryCalculus` (``classify`` is called).
+        landmarks: ``[M, 2]`` world positions.
+        layout: ``"rows"`` → ``[T]`` (rows of ``triplets``, default :func:`ordered_triplets`);
+            ``"dense"`` → ``[M, M, M]``.
+        triplets: rows layout only, ``[T, 3]`` landmark ids (default: all ordered triplets).
+        mask_repeated: dense only; entries with a repeated index are ``DEGENERATE`` (−2) when
+            True, else whatever ``classify`` gives there.
+
+    Returns:
+        int32 state indices (sentinels < 0 as in :mod:`pqrm_jax.calculi.protocol`).
+
+    >>> import jax.numpy as jnp
+    >>> from pqrm_jax import calculi
+    >>> lm = jnp.array([[0., 0.], [0., 1.], [1., 0.5]])
+    >>> true_states(calculi.get("lr"), lm).tolist()          # rows: 012, 021, 102, ...
+    [1, 0, 0, 1, 1, 0]
+    >>> int(true_states(calculi.get("lr"), lm, "dense")[0, 1, 2])
+    1
+    """
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    p = jnp.asarray(landmarks)
+    if layout == "rows":
+        tri = jnp.asarray(ordered_triplets(p.shape[0]) if triplets is None else triplets)
+        return calc.classify(p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]])
+    n = p.shape[0]
+    a = jnp.broadcast_to(p[:, None, None], (n, n, n, 2))
+    b = jnp.broadcast_to(p[None, :, None], (n, n, n, 2))
+    c = jnp.broadcast_to(p[None, None, :], (n, n, n, 2))
+    st = calc.classify(a, b, c)
+    if mask_repeated:
+        st = jnp.where(jnp.asarray(distinct_mask(n)), st, DEGENERATE)
+    return st

@@ -1,0 +1,122 @@
+"""Structure rules of the package, enforced by parsing every module with ``ast``.
+
+* No private name (``_x``) crosses a file: a name with one leading underscore may be imported
+  from another pqrm_jax module only when it is a module itself (``from . import _store``), and
+  ``obj._x`` is allowed only where ``_x`` is defined in the same file (or is part of the
+  NamedTuple API: ``_fields``, ``_replace``, ``_asdict``, ``_make``).
+* Every ``__init__.py`` declares ``__all__``, and everything it lists exists.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent / "pqrm_jax"
+MODULES = sorted(p for p in ROOT.rglob("*.py"))
+NAMEDTUPLE_API = {"_fields", "_replace", "_asdict", "_make", "_field_defaults"}
+MODULE_NAMES = {p.stem for p in MODULES} | {p.name for p in ROOT.rglob("*") if p.is_dir()}
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _defined_names(tree: ast.AST) -> set[str]:
+    """Names bound in a file: functions, classes, assignments (also ``self._x = ...``), args."""
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            out.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            out.add(node.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            out.add(node.attr)
+        elif isinstance(node, ast.arg):
+            out.add(node.arg)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            out.add(node.target.id)
+    return out
+
+
+def _is_internal(module: str | None, level: int) -> bool:
+    return level > 0 or (module or "").split(".")[0] in {"pqrm_jax", "sim"}
+
+
+def violations(source: str, label: str) -> list[str]:
+    """Cross-file private names used in ``source`` (the text of one module)."""
+    tree = ast.parse(source, label)
+    defined = _defined_names(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and _is_internal(node.module, node.level):
+            for alias in node.names:
+                if _private(alias.name) and alias.name not in MODULE_NAMES:
+                    out.append(f"{label}:{node.lineno}: imports private {alias.name!r}")
+        elif isinstance(node, ast.Attribute) and _private(node.attr):
+            if node.attr in NAMEDTUPLE_API or node.attr in MODULE_NAMES:
+                continue
+            if isinstance(node.value, ast.Name) and node.value.id in {"self", "cls"}:
+                continue
+            if node.attr in defined:
+                continue
+            out.append(f"{label}:{node.lineno}: uses private attribute .{node.attr}")
+    return out
+
+
+def test_the_checker_catches_cross_file_private_names():
+    src = ("from .camera import _measure_image\nimport x\nx.y._classify(1)\n"
+           "from . import _store\n_store.guard_config\nfrom .a import b as _b\n"
+           "def _own():\n    pass\nx._own\nt._replace(a=1)\n")
+    found = violations(src, "bad.py")
+    assert len(found) == 2, found
+    assert "_measure_image" in found[0] and "_classify" in found[1]
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_private_name_crosses_a_file(path):
+    assert violations(path.read_text(), str(path.relative_to(ROOT.parent))) == []
+
+
+INITS = sorted(ROOT.rglob("__init__.py"))
+
+
+@pytest.mark.parametrize("path", INITS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_face_declares_all(path):
+    tree = ast.parse(path.read_text())
+    names = [t.id for n in tree.body if isinstance(n, ast.Assign) for t in n.targets
+             if isinstance(t, ast.Name)]
+    assert "__all__" in names, f"{path} has no __all__"
+    mod = ".".join(path.relative_to(ROOT.parent).parent.parts)
+    m = importlib.import_module(mod)
+    missing = [n for n in m.__all__ if not hasattr(m, n)]
+    assert not missing, f"{mod}.__all__ lists missing names {missing}"
+
+
+def test_top_level_gives_lazy_access_to_every_subpackage():
+    import subprocess
+    import sys
+
+    code = ("import sys, pqrm_jax; assert 'pqrm_jax.qrm' not in sys.modules; "
+            "assert pqrm_jax.qrm.mapper and pqrm_jax.sim.camera and pqrm_jax.tables.load_tables;"
+            " assert pqrm_jax.triplets.ordered_triplets and pqrm_jax.serge.SergeCalculus;"
+            " print(pqrm_jax.__version__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip()
+    import pqrm_jax
+
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        pqrm_jax.nope  # noqa: B018
+    subdirs = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
+    assert subdirs <= set(pqrm_jax.__all__), subdirs - set(pqrm_jax.__all__)
+
+
+def test_registry_knows_its_builtins():
+    from pqrm_jax import calculi
+
+    assert calculi.is_builtin("edc") and calculi.is_builtin("lr_full")
+    assert not calculi.is_builtin("my_lr")

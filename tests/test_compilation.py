@@ -1,0 +1,146 @@
+"""Compile counts of the hot entry points (in the manner of blackjax's test_compilation.py).
+
+A second call with new values and the same shapes must not trace or compile again: compiling
+is most of the cost of these programs (the B&B solvers especially), so an accidental
+recompile (a value made static, a Python scalar changing type, a new closure per call) is a
+performance bug that no result test sees. Compilations are counted from JAX's own
+``log_compiles`` records.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pqrm_jax import calculi, pqrm, qrm, sim
+from pqrm_jax import serge as sg
+from pqrm_jax.tables import feasibility
+from pqrm_jax.tables import problems as pb
+
+
+class _Collect(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+
+@contextlib.contextmanager
+def count_compiles():
+    """Collect the names of the programs JAX compiles inside the block."""
+    handler = _Collect()
+    logger = logging.getLogger("jax")
+    old = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    compiled: list[str] = []
+    try:
+        with jax.log_compiles(True):
+            yield compiled
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old)
+        compiled += [m for m in handler.messages if m.startswith("Compiling ")]
+
+
+def test_counter_sees_a_compile():
+    f = jax.jit(lambda x: x * 3 + 1)
+    with count_compiles() as first:
+        f(jnp.ones(7)).block_until_ready()
+    with count_compiles() as second:
+        f(jnp.zeros(7)).block_until_ready()
+    assert len(first) >= 1 and second == []
+
+
+def test_pqrm_mapper_update_compiles_once():
+    pq = pqrm.mapper(("edc", "lr"), num_landmarks=5, num_samples=32)
+    st = pq.init()
+    vis = jnp.array([True, True, True, True, False])
+    pos0 = jax.random.uniform(jax.random.key(0), (5, 2)) * 10
+    pos1 = jax.random.uniform(jax.random.key(1), (5, 2)) * 10
+    k0, k1 = jax.random.key(2), jax.random.key(3)
+    vis1 = jnp.array([False, True, True, True, True])
+    s1 = pq.update(st, k0, pos0, vis, 0.5)
+    jax.block_until_ready(s1)
+    with count_compiles() as again:
+        s2 = pq.update(s1, k1, pos1, vis1, 0.75)
+        jax.block_until_ready(s2)
+    assert again == []
+
+
+@pytest.mark.slow
+def test_pqrm_mapper_update_batch_compiles_once():
+    pq = pqrm.mapper(("edc", "lr"), num_landmarks=5, num_samples=32)
+    st = pq.init()
+    vis = jnp.array([True, True, True, True, False])
+    vis1 = jnp.array([False, True, True, True, True])
+    pos0 = jax.random.uniform(jax.random.key(0), (5, 2)) * 10
+    k0, k1 = jax.random.key(2), jax.random.key(3)
+    r = 3
+    keys = jax.random.split(k0, r)
+    states = jax.tree_util.tree_map(lambda x: jnp.stack([x] * r), st)
+    posr = jnp.stack([pos0] * r)
+    visr = jnp.stack([vis] * r)
+    keys1, posr1, visr1 = jax.random.split(k1, r), posr + 1.0, jnp.stack([vis1] * r)
+    jax.block_until_ready(pq.update_batch(states, keys, posr, visr, 0.5))
+    with count_compiles() as again:
+        jax.block_until_ready(pq.update_batch(states, keys1, posr1, visr1, 0.25))
+    assert again == []
+
+
+def test_tables_solver_compiles_once():
+    probs = pb.random_compose_problems(calculi.get("edc"), 8)
+    batch = pb.to_batch(probs, 8.0)
+    feasibility.solve(batch, parts=1)
+    with count_compiles() as again:
+        sol = feasibility.solve(batch, parts=1, seed=7, min_width=2.0**-20,
+                                ids=np.arange(batch.size) + 1000)
+    assert again == []
+    assert sol.status.shape == (batch.size,)
+
+
+def test_camera_kernel_compiles_once():
+    lm = sim.uniform_landmarks(jax.random.key(0), 7)
+    sensor = sim.SensorParams(max_range=1e6)
+    cam0 = sim.camera(jnp.array([50.0, 50.0, 0.0]), lm, sensor)
+    cam1 = sim.camera(jnp.array([20.0, 70.0, 1.0]), lm, sensor)
+    jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
+                                            pool=8, depth=6))
+    with count_compiles() as again:
+        jax.block_until_ready(qrm.measure_image(cam1.bearings, cam1.range_rank, cam1.visible,
+                                                n=6, pool=8, depth=6))
+    assert again == []
+
+
+@pytest.mark.slow
+def test_camera_kernel_with_target_map_compiles_once():
+    lm = sim.uniform_landmarks(jax.random.key(0), 7)
+    sensor = sim.SensorParams(max_range=1e6)
+    cam0 = sim.camera(jnp.array([50.0, 50.0, 0.0]), lm, sensor)
+    cam1 = sim.camera(jnp.array([20.0, 70.0, 1.0]), lm, sensor)
+    target = qrm.true_map(lm).rel
+    target1 = jax.block_until_ready(target ^ 1)
+    jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
+                                            target_map=target, pool=8, depth=6))
+    with count_compiles() as again:
+        jax.block_until_ready(qrm.measure_image(cam1.bearings, cam1.range_rank, cam1.visible,
+                                                n=6, target_map=target1, pool=8, depth=6))
+    assert again == []
+
+
+def test_serge_compiles_once():
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
+    prob = sg.initial_cells(sg.GaussianBeliefs(xy, np.tile(np.eye(2) * 0.3, (4, 1, 1))),
+                            sg.Grid((-5.0, -5.0), (15.0, 15.0), (24, 24)))
+    r0 = sg.serge(prob, mu=2, sigma=1.0, key=jax.random.key(1), trials=16)
+    with count_compiles() as again:
+        r1 = sg.serge(prob, mu=2, sigma=1.5, key=jax.random.key(2), trials=16)
+    assert again == []
+    assert r0.n_regions >= 1 and r1.n_regions >= 1
