@@ -408,8 +408,8 @@ def measure_triples(
     >>> from pqrm_jax.qrm.spec import states_of
     >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far; truth: 1
     >>> m = measure_triples(np.arctan2(P[:, 1], P[:, 0])[None].astype(np.float32))
-    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 4
-    ['1', '5', '11', '12']
+    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 3 (exact)
+    ['1', '5', '11']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     bearings = jnp.asarray(bearings)

@@ -131,7 +131,7 @@ def oracle_sets(bearings, calc: str | QRMSpec = "edc", timeout_ms: int = 20000) 
     >>> import numpy as np
     >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far
     >>> states_of("edc", int(oracle_sets(np.arctan2(P[:, 1], P[:, 0]))[0]))
-    ['1', '5', '11', '12']
+    ['1', '5', '11']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     F = exact_forms(spec, bearings)
