@@ -4,6 +4,11 @@
     pqrm-jax tables --rebuild [NAME ...]    regenerate cached tables (progress bar)
     pqrm-jax tables --plot DIR              table figures and a report (the main job's first part)
     pqrm-jax study NAME [args...]           run a study (``pqrm-jax study --list``)
+
+A user error (a bad argument, an unusable ``--out``, a locked or foreign study directory, a
+corrupt table cache, an unknown calculus, an unwritable path) prints one line
+``pqrm-jax: error: ...`` on stderr and exits with code 2, without a traceback; set
+``PQRM_JAX_TRACEBACK=1`` to see the traceback. Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -41,14 +46,61 @@ def _study(argv: list[str]) -> int:
     return int(studies[name].main(rest) or 0)
 
 
+def user_errors() -> tuple[type[BaseException], ...]:
+    """The exception types the CLI reports as a one-line user error (exit code 2)."""
+    from .studies.store import StudyError
+    from .tables import CacheError
+
+    return (StudyError, CacheError, OSError, ValueError, KeyError)
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, KeyError) and exc.args:
+        return str(exc.args[0])
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.strerror or exc}: {exc.filename}"
+    return str(exc) or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Run the CLI; returns the exit code (2 for user errors, printed on one line)."""
+    import warnings
+
+    default_format = warnings.formatwarning
+
+    def one_line(message, category, filename, lineno, line=None):
+        # a record set aside for recomputation is news for the user, not a code location
+        if category.__name__ == "CorruptRecordWarning":
+            return f"pqrm-jax: warning: {message}\n"
+        return default_format(message, category, filename, lineno, line)
+
+    warnings.formatwarning = one_line
+    try:
+        return _dispatch(list(sys.argv[1:] if argv is None else argv))
+    finally:
+        warnings.formatwarning = default_format
+
+
+def _dispatch(argv: list[str]) -> int:
+    import os
+
     commands = {"tables": _tables, "study": _study}
     if not argv or argv[0] not in commands:
         print(__doc__)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
-    return commands[argv[0]](argv[1:])
-
+    try:
+        return commands[argv[0]](argv[1:])
+    except SystemExit as exc:
+        if isinstance(exc.code, str):  # SystemExit("message") from a command
+            print(f"pqrm-jax: error: {exc.code}", file=sys.stderr)
+            return 2
+        raise
+    except user_errors() as exc:
+        if os.environ.get("PQRM_JAX_TRACEBACK"):
+            raise
+        msg = " ".join(_message(exc).split())
+        print(f"pqrm-jax: error: {msg}", file=sys.stderr)
+        return 2
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -7,8 +7,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pqrm_jax.studies import padgett_mc
+from pqrm_jax.studies.store import StoreError
 
 TINY = ["--runs", "4", "--levels", "2", "--samples", "16", "--landmarks", "4", "--quiet"]
 
@@ -40,12 +42,8 @@ def test_cli_study_report_and_resume(tmp_path):
     assert padgett_mc.main([*TINY, "--out", str(out)]) == 0
     assert _levels(out) == full
     # a different config in the same directory is refused
-    try:
+    with pytest.raises(StoreError, match="different config"):
         padgett_mc.main([*TINY[:-1], "--samples", "32", "--quiet", "--out", str(out)])
-    except SystemExit as exc:
-        assert "different config" in str(exc)
-    else:  # pragma: no cover
-        raise AssertionError("config mismatch not detected")
 
 
 _SHARD_SCRIPT = """

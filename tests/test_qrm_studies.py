@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pqrm_jax.studies import fdc_design, mars_yard, mcclelland_mc
+from pqrm_jax.studies.store import StoreError
 
 MCC = ["--reduced", "--runs", "2", "--images", "6", "--ns", "6", "8", "--no-progress",
        "--exact-sample", "2"]
@@ -48,7 +49,7 @@ def test_mcclelland_mc_report_resume_and_shards(tmp_path):
         np.testing.assert_array_equal(rec["removed_pct"], sharded[name]["removed_pct"])
     assert mcclelland_mc.main(MCC + ["--out", str(b), "--shard", "2/2"]) == 2
     # another configuration is refused rather than mixed into the stored runs
-    with pytest.raises(SystemExit, match="images"):
+    with pytest.raises(StoreError, match="images"):
         mcclelland_mc.main(MCC[:4] + ["7"] + MCC[5:] + ["--out", str(b)])
 
 
@@ -61,7 +62,7 @@ def test_mars_yard_reduced(tmp_path):
     assert tr["truth_kept"] is True
     removed = np.asarray(tr["removed_pct"])
     assert np.all(np.diff(removed) >= -1e-6) and removed[-1] > removed[0]
-    with pytest.raises(SystemExit, match="different config"):  # the full preset
+    with pytest.raises(StoreError, match="different config"):  # the full preset
         mars_yard.main(["--runs", "1", "--out", str(tmp_path), "--no-progress"])
 
 

@@ -6,6 +6,7 @@ import pytest
 
 from pqrm_jax.studies import discover
 from pqrm_jax.studies import serge as study
+from pqrm_jax.studies.store import StoreError
 
 
 def test_study_is_discovered():
@@ -29,7 +30,7 @@ def test_reduced_study_runs_and_resumes(tmp_path):
     assert study.main(argv) == 0
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(lines)
     # resuming with settings that change results is refused, nothing is appended
-    with pytest.raises(SystemExit, match="trials"):
+    with pytest.raises(StoreError, match="trials"):
         study.main(argv[:4] + ["9"] + argv[5:])
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == len(lines)
 

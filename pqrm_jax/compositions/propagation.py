@@ -278,10 +278,11 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
     """
     if mode not in ("fill", "fuse"):
         raise ValueError(f"mode must be 'fill' or 'fuse', got {mode!r}")
-    if not (0.0 <= eps <= 1.0):
+    if not (0.0 <= eps <= 1.0):  # also refuses NaN
         raise ValueError(f"eps must be in [0, 1], got {eps}")
-    if path_weight < 0 or measurement_weight < 0:
-        raise ValueError("fusion weights must be ≥ 0")
+    for wname, w in (("path_weight", path_weight), ("measurement_weight", measurement_weight)):
+        if not (0.0 <= float(w) < float("inf")):  # NaN and inf fail too
+            raise ValueError(f"{wname} must be finite and ≥ 0, got {w}")
     if rounds < 1:
         raise ValueError(f"rounds must be ≥ 1, got {rounds}")
     if validate:

@@ -362,6 +362,7 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
     _check_sigma(sigma)
     full = np.zeros((pq.num_landmarks, 2), np.float32)
     vis = np.zeros(pq.num_landmarks, bool)
+    ids = ids.astype(np.intp)  # checked integers above; seeing nothing gives float64 ``[]``
     full[ids] = positions
     vis[ids] = True
     sig = np.asarray(sigma, np.float32)

@@ -2,7 +2,10 @@
 
 All functions take a (T, Q) map ``probs``, the true states ``truth`` (T,) and a ``mask`` (T,)
 of the triplets to evaluate (mapped triplets with a defined truth); they return means over the
-masked triplets (NaN-free: an empty mask gives 0 and ``count`` says so).
+masked triplets (NaN-free: an empty mask gives 0 and ``count`` says so). The metrics that
+compare with ``truth`` drop from the mask every triplet whose truth is undefined (a negative
+sentinel such as ``BOUNDARY``/``DEGENERATE``, or an index ≥ Q): an undefined truth is neither
+a correct nor a wrong estimate, so it is never counted (they evaluate ``mask & defined``).
 
 * mean map entropy, eq. 2.11 (nats; ``0·log 0 = 0``);
 * error rate of the maximum-likelihood (ML) state (ties: the lowest state index);
@@ -27,7 +30,7 @@ from ..calculi import Calculus
 __all__ = [
     "entropy", "mean_map_entropy", "ml_states", "error_rate", "topn_error_rates",
     "ml_probability", "neighbor_distance", "confusion_matrix", "normalized_positions",
-    "true_states", "random_neighbor_distance", "masked_mean",
+    "true_states", "random_neighbor_distance", "masked_mean", "defined_mask",
 ]
 
 
@@ -54,8 +57,19 @@ def ml_states(probs: jax.Array) -> jax.Array:
     return jnp.argmax(probs, axis=-1).astype(jnp.int32)
 
 
+def defined_mask(truth: jax.Array, mask: jax.Array, num_states: int) -> jax.Array:
+    """``mask`` without the triplets whose truth is undefined (negative sentinel or ≥ Q).
+
+    >>> print(defined_mask(jnp.array([0, -1, 2, 5]), jnp.array([True, True, True, True]), 3))
+    [ True False  True False]
+    """
+    truth = jnp.asarray(truth)
+    return jnp.asarray(mask, bool) & (truth >= 0) & (truth < num_states)
+
+
 def error_rate(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
-    """Fraction of masked triplets whose ML state is not the truth."""
+    """Fraction of masked triplets (with a defined truth) whose ML state is not the truth."""
+    mask = defined_mask(truth, mask, probs.shape[-1])
     return masked_mean((ml_states(probs) != truth).astype(jnp.float32), mask)
 
 
@@ -65,7 +79,7 @@ def topn_error_rates(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax
     rank = jnp.argmax(order == truth[:, None], axis=-1)  # position of the truth
     q = probs.shape[-1]
     wrong = rank[:, None] >= jnp.arange(1, q + 1)[None, :]  # (T, Q)
-    m = jnp.asarray(mask, bool)
+    m = defined_mask(truth, mask, q)
     return jnp.sum(jnp.where(m[:, None], wrong, False), axis=0) / jnp.maximum(jnp.sum(m), 1)
 
 
@@ -77,8 +91,8 @@ def ml_probability(probs: jax.Array, mask: jax.Array) -> jax.Array:
 def neighbor_distance(probs: jax.Array, truth: jax.Array, mask: jax.Array,
                       distance: jax.Array) -> jax.Array:
     """Mean conceptual-neighbour distance ``distance[ML, truth]`` (P §2.3.1, Fig. 2.6)."""
-    d = jnp.asarray(distance)[ml_states(probs), jnp.clip(truth, 0, None)]
-    return masked_mean(d.astype(jnp.float32), mask)
+    d = jnp.asarray(distance)[ml_states(probs), jnp.clip(truth, 0, probs.shape[-1] - 1)]
+    return masked_mean(d.astype(jnp.float32), defined_mask(truth, mask, probs.shape[-1]))
 
 
 def random_neighbor_distance(distance) -> float:
@@ -90,7 +104,7 @@ def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax
     """(Q, Q) int32 counts ``[truth, ML estimate]`` over the masked triplets (P Fig. 2.9)."""
     q = probs.shape[-1]
     idx = jnp.clip(truth, 0, q - 1) * q + ml_states(probs)
-    w = jnp.asarray(mask, jnp.int32)
+    w = defined_mask(truth, mask, q).astype(jnp.int32)
     return jnp.zeros(q * q, jnp.int32).at[idx].add(w).reshape(q, q)
 
 

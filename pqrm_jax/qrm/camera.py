@@ -388,6 +388,7 @@ def measure_triples(
     still open in the map (others are returned as possible, unchecked); default all states.
 
     Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
+    Raises ``ValueError`` for an empty batch (T = 0), a bad shape or NaN/inf bearings.
 
     ``exact=True`` (concrete input only): the kernel is seeded with the witnesses of the
     arrangement sweep (:mod:`pqrm_jax.qrm.exact_camera`), and the states it still leaves
@@ -415,6 +416,9 @@ def measure_triples(
     bearings = jnp.asarray(bearings)
     if bearings.ndim != 2 or bearings.shape[-1] != 3:
         raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
+    if bearings.shape[0] == 0:
+        raise ValueError("measure_triples: bearings holds no triple (shape (0, 3)); an image "
+                         "with fewer than three landmarks has nothing to measure")
     if not jnp.issubdtype(bearings.dtype, jnp.floating):
         bearings = bearings.astype(jnp.float32)
     if not isinstance(bearings, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(bearings))):

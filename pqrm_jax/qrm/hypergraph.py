@@ -44,8 +44,9 @@ from ..triplets import distinct_mask, states_to_masks, true_states
 from .camera import CYCLIC, ImageMeasurement
 from .spec import QRMSpec, qrm_spec
 
-__all__ = ["QRMMap", "UpdateReport", "empty_map", "closure", "apply_relations", "update_image",
-           "cyclic_relations", "true_relations", "true_map", "distinct_mask"]
+__all__ = ["QRMMap", "UpdateReport", "ClosureResult", "empty_map", "closure",
+           "apply_relations", "update_image", "cyclic_relations", "true_relations", "true_map",
+           "distinct_mask"]
 
 
 class QRMMap(NamedTuple):
@@ -58,11 +59,13 @@ class QRMMap(NamedTuple):
 class UpdateReport(NamedTuple):
     """Result flags of an update: ``inconsistent`` (an empty set appeared; the update was
     rejected), ``n_empty`` (number of empty relations it would have produced), ``sweeps``
-    (propagation sweeps to the fixed point)."""
+    (propagation sweeps to the fixed point), ``converged`` (``False``: stopped at
+    ``max_sweeps`` before the fixed point, see :class:`ClosureResult`)."""
 
     inconsistent: jax.Array
     n_empty: jax.Array
     sweeps: jax.Array
+    converged: jax.Array
 
 
 def _spec(calc) -> QRMSpec:
@@ -145,22 +148,54 @@ def _closure(spec: QRMSpec, rel, *, max_sweeps: int):
         return it + 1, new, ru, jnp.any(new != r), jnp.any(distinct & (new == 0))
 
     empty0 = jnp.any(distinct & (rel == 0))
-    it, r, _, _, empty = jax.lax.while_loop(
+    it, r, _, changed, empty = jax.lax.while_loop(
         cond, body, (0, rel, rel, jnp.asarray(True), empty0))
     n_empty = jnp.sum(distinct & (r == 0))
-    return r, empty, n_empty, it
+    # stopped by the sweep cap while the last sweep still changed something
+    return r, empty, n_empty, it, empty | ~changed
 
 
-def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc", max_sweeps: int = 64):
-    """Path-consistency fixed point of a relation array: ``(rel, inconsistent, n_empty,
-    sweeps)`` (M§VI.B steps 7–9)."""
-    return _closure(_spec(calc), jnp.asarray(rel, jnp.uint32), max_sweeps=max_sweeps)
+class ClosureResult(NamedTuple):
+    """Result of :func:`closure`.
+
+    rel: (N, N, N) uint32 relation masks after propagation.
+    inconsistent: () bool, an empty relation appeared (propagation stopped there).
+    n_empty: () int32, number of empty relations.
+    sweeps: () int32, sweeps run.
+    converged: () bool, the fixed point (or an inconsistency) was reached; ``False`` when
+        propagation stopped at ``max_sweeps`` with relations still shrinking — ``rel`` is then
+        sound but not yet path-consistent (raise ``max_sweeps``).
+    """
+
+    rel: jax.Array
+    inconsistent: jax.Array
+    n_empty: jax.Array
+    sweeps: jax.Array
+    converged: jax.Array
+
+
+def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc",
+            max_sweeps: int = 64) -> ClosureResult:
+    """Path-consistency fixed point of a relation array (M§VI.B steps 7–9).
+
+    Returns a :class:`ClosureResult` ``(rel, inconsistent, n_empty, sweeps, converged)``;
+    ``converged`` is ``False`` when the ``max_sweeps`` cap stopped it before the fixed point.
+
+    >>> r = closure(true_map(jnp.array([[0., 0.], [4., 1.], [1., 3.], [5., 5.]])).rel)
+    >>> bool(r.converged), bool(r.inconsistent)
+    (True, False)
+    """
+    if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) \
+            or max_sweeps < 1:
+        raise ValueError(f"max_sweeps must be an integer ≥ 1, got {max_sweeps!r}")
+    return ClosureResult(*_closure(_spec(calc), jnp.asarray(rel, jnp.uint32),
+                                   max_sweeps=int(max_sweeps)))
 
 
 def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
-    r, empty, n_empty, sweeps = _closure(spec, m.rel & meas, max_sweeps=max_sweeps)
+    r, empty, n_empty, sweeps, conv = _closure(spec, m.rel & meas, max_sweeps=max_sweeps)
     new = QRMMap(jnp.where(empty, m.rel, r), jnp.where(empty, m.known, m.known | nodes))
-    return new, UpdateReport(empty, n_empty, sweeps)
+    return new, UpdateReport(empty, n_empty, sweeps, conv)
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))

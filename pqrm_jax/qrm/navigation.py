@@ -147,11 +147,7 @@ def navigate(
     landmarks = jnp.asarray(landmarks, jnp.float32)
     start = jnp.asarray(start, jnp.float32)
     goal = jnp.asarray(goal, jnp.float32)
-    for nm, x, shp in (("start", start, (3,)), ("goal", goal, (2,))):
-        if x.shape != shp:
-            raise ValueError(f"{nm} must have shape {shp}, got {x.shape}")
-        if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
-            raise ValueError(f"{nm} contains NaN or inf")
+    check_nav_inputs(landmarks, start, goal)
     _, nxt = plan_next_hop(rng.edges, rng.cost, lam)
     sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
     return _navigate(landmarks, nxt, start, goal, params, sensor, n_steps=n_steps,
@@ -165,10 +161,29 @@ def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, senso
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
     _, nxt = plan_next_hop(rng.edges, rng.cost, lam)
-    f = jax.vmap(lambda s, g: _navigate(jnp.asarray(landmarks, jnp.float32), nxt, s, g,
+    landmarks = jnp.asarray(landmarks, jnp.float32)
+    starts, goals = jnp.asarray(starts, jnp.float32), jnp.asarray(goals, jnp.float32)
+    check_nav_inputs(landmarks, starts, goals, batched=True)
+    f = jax.vmap(lambda s, g: _navigate(landmarks, nxt, s, g,
                                         params, sensor, n_steps=n_steps, k_turn=2.0,
                                         tol=0.5))
-    return f(jnp.asarray(starts, jnp.float32), jnp.asarray(goals, jnp.float32))
+    return f(starts, goals)
+
+
+def check_nav_inputs(landmarks, start, goal, batched: bool = False) -> None:
+    """Raise ``ValueError`` unless landmarks (N, 2), start (…, 3), goal (…, 2) are finite.
+
+    A NaN landmark would otherwise make every bearing comparison false and the run end
+    quietly with ``success=False`` (checked only outside ``jit``: tracers pass).
+    """
+    lead = (start.shape[:1] if batched and start.ndim else ())
+    for nm, x, shp in (("landmarks", landmarks, (landmarks.shape[0], 2) if landmarks.ndim
+                        else (None, 2)), ("start", start, (*lead, 3)), ("goal", goal, (*lead, 2))):
+        if x.shape != shp:
+            want = "(N, 2)" if nm == "landmarks" else str(shp)
+            raise ValueError(f"{nm} must have shape {want}, got {x.shape}")
+        if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
+            raise ValueError(f"{nm} contains NaN or inf")
 
 
 def summarize(res: NavResult) -> dict:

@@ -156,6 +156,13 @@ def run_sequence(
     landmarks = jnp.asarray(landmarks, jnp.float32)
     if landmarks.ndim != 2 or landmarks.shape[1] != 2 or landmarks.shape[0] < 3:
         raise ValueError(f"landmarks must have shape (N >= 3, 2), got {landmarks.shape}")
+    poses = jnp.asarray(poses, jnp.float32)
+    if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 1:
+        raise ValueError(f"poses must have shape (T >= 1, 3), got {poses.shape}")
+    for nm, x in (("landmarks", landmarks), ("poses", poses)):
+        # a NaN would make every comparison false and the map look sound ("truth kept")
+        if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
+            raise ValueError(f"run_sequence: {nm} contain NaN or inf")
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
     return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, resolve_sensor(sensor),

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
+MAX_CELLS = 2**31 - 1  # cell ids are int32 inside the jitted kernels
+
 
 @dataclass(frozen=True)
 class Grid:
@@ -44,6 +46,9 @@ class Grid:
             raise ValueError(f"Grid: need hi > lo in both axes, got lo={lo}, hi={hi}")
         if min(shape) < 1:
             raise ValueError(f"Grid: shape must be positive, got {shape}")
+        if shape[0] * shape[1] > MAX_CELLS:
+            raise ValueError(f"Grid: {shape[0]}×{shape[1]} = {shape[0] * shape[1]} cells is more "
+                             f"than the {MAX_CELLS} (2³¹ − 1) that int32 cell indices address")
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
         object.__setattr__(self, "shape", shape)

@@ -391,7 +391,9 @@ def serge(
     t = 100 * problem.k + 1 if trials is None else int(trials)
     if t < 1:
         raise ValueError(f"serge: trials must be ≥ 1, got {trials}")
-    chunk = min(chunk, t)
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"serge: chunk must be an integer ≥ 1, got {chunk!r}")
+    chunk = min(int(chunk), t)
     tt = math.ceil(t / chunk) * chunk
     # key derivation unchanged (split into a multiple of ``chunk``); a trial depends only on
     # its own key, so only the first t are run, in vmapped blocks of WIDTH trials

@@ -68,3 +68,29 @@ __all__ = [
     "perimeter_loop", "random_imaging_points", "traverse",
     "ControllerGains", "FollowResult", "waypoint_controller", "follow_waypoints",
 ]
+
+# Q-Link additions (P §4.4.1): lawnmower mapping sweep, partial disc occlusion, wall segments.
+from pqrm_jax.sim import coverage, occlusion  # noqa: E402
+from pqrm_jax.sim.coverage import lawnmower  # noqa: E402
+from pqrm_jax.sim.occlusion import (  # noqa: E402
+    disc_visibility,
+    segment_distance,
+    segment_visibility,
+    target_visibility,
+)
+
+__all__ += ["coverage", "occlusion", "lawnmower", "disc_visibility", "target_visibility",
+            "segment_distance", "segment_visibility"]
+
+# HSSH additions (B ch. 6): corridor-network occupancy worlds.
+from pqrm_jax.sim import corridors  # noqa: E402
+from pqrm_jax.sim.corridors import (  # noqa: E402
+    INTERSECTIONS,
+    intersection_rectangles,
+    plus_image,
+    render_free_rectangles,
+    room_doorway_rectangles,
+)
+
+__all__ += ["corridors", "INTERSECTIONS", "intersection_rectangles", "plus_image",
+            "render_free_rectangles", "room_doorway_rectangles"]

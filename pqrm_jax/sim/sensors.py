@@ -34,19 +34,52 @@ __all__ = ["SensorParams", "Observation", "CameraObservation", "observe", "camer
            "relative_positions", "visibility"]
 
 
-class SensorParams(NamedTuple):
-    """Sensor parameters (a pytree; fields may be traced).
-
-    max_range: detection range in metres (Padgett's study uses 60 m).
-    fov: field of view in radians, centred on the heading; ``>= 2*pi`` is omnidirectional.
-    landmark_radius: physical radius of a landmark, used for occlusion (0 disables occlusion).
-    sigma: std of isotropic Gaussian noise added to each relative position (metres).
-    """
-
+class _SensorParamsFields(NamedTuple):
     max_range: float = 60.0
     fov: float = 2 * jnp.pi
     landmark_radius: float = 0.0
     sigma: float = 0.0
+
+
+FINITE_SENSOR_FIELDS = ("landmark_radius", "sigma")  # max_range, fov may be inf (unbounded)
+
+
+class SensorParams(_SensorParamsFields):
+    """Sensor parameters (a pytree; fields may be traced).
+
+    max_range: detection range in metres (Padgett's study uses 60 m); ``inf`` = unbounded.
+    fov: field of view in radians, centred on the heading; ``>= 2*pi`` is omnidirectional.
+    landmark_radius: physical radius of a landmark, used for occlusion (0 disables occlusion).
+    sigma: std of isotropic Gaussian noise added to each relative position (metres).
+
+    Plain numbers are checked when the tuple is built: NaN anywhere, a negative value, or an
+    infinite ``sigma``/``landmark_radius`` raises ``ValueError`` (an infinite σ would make
+    :func:`observe` return ±inf positions). Arrays are checked by :func:`observe`.
+
+    >>> SensorParams(sigma=float("inf"))
+    Traceback (most recent call last):
+    ...
+    ValueError: SensorParams.sigma must be finite, got inf
+    """
+
+    __slots__ = ()
+
+    def __new__(cls, max_range=60.0, fov=2 * jnp.pi, landmark_radius=0.0, sigma=0.0):
+        for name, v in (("max_range", max_range), ("fov", fov),
+                        ("landmark_radius", landmark_radius), ("sigma", sigma)):
+            if isinstance(v, (int, float, np.number)) and not isinstance(v, bool):
+                _check_param(name, v)
+        return super().__new__(cls, max_range, fov, landmark_radius, sigma)
+
+
+def _check_param(name: str, v) -> None:
+    a = np.asarray(v, dtype=float)
+    if np.any(np.isnan(a)):
+        raise ValueError(f"SensorParams.{name} must be a non-negative number, got NaN")
+    if np.any(a < 0):
+        raise ValueError(f"SensorParams.{name} must be non-negative, got {a.tolist()}")
+    if name in FINITE_SENSOR_FIELDS and not np.all(np.isfinite(a)):
+        raise ValueError(f"SensorParams.{name} must be finite, got {a.tolist()}")
 
 
 class Observation(NamedTuple):
@@ -91,6 +124,8 @@ def _check_inputs(pose, landmarks, params: SensorParams) -> None:
         if np.ndim(value) != 0:
             raise ValueError(f"SensorParams.{name} must be a scalar, got shape {np.shape(value)}")
         check_nonneg(f"SensorParams.{name}", value)
+        if name in FINITE_SENSOR_FIELDS:
+            check_finite(f"SensorParams.{name}", value)
 
 
 def _relative(pose, landmarks):

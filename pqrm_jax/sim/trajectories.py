@@ -62,8 +62,13 @@ def perimeter_loop(
     dtheta: float = math.radians(16.0),
     start_angle: float = 0.0,
     clockwise: bool = False,
+    max_poses: int = 1_000_000,
 ) -> jax.Array:
     """Poses ``(T, 3)`` on one loop of a circle, one every ``dtheta`` radians.
+
+    A ``dtheta`` that would give more than ``max_poses`` poses (a million by default: e.g.
+    ``dtheta=1e-9`` asks for 6.3·10⁹) raises ``ValueError`` instead of returning a huge lazy
+    array that can only fail later; raise ``max_poses`` deliberately if you need more.
 
     ``T = ceil(2 pi / dtheta)`` (23 for the default 16 degrees); pose ``i`` sits at polar angle
     ``start_angle +- i * dtheta`` around ``center`` and faces along the direction of travel
@@ -80,6 +85,10 @@ def perimeter_loop(
     check_finite("center", center)
     check_positive("radius", radius)
     n = math.ceil(2 * math.pi / dtheta - 1e-9)
+    if n > max_poses:
+        raise ValueError(f"dtheta={dtheta:g} gives {n} poses per loop, more than "
+                         f"max_poses={max_poses}; use dtheta ≥ {2 * math.pi / max_poses:.3g} "
+                         "or raise max_poses")
     sign = -1.0 if clockwise else 1.0
     return _circle(jnp.asarray(center, _float()), radius, start_angle, sign * dtheta, n)
 

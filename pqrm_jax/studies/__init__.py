@@ -2,7 +2,9 @@
 
 Each study is a module in this package that defines ``NAME`` (the CLI name, e.g.
 ``"padgett-mc"``), ``HELP`` (one line) and ``main(argv: list[str]) -> int``. The CLI discovers
-them; adding a study never edits a shared file.
+them; adding a study never edits a shared file. A study keeps its results in a
+:class:`~pqrm_jax.studies.store.Store` (``Store.open(out, NAME, config)``: lock, study marker,
+config guard with the precision, atomic writes, verified records, ``results.csv``).
 """
 
 from __future__ import annotations

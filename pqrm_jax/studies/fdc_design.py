@@ -14,7 +14,6 @@ MT Fig. 1.6a), ``design.json`` and ``report.md``.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import jax
@@ -75,14 +74,29 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reduced", action="store_true", help="2 searches")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
-    from tqdm.auto import tqdm
+
+    from .store import Store, tidy_rows
 
     runs = 2 if a.reduced else a.runs
+    if runs < 1:
+        p.error(f"--runs must be ≥ 1, got {runs}")
     out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with Store.open(out, NAME, {"calc": a.calc}, legacy=(
+            "design.json", "report.md", "fdc_design.png", "config.json", "study.json",
+            "results.csv")) as st:
+        results = _searches(a.calc, runs, a.no_progress, st)
+        code = _write(out, a.calc, runs, results, st)
+        st.write_results_csv(tidy_rows(results, unit=lambda r: f"seed_{r['seed']}",
+                                       skip=("seed", "poses")))
+    return code
+
+
+def _searches(calc: str, runs: int, no_progress: bool, st) -> list[dict]:
+    from tqdm.auto import tqdm
+
     results = []
-    for s in tqdm(range(runs), desc=NAME, disable=a.no_progress):
-        poses, rows, open_states, _ = search(a.calc, seed=s)
+    for s in tqdm(range(runs), desc=NAME, disable=no_progress):
+        poses, rows, open_states, _ = search(calc, seed=s)
         c = [r["constrained_pct"] for r in rows]
         results.append({"seed": s, "poses": poses.tolist(), "rows": rows,
                         "open_pct_of_all_states": open_states,
@@ -90,7 +104,12 @@ def main(argv: list[str]) -> int:
                         "none_before_fourth": all(x == 0 for x in c[:3]),
                         "first_constrained_image": next((i + 1 for i, x in enumerate(c)
                                                          if x > 0), None)})
-    (out / "design.json").write_text(json.dumps(results, indent=1))
+    st.write_json("design.json", results)
+    return results
+
+
+def _write(out: Path, calc: str, runs: int, results: list[dict], st) -> int:
+    """Figure and ``report.md`` of the searches; 0 when one design has both MT properties."""
     ok = [r for r in results if r["fully_constrained_end"] and r["none_before_fourth"]]
     best = ok[0] if ok else results[0]
     import matplotlib
@@ -115,10 +134,10 @@ def main(argv: list[str]) -> int:
     ax[1].legend()
     ax[1].set_title("MT Fig. 1.6a analogue")
     fig.tight_layout()
-    fig.savefig(out / "fdc_design.png", dpi=110)
+    fig.savefig(st.path("fdc_design.png"), dpi=110)
     plt.close(fig)
     lines = [f"# {NAME}: FDC 4-landmark / 7-image design (MT ch. 1)", "",
-             f"Calculus `{a.calc}`; {runs} greedy searches, {len(ok)} satisfy both MT "
+             f"Calculus `{calc}`; {runs} greedy searches, {len(ok)} satisfy both MT "
              "properties (fully constrained after image 7; no edge fully constrained before "
              "image 4).", "", "![design](fdc_design.png)", "",
              "| seed | constrained % per image | open % per image | ok |", "|---|---|---|---|"]
@@ -127,6 +146,6 @@ def main(argv: list[str]) -> int:
         opn = ", ".join(f"{x:.0f}" for x in r["open_pct_of_all_states"])
         good = r["fully_constrained_end"] and r["none_before_fourth"]
         lines.append(f"| {r['seed']} | {cons} | {opn} | {good} |")
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    st.write_text("report.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0 if ok else 1

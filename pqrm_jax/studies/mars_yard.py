@@ -22,8 +22,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._store import guard_config
-
 NAME = "mars-yard"
 HELP = "Mars-Yard-like traverse (M§VIII.C, Figs. 10-11) + RNG navigation (M§VII.B)"
 
@@ -173,22 +171,41 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
-    from tqdm.auto import tqdm
 
     cfg = Config(**REDUCED) if a.reduced else Config()
     if a.runs is not None:
         if a.runs < 1:
-            print("--runs must be >= 1")
-            return 2
+            p.error(f"--runs must be ≥ 1, got {a.runs}")
         cfg.traverses = a.runs
+    from .store import Store, tidy_rows
+
     out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    guard_config(out, dataclasses.asdict(cfg), selection=("traverses",))
+    with Store.open(out, NAME, dataclasses.asdict(cfg), selection=("traverses",),
+                    legacy=("config.json", "traverse_*.json", "report.md", "*.png",
+                            "study.json", "results.csv", "*.corrupt")) as st:
+        rows = _traverses(cfg, st, a.no_progress)
+        _write_report(out, cfg, rows, st)
+        st.write_results_csv(tidy_rows(rows, unit=lambda r: f"traverse_{r['traverse']}",
+                                       skip=("traverse",)))
+    return 0
+
+
+_ROW_FIELDS = ("traverse", "wall_s", "removed_pct", "constrained_pct", "not_adjacent_pct",
+               "rng_cost", "truth_kept", "nav_estimated", "nav_true")
+
+
+def _traverses(cfg: Config, st, no_progress: bool) -> list[dict]:
+    """Every traverse's row: read back when stored and valid, else computed and stored."""
+    from tqdm.auto import tqdm
+
     rows = []
-    for i in tqdm(range(cfg.traverses), desc=NAME, disable=a.no_progress):
-        f = out / f"traverse_{i}.json"
-        if f.exists() and i > 0:
-            rows.append(json.loads(f.read_text()))
+    for i in tqdm(range(cfg.traverses), desc=NAME, disable=no_progress):
+        name = f"traverse_{i}.json"
+        row = st.read_json(name, _ROW_FIELDS,
+                           check=lambda r, i=i: (r["traverse"] == i
+                                                 and len(r["removed_pct"]) == cfg.images))
+        if row is not None and i > 0:  # traverse 0 is recomputed for the figures
+            rows.append(row)
             continue
         tr = run_traverse(cfg, i)
         nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
@@ -199,10 +216,14 @@ def main(argv: list[str]) -> int:
                "rng_cost": tr["met"]["rng_cost"].tolist(),
                "truth_kept": bool(tr["met"]["truth_kept"].all()),
                "nav_estimated": nav["estimated"], "nav_true": nav["true"]}
-        f.write_text(json.dumps(row))
+        st.write_json(name, row, indent=None)
         rows.append(row)
         if i == 0:
-            _plots(out, cfg, tr, nav)
+            _plots(st.out, cfg, tr, nav)
+    return rows
+
+
+def _write_report(out: Path, cfg: Config, rows: list[dict], st) -> None:
     walls = [r["wall_s"] for r in rows]
     ne = [r["nav_estimated"] for r in rows]
     nt = [r["nav_true"] for r in rows]
@@ -247,6 +268,5 @@ def main(argv: list[str]) -> int:
               "shortcuts for navigation (the simulated camera sees every landmark), so paths "
               "along the estimate can be shorter than along the true RNG.",
               "- The true state is never removed ('truth kept')."]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    st.write_text("report.md", "\n".join(lines) + "\n")
     print("\n".join(lines[8:]))
-    return 0

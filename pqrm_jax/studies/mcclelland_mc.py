@@ -28,8 +28,6 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ._store import guard_config
-
 NAME = "mcclelland-mc"
 HELP = "McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7): n nearest of 30 landmarks"
 
@@ -87,20 +85,37 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
 def run_study(cfg: Config, out: Path, progress: bool = True,
               shard: tuple[int, int] = (0, 1)) -> None:
     """Run (and resume) the study; ``shard=(i, k)`` does only the runs r with r % k == i, so
-    k processes (or machines sharing ``out``) can split it; every run is its own file."""
+    k processes (or machines sharing ``out``) can split it; every run is its own file,
+    written atomically and read back in full (a corrupt one is set aside and recomputed).
+    The shards share the study lock; the same shard twice, or an unsharded run beside them,
+    is refused."""
+    from .store import Store
+
+    with Store.open(out, NAME, dataclasses.asdict(cfg),
+                    selection=("runs", "ns", "timed_runs", "exact_sample"),
+                    legacy=LEGACY, shard=shard) as st:
+        _run_units(cfg, st, progress, shard)
+
+
+LEGACY = ("config.json", "runs", "report.md", "fig7.png", "summary.json", "study.json",
+          "results.csv")
+RUN_FIELDS = ("removed_pct", "constrained_pct", "not_adjacent_pct", "rng_cost", "first_open",
+              "first_proven", "truth_kept", "inconsistent", "wall")
+
+
+def _run_units(cfg: Config, st, progress: bool, shard: tuple[int, int]) -> None:
     from tqdm.auto import tqdm
 
     from pqrm_jax.qrm import pipeline as P
 
     i_shard, k_shard = shard
-    (out / "runs").mkdir(parents=True, exist_ok=True)
-    guard_config(out, dataclasses.asdict(cfg),
-                 selection=("runs", "ns", "timed_runs", "exact_sample"))
+
+    def done(n, r):
+        return st.read_npz(f"runs/n{n}_r{r}.npz", RUN_FIELDS) is not None
+
     todo = [(n, r) for n in cfg.ns for r in range(cfg.runs)
-            if r % k_shard == i_shard and not (out / "runs" / f"n{n}_r{r}.npz").exists()]
+            if r % k_shard == i_shard and not done(n, r)]
     for n, r in tqdm(todo, desc=NAME, disable=not progress):
-        if (out / "runs" / f"n{n}_r{r}.npz").exists():  # done meanwhile by another process
-            continue
         lm, poses = _layout(cfg, r)
         t0 = time.perf_counter()
         m, met = P.run_sequence(lm, poses, n, "edc", pool=cfg.pool, depth=cfg.depth)
@@ -110,9 +125,7 @@ def run_study(cfg: Config, out: Path, progress: bool = True,
         rec["wall"] = np.asarray(wall)
         if r < cfg.timed_runs:
             rec["update_time"] = _time_updates(cfg, lm, poses, n)
-        tmp = out / "runs" / f".n{n}_r{r}.tmp.npz"
-        np.savez(tmp, **rec)
-        tmp.replace(out / "runs" / f"n{n}_r{r}.npz")  # atomic: a killed run leaves no file
+        st.write_npz(f"runs/n{n}_r{r}.npz", rec, compressed=False)  # atomic
 
 
 def exact_first_image(cfg: Config, n: int) -> dict:
@@ -144,15 +157,17 @@ def exact_first_image(cfg: Config, n: int) -> dict:
 
 
 def load(out: Path, cfg: Config) -> dict:
+    from .store import read_npz
+
     res = {}
     for n in cfg.ns:
-        recs = [np.load(out / "runs" / f"n{n}_r{r}.npz") for r in range(cfg.runs)
-                if (out / "runs" / f"n{n}_r{r}.npz").exists()]
+        recs = [read_npz(out / "runs" / f"n{n}_r{r}.npz", RUN_FIELDS) for r in range(cfg.runs)]
+        recs = [x for x in recs if x is not None]
         if not recs:
             continue
-        res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0].files
+        res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0]
                   if k != "update_time"}
-        times = [r["update_time"] for r in recs if "update_time" in r.files]
+        times = [r["update_time"] for r in recs if "update_time" in r]
         if times:
             res[n]["update_time"] = np.stack(times)
     return res
@@ -238,8 +253,11 @@ def report(out: Path, cfg: Config) -> dict:
         summary[n] = s
     peaks = [summary[n].get("update_time_peak_s", np.nan) for n in ns]
     slope = _fit_slope(ns, peaks)
-    (out / "summary.json").write_text(json.dumps({"per_n": summary, "peak_slope": slope},
-                                                 indent=1))
+    from .store import atomic_write_json, atomic_write_text, tidy_rows, write_results_csv
+
+    atomic_write_json(out / "summary.json", {"per_n": summary, "peak_slope": slope})
+    write_results_csv(out / "results.csv", NAME, tidy_rows(
+        [{"n": n, **s} for n, s in summary.items()], unit=lambda r: f"n={r['n']}", skip=("n",)))
     lines = [f"# {NAME}: QRM Monte Carlo study (M§VIII.B, Fig. 7)", "",
              f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
              "![fig7](fig7.png)", "",
@@ -290,7 +308,7 @@ def report(out: Path, cfg: Config) -> dict:
               "- *Open states cluster around the truth for n ≥ 18* (Fig. 7b: < 45 % "
               "not adjacent) while n = 6, 9 stay in the 45–90 % 'uniform' band.",
               "- The true state was never removed (soundness) in any run: 'truth kept'."]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     return summary
 
 
@@ -325,9 +343,14 @@ def main(argv: list[str]) -> int:
         print("runs and images must be >= 1 and every n in 3..landmarks", file=sys.stderr)
         return 2
     out = Path(a.out)
-    if not a.report_only:
+    if a.report_only:
+        from .store import Store
+
+        with Store.open(out, NAME, None, legacy=LEGACY):
+            summary = report(out, cfg)
+    else:
         run_study(cfg, out, progress=not a.no_progress, shard=shard)
-    summary = report(out, cfg)
+        summary = report(out, cfg)
     for n, s in summary.items():
         print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "
               f"{s['constrained_pct_final']:.1f}%  not-adj {s['not_adjacent_pct_final']:.1f}%"

@@ -15,12 +15,17 @@ Open choices of the seed, recorded in ``config.json``: the number of landmarks (
 
 Engineering: the run axis is sharded over ``jax.devices()`` (a 1-D ``NamedSharding`` mesh);
 runs are processed in chunks (progress bar, bounded memory); each finished noise level is
-appended to ``levels.jsonl`` (+ ``level_XX.npz``) so a killed study resumes at the first
-unfinished level; run keys are ``fold_in(fold_in(seed, level), run)``, so results do not
-depend on chunking, device count or resumption. Each step samples eq. 2.9 only for the triplets
-seen (``Mapper.update_batch``, compacted across the runs of a chunk), with results identical to
-the dense per-run reference (``run_level(..., dense=True)``). ``report.md`` and the figures
-are written at the end (``--report-only`` rewrites them from the stored results).
+stored in ``levels.jsonl`` (+ ``level_XX.npz``) through the study store
+(:mod:`pqrm_jax.studies.store`: lock, atomic writes, verified records), so a killed study
+resumes at the unfinished levels; run keys are ``fold_in(fold_in(seed, level), run)``, so the
+draws and the discrete metrics do not depend on chunking, device count or resumption. Float
+metrics (entropy, P(ML), error locations) can differ in the last bits between per-device batch
+sizes (reduction order), so the effective layout (chunk, devices) is part of the stored config
+and a resume with another layout is refused (``layout``). Each step samples eq. 2.9 only for
+the triplets seen (``Mapper.update_batch``, compacted across the runs of a chunk), with
+results identical to the dense per-run reference (``run_level(..., dense=True)``).
+``report.md``, the figures and the tidy ``results.csv`` are written at the end
+(``--report-only`` rewrites the report and figures from the stored results).
 """
 
 from __future__ import annotations
@@ -39,8 +44,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import calculi
-from ._store import guard_config
-from .padgett_common import BD_BINS, SIGMA_E, boundary_distance, load_done, load_results
+from .padgett_common import (
+    BD_BINS,
+    LINE_FIELDS,
+    SIGMA_E,
+    boundary_distance,
+    level_check,
+    load_results,
+    npz_required,
+)
 
 NAME = "padgett-mc"
 HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
@@ -77,7 +89,7 @@ class Config:
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
         d["representations"] = list(self.representations)
-        d.pop("chunk_runs")  # does not change results
+        d.pop("chunk_runs")  # the effective layout is stored by run_study (see ``layout``)
         d["sigma_e"] = SIGMA_E
         d["levels_sigma_r"] = [lv["sigma_r"] for lv in self.sigma_levels()]
         d["notes"] = {
@@ -100,14 +112,16 @@ class Config:
 def _distance_matrices(reps) -> dict[str, np.ndarray | None]:
     from pqrm_jax import calculi
 
+    from .store import StudyError
+
     out = {}
     for name in reps:
         try:
             out[name] = np.asarray(calculi.get(name).neighbor_distance, np.int32)
-        except Exception as exc:  # tables not available: metric reported as NaN
-            print(f"warning: no neighbour-distance table for {name} ({exc}); "
-                  "neighbour distance will be NaN", file=sys.stderr)
-            out[name] = None
+        except (OSError, ValueError, KeyError, RuntimeError) as exc:
+            # a failed dependency fails the study: never store NaN metrics as results
+            raise StudyError(f"{NAME}: the neighbour-distance table of {name!r} is not "
+                             f"available ({type(exc).__name__}: {exc})") from exc
     return out
 
 
@@ -349,37 +363,77 @@ def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tu
 # --------------------------------------------------------------------------------------
 
 
-def run_study(cfg: Config, out: Path, *, quiet: bool = False) -> list[dict]:
-    """Run (or resume) the study into ``out``; returns the level summaries."""
+LEGACY = ("config.json", "levels.jsonl", "level_*.npz", "timing.json", "report.md",
+          "fig*.png", "results.csv", "study.json", "*.corrupt")
+def layout(cfg: Config) -> dict:
+    """The run layout that changes float bits (per-device batch of the batched mapper).
+
+    Discrete metrics are layout-free, but entropies, P(ML) and error locations differ in
+    the last bits between batch shapes (XLA reduction order over the compacted triplets), so
+    the effective chunk and the device count are stored in the config (a resume with
+    another layout is refused instead of mixing bits).
+    """
+    ndev = len(jax.devices())
+    chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
+    return {"chunk": chunk, "devices": ndev}
+
+
+def open_store(cfg: Config, out: Path, *, fresh: bool = False):
+    """The study's :class:`~pqrm_jax.studies.store.Store` for ``cfg`` (locked)."""
+    from .store import Store
+
+    return Store.open(out, NAME, dict(cfg.to_json(), layout=layout(cfg)), legacy=LEGACY,
+                      legacy_assume=("layout",), fresh=fresh,
+                      advice="use another --out or --fresh")
+
+
+def results_rows(lines: list[dict]) -> list[tuple[str, str, float]]:
+    """Tidy ``(unit, metric, value)`` rows of the level summaries (unit ``level_XX``)."""
+    from .store import tidy_rows
+
+    return tidy_rows(lines, unit=lambda r: f"level_{r['level']:02d}", skip=("level",))
+
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = False,
+              store=None) -> list[dict]:
+    """Run (or resume) the study into ``out``; returns the level summaries.
+
+    Every level is its own unit: ``level_XX.npz`` then its line in ``levels.jsonl``, both
+    written atomically under the store's lock; a corrupt or missing one is recomputed alone.
+    """
     from tqdm.auto import tqdm
 
-    guard_config(out, cfg.to_json(), advice="use another --out or --fresh")
-    done = load_done(out)
-    # rewrite levels.jsonl without a torn tail
-    with open(out / "levels.jsonl", "w") as f:
-        for line in done:
-            f.write(json.dumps(line) + "\n")
-    done_ids = {d["level"] for d in done}
-    levels = cfg.sigma_levels()
-    todo = [i for i in range(len(levels)) if i not in done_ids]
-    total = len(todo) * cfg.runs
-    bar = tqdm(total=total, desc="padgett-mc runs", unit="run", disable=quiet,
-               file=sys.stderr)
-    t0 = time.perf_counter()
-    for i in todo:
-        bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-        res = run_level(cfg, i, levels[i]["sigma_r"], bar)
-        line, arrays = summarise_level(cfg, levels[i], res, i)
-        np.savez_compressed(out / f"level_{i:02d}.npz", **arrays)
-        with open(out / "levels.jsonl", "a") as f:
-            f.write(json.dumps(line) + "\n")
-        done.append(line)
-    bar.close()
-    elapsed = time.perf_counter() - t0
-    timing = {"elapsed_s_this_invocation": elapsed, "levels_computed": len(todo),
-              "runs_per_level": cfg.runs, "devices": len(jax.devices())}
-    (out / "timing.json").write_text(json.dumps(timing, indent=2))
-    return sorted(done, key=lambda d: d["level"])
+    st = store if store is not None else open_store(cfg, out, fresh=fresh)
+    try:
+        levels = cfg.sigma_levels()
+        log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
+                         check=level_check(len(levels)))
+        req = npz_required(cfg.representations)
+        for i in list(log.done):
+            if st.read_npz(f"level_{i:02d}.npz", req) is None:
+                log.discard(i)
+        todo = [i for i in range(len(levels)) if i not in log]
+        total = len(todo) * cfg.runs
+        bar = tqdm(total=total, desc="padgett-mc runs", unit="run", disable=quiet,
+                   file=sys.stderr)
+        t0 = time.perf_counter()
+        for i in todo:
+            bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
+            res = run_level(cfg, i, levels[i]["sigma_r"], bar)
+            line, arrays = summarise_level(cfg, levels[i], res, i)
+            st.write_npz(f"level_{i:02d}.npz", arrays)
+            log.add(line)
+        bar.close()
+        elapsed = time.perf_counter() - t0
+        timing = {"elapsed_s_this_invocation": elapsed, "levels_computed": len(todo),
+                  "runs_per_level": cfg.runs, "devices": len(jax.devices())}
+        st.write_json("timing.json", timing, indent=2)
+        done = log.values()
+        st.write_results_csv(results_rows(done))
+        return done
+    finally:
+        if store is None:
+            st.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -400,26 +454,32 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     out = Path(args.out)
-    if not args.report_only:
-        cfg = Config()
-        if args.reduced:
-            cfg.runs = 100
-        for attr, val in (("runs", args.runs), ("levels", args.levels),
-                          ("num_samples", args.samples), ("num_landmarks", args.landmarks),
-                          ("chunk_runs", args.chunk_runs)):
-            if val is not None:
-                if val < 1 or (attr == "num_landmarks" and val < 3):
-                    p.error(f"--{attr.replace('_', '-')} must be positive (landmarks ≥ 3)")
-                setattr(cfg, attr, val)
-        cfg.seed = args.seed
-        if args.fresh and out.exists():
-            for f in list(out.glob("level_*.npz")) + [out / "levels.jsonl", out / "config.json"]:
-                if f.exists():
-                    f.unlink()
-        run_study(cfg, out, quiet=args.quiet)
     from ._padgett_report import write_report
+    from .store import Store
 
-    path = write_report(out)
+    if args.report_only:
+        with Store.open(out, NAME, None, legacy=LEGACY):
+            path = write_report(out)
+        print(f"report: {path}")
+        return 0
+    cfg = Config()
+    if args.reduced:
+        cfg.runs = 100
+    # (flag, Config field, smallest value, why)
+    bounds = (("--runs", "runs", 1, ""), ("--chunk-runs", "chunk_runs", 1, ""),
+              ("--samples", "num_samples", 1, ""),
+              ("--landmarks", "num_landmarks", 3, " (a triplet needs 3 landmarks)"),
+              ("--levels", "levels", 2, " (the report compares σ_R = 0 with the next level)"))
+    for flag, attr, lo, why in bounds:
+        val = getattr(args, flag[2:].replace("-", "_"))
+        if val is not None:
+            if val < lo:
+                p.error(f"{flag} must be ≥ {lo}{why}, got {val}")
+            setattr(cfg, attr, val)
+    cfg.seed = args.seed
+    with open_store(cfg, out, fresh=args.fresh) as st:
+        run_study(cfg, out, quiet=args.quiet, store=st)
+        path = write_report(out)
     print(f"report: {path}")
     return 0
 

@@ -13,14 +13,11 @@ Results are appended to ``results.jsonl`` one evaluation at a time; a rerun with
 from __future__ import annotations
 
 import argparse
-import json
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
-
-from ._store import guard_config
 
 NAME = "serge"
 HELP = "SERGE salient regions: 5-fold CV on well-separated, hallway and lab scenes (P§3.4)"
@@ -77,34 +74,44 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from ..serge.evaluate import evaluate, make_fold
+    from .store import Store, tidy_rows
 
-    args = _parser().parse_args(argv or [])
+    parser = _parser()
+    args = parser.parse_args(argv or [])
+    for flag, val, lo in (("--trials", args.trials, 1), ("--folds", args.folds, 2),
+                          ("--grid", args.grid, 2)):
+        if val is not None and val < lo:
+            parser.error(f"{flag} must be ≥ {lo}, got {val}")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    res_path = out / "results.jsonl"
-    done = set()
-    if res_path.exists():
-        for line in res_path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                done.add((r["dataset"], r["sweep"], r["mu"], r["sigma"], r["fold"]))
     n_grid = args.grid or (64 if args.reduced else 96)
     folds_run = list(range(2 if args.reduced else args.folds))
+    if max(folds_run) >= args.folds:
+        parser.error(f"--folds must be ≥ {len(folds_run)} with --reduced, got {args.folds}")
     datasets = [d.strip() for d in args.datasets.split(",") if d.strip()]
-    scenes, grids, tasks = {}, {}, []
-    for d in datasets:
-        sc = _scene(d, args.reduced, args.seed)
-        scenes[d], grids[d] = sc, _grid(sc, n_grid)
-        for f in folds_run:
-            for sweep, mu, sigma in _plan(sc.k, args.reduced):
-                if (d, sweep, mu, sigma, f) not in done:
-                    tasks.append((d, f, sweep, mu, sigma))
+    from ..serge import scenes as _scenes_mod
+
+    unknown = [d for d in datasets if d not in _scenes_mod.SCENES]
+    if unknown or not datasets:
+        parser.error(f"--datasets: unknown {unknown or datasets}; known: "
+                     f"{', '.join(sorted(_scenes_mod.SCENES))}")
     meta = {"reduced": args.reduced, "folds": args.folds, "folds_run": folds_run,
             "grid": n_grid, "seed": args.seed, "trials": args.trials,
             "devices": str(jax.devices())}
-    guard_config(out, meta, selection=("folds_run", "devices"), name="meta.json")
-    folds_cache: dict = {}
-    with res_path.open("a") as fh:
+    with Store.open(out, NAME, meta, selection=("folds_run", "devices"),
+                    legacy=("meta.json", "results.jsonl", "report.md", "fig_*.png",
+                            "config.json", "study.json", "results.csv", "*.corrupt"),
+                    legacy_config="meta.json") as st:
+        meta = st.config
+        log = st.records("results.jsonl", key=_key, required=_FIELDS)
+        scenes, grids, tasks = {}, {}, []
+        for d in datasets:
+            sc = _scene(d, args.reduced, args.seed)
+            scenes[d], grids[d] = sc, _grid(sc, n_grid)
+            for f in folds_run:
+                for sweep, mu, sigma in _plan(sc.k, args.reduced):
+                    if (d, sweep, mu, sigma, f) not in log:
+                        tasks.append((d, f, sweep, mu, sigma))
+        folds_cache: dict = {}
         for d, f, sweep, mu, sigma in tqdm(tasks, desc="serge study", unit="solve"):
             sc = scenes[d]
             if (d, f) not in folds_cache:
@@ -117,15 +124,29 @@ def main(argv: list[str] | None = None) -> int:
             r = evaluate(folds_cache[(d, f)], mu, sigma, jax.random.PRNGKey(seed), trials)
             r.update(dataset=d, sweep=sweep, mu=mu, sigma=sigma, fold=f, trials=trials,
                      seconds=time.perf_counter() - t0)
-            fh.write(json.dumps(r) + "\n")
-            fh.flush()
-    rows = [json.loads(x) for x in res_path.read_text().splitlines() if x.strip()]
-    rows = [r for r in rows if r["dataset"] in datasets and r["fold"] in folds_run]
-    summary = _summarise(rows)
-    _figures(summary, scenes, grids, out, args)
-    _report(summary, rows, out, meta)
+            log.add(r)
+        rows = [r for r in log.values() if r["dataset"] in datasets and r["fold"] in folds_run]
+        summary = _summarise(rows)
+        _figures(summary, scenes, grids, out, args)
+        _report(summary, rows, out, meta)
+        st.write_results_csv(tidy_rows(
+            rows, unit=lambda r: "/".join(str(r[k]) for k in _KEY),
+            skip=(*_KEY, "trials", "seconds")))
     print(f"wrote {out / 'report.md'}")
     return 0
+
+
+_KEY = ("dataset", "sweep", "mu", "sigma", "fold")
+_FIELDS = (*_KEY, "n_regions", "log_likelihood", "error_rate", "seconds")
+
+
+def _key(r: dict) -> tuple:
+    """A result's unit: (dataset, sweep, μ, σ, fold), each of the expected type."""
+    d, sweep, mu, sigma, fold = (r[k] for k in _KEY)
+    if not (isinstance(d, str) and sweep in ("mu", "sigma") and isinstance(fold, int)
+            and isinstance(mu, (int, float)) and isinstance(sigma, (int, float))):
+        raise ValueError(f"bad unit {[r[k] for k in _KEY]}")
+    return (d, sweep, mu, float(sigma), fold)
 
 
 def _summarise(rows: list[dict]) -> dict:

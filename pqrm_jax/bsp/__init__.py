@@ -1,0 +1,32 @@
+"""Qualitative belief-space planning with link actions, with and without compositions (Z ch. 4).
+
+* :mod:`.models` — offline transition, association + measurement, link, global-scale and
+  unary models sampled under uniform-within-state priors (Z eqs. 4.5, 4.11–4.17, 4.22–4.24),
+  with per-cell counts, standard errors and a hashed cache.
+* :mod:`.belief` — the qualitative belief pytree and its update ψ (Z eqs. 4.18–4.25).
+* :mod:`.compose` — the augmented belief from minimal composition trees (Z eqs. 4.26–4.28),
+  the Link-Graph (Thm 4.1).
+* :mod:`.graph` — frame graph of a frozen belief: observability, hops, "plan exists".
+* :mod:`.planner` — the level-synchronous expectimax belief tree, costs eq. 4.29 / 4.30.
+* :mod:`.env` — random study environments, composable initial beliefs (Z §4.3).
+* :mod:`.execute` — receding-horizon execution in ``pqrm_jax.sim`` with PQRM map updates.
+
+>>> from pqrm_jax import bsp
+>>> bsp.ModelParams().n_f
+5
+"""
+
+from .belief import QBelief, check_distribution, scale_posteriors, update
+from .compose import augment, link_graph
+from .env import Environment, check_environment, generate, initial_belief
+from .execute import ExecParams, Outcome, run_lane, run_lanes
+from .graph import FrameGraph, frame_graph, plan_exists
+from .models import ModelParams, Models, build_models, load_models, stderr
+from .planner import Plan, PlannerParams, plan
+
+__all__ = [
+    "QBelief", "check_distribution", "scale_posteriors", "update", "augment", "link_graph",
+    "Environment", "check_environment", "generate", "initial_belief", "ExecParams", "Outcome",
+    "run_lane", "run_lanes", "FrameGraph", "frame_graph", "plan_exists", "ModelParams", "Models",
+    "build_models", "load_models", "stderr", "Plan", "PlannerParams", "plan",
+]

@@ -1,0 +1,176 @@
+"""The qualitative belief and its update ψ (Z §4.1.1, eqs. 4.1–4.2, 4.18–4.25).
+
+The belief is the factorised product of eq. 4.2, held as a pytree of static shapes padded to
+``L`` landmarks (a landmark mask marks the real ones):
+
+* ``frame`` (2,) int32 — the current ordered frame (i, j): i at (0, 0), j at (0, 1);
+* ``robot`` (Q,) — ``P(S_frame^X)``, the robot's state in its frame;
+* ``trip`` (L, L, L, Q) — ``P(ij:k)`` for every ordering (P §2.3 layout);
+* ``trip_src`` (L, L, L) int8 — 0 unknown, 1 measured, 2 composed (Z eq. 4.26);
+* ``ncomp`` (L, L, L) int8 — compositions in the tree that produced a composed row;
+* ``scale`` (L, L, nb) — ``P(S^{ij})`` global frame-scale bins, symmetric (Z §4.2.5);
+* ``lm_mask`` (L,) bool; ``conflicts`` () int32 — updates whose evidence had zero likelihood.
+
+The update ψ (eq. 4.25) for action ``a`` (go to state a), observed triplet ``β = ij:k``,
+discrete measurement ``ẑ`` and link option ``link`` (0 stay, 1 → frame (i, k), 2 → (j, k),
+the landmark shared with the old frame as the new origin) is, with ``P_F`` the scale of the
+current frame (decision Z-8: association and measurement condition on the scale of F_{t−1}):
+
+    J(s_x, s_τ) ∝ Σ_b P_F(b) · T[b, a, s_x] · P(ij:k = s_τ) · AZ[s_x, s_τ, b, ẑ]
+    robot'(s') = Σ_{s_x, s_τ} K[link][s_x, s_τ, s'] · J(s_x, s_τ)         (eq. 4.20, joint J)
+
+normalised by η = ``P(ẑ, β | H⁻)`` (a division, decision Z-7). Evidence with η = 0 keeps the
+prediction ``Σ_b P_F(b) T[b, a]``, keeps the frame, and increments ``conflicts``: never NaN.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .models import Models
+
+#: link option → index into ``Models.K`` (the link types "AC" and "BC").
+LINK_K = (1, 3)
+
+
+class QBelief(NamedTuple):
+    """Qualitative belief (module docstring); shapes for L landmarks, Q states, nb bins."""
+
+    frame: jax.Array
+    robot: jax.Array
+    trip: jax.Array
+    trip_src: jax.Array
+    ncomp: jax.Array
+    scale: jax.Array
+    lm_mask: jax.Array
+    conflicts: jax.Array
+
+
+def check_distribution(name: str, p, axis: int = -1, atol: float = 1e-3) -> np.ndarray:
+    """``ValueError`` unless ``p`` is finite, non-negative and sums to 1 along ``axis``."""
+    p = np.asarray(p, np.float64)
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"{name} contains NaN or infinite probabilities")
+    if np.any(p < 0):
+        raise ValueError(f"{name} contains negative probabilities")
+    s = p.sum(axis)
+    if not np.allclose(s, 1.0, atol=atol):
+        bad = float(np.max(np.abs(s - 1)))
+        raise ValueError(f"{name} does not sum to 1 (off by up to {bad:.3g})")
+    return p
+
+
+def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
+                     measured=None) -> jax.Array:
+    """(L, L, nb) frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24, Z-9, Z-10).
+
+    With ``measured`` (the measured subset of ``known``), a pair whose scale can be derived
+    from measured rows, or that lies inside a measured triplet, gets the same scale as without
+    the other (composed) rows; composed rows only serve the remaining pairs. Compositions then
+    never change what measured triplets say (plan existence is monotone in the belief).
+
+    ``ref`` = (a, b) is the frame whose scale ``ref_scale`` (nb,) is known. The scale of
+    ``{a, l}`` comes from ``GA`` and ``P(ab:l)``, of ``{b, l}`` from ``GB``, of ``{l1, l2}``
+    from ``G2`` with ``P(ab:l1)``, ``P(ab:l2)``, when those rows are ``known`` (measured or
+    composed). Otherwise (decision Z-10) a pair inside a known triplet gets the uniform
+    distribution over the observable bins (an observed triplet has pairwise distances ≤ 2R)
+    and any other pair the uniform distribution over all bins.
+    """
+    if measured is not None:
+        s_m, has_m, in_m = _scales(models, trip, measured, ref, ref_scale, lm_mask)
+        s_k, _, _ = _scales(models, trip, known, ref, ref_scale, lm_mask)
+        return jnp.where((has_m | in_m)[..., None], s_m, s_k)
+    return _scales(models, trip, known, ref, ref_scale, lm_mask)[0]
+
+
+def _scales(models, trip, known, ref, ref_scale, lm_mask):
+    trip = jnp.asarray(trip, jnp.float32)
+    known = jnp.asarray(known, bool)
+    L, nb = trip.shape[0], models.num_bins
+    a, b = ref[0], ref[1]
+    pa = trip[a, b]  # (L, Q): P(ab:l)
+    ka = known[a, b] & lm_mask
+    g2 = jnp.einsum("iq,jr,qrcs,c->ijs", pa, pa, models.G2, ref_scale)
+    ga = jnp.einsum("jq,qcs,c->js", pa, models.GA, ref_scale)
+    gb = jnp.einsum("jq,qcs,c->js", pa, models.GB, ref_scale)
+    idx = jnp.arange(L)
+    out = jnp.where((ka[:, None] & ka[None, :])[..., None], g2, 0.0)
+    has = ka[:, None] & ka[None, :]
+    rowa = (idx[:, None] == a) & ka[None, :]  # pair (a, j)
+    out = jnp.where(rowa[..., None], ga[None], out)
+    out = jnp.where(rowa.T[..., None], ga[:, None], out)
+    rowb = (idx[:, None] == b) & ka[None, :]
+    out = jnp.where(rowb[..., None], gb[None], out)
+    out = jnp.where(rowb.T[..., None], gb[:, None], out)
+    has = has | rowa | rowa.T | rowb | rowb.T
+    isref = (((idx[:, None] == a) & (idx[None, :] == b))
+             | ((idx[:, None] == b) & (idx[None, :] == a)))
+    out = jnp.where(isref[..., None], ref_scale, out)
+    has = has | isref
+    in_trip = jnp.any(known, axis=2) | jnp.any(known, axis=1) | jnp.any(known, axis=0)
+    in_trip = in_trip | in_trip.T
+    obs_uniform = jnp.where(jnp.arange(nb) < nb - 1, 1.0 / (nb - 1), 0.0)
+    fallback = jnp.where(in_trip[..., None], obs_uniform, 1.0 / nb)
+    s = out.sum(-1, keepdims=True)
+    good = has[..., None] & (s > 0)
+    return (jnp.where(good, out / jnp.where(s > 0, s, 1.0), fallback), good[..., 0], in_trip)
+
+
+def predict(models: Models, scale_f, action) -> jax.Array:
+    """(Q,) predicted robot state after "go to state ``action``" (eq. 4.5, scale-averaged)."""
+    return jnp.einsum("b,bq->q", scale_f, models.T[:, action])
+
+
+def joint(models: Models, scale_f, action, trip_row, zhat) -> jax.Array:
+    """(Q, Q) unnormalised J(s_x, s_τ) of the module docstring; ``sum`` is η."""
+    return jnp.einsum("b,bx,t,xtb->xt", scale_f, models.T[:, action], trip_row,
+                      models.AZ[:, :, :, zhat])
+
+
+def link_state(models: Models, J, link) -> jax.Array:
+    """(Q,) robot state after the link ``link`` (0 stay, 1 AC, 2 BC) from the joint J."""
+    stay = J.sum(1)
+    k = jnp.asarray(LINK_K)[jnp.clip(link - 1, 0, 1)]
+    moved = jnp.einsum("xt,xts->s", J, models.K[k])
+    return jnp.where(link == 0, stay, moved)
+
+
+def new_frame(frame, k, link) -> jax.Array:
+    """The frame after link option ``link`` through landmark ``k``: (i, j), (i, k) or (j, k)."""
+    i, j = frame[0], frame[1]
+    return jnp.where(link == 0, frame, jnp.where(link == 1, jnp.stack([i, k]),
+                                                 jnp.stack([j, k])))
+
+
+@jax.jit
+def update(models: Models, belief: QBelief, action, k, zhat, link) -> tuple[QBelief, jax.Array]:
+    """ψ (Z eq. 4.25): the belief after action, observation of ``frame:k`` with ẑ, and link.
+
+    Returns ``(belief', η)``. The triplet row ``frame:k`` becomes the marginal of J
+    (its other orderings and the rest of the map are unchanged; the execution loop updates the
+    map by PQRM). With η = 0 (impossible evidence) see the module docstring.
+    """
+    i, j = belief.frame[0], belief.frame[1]
+    sf = belief.scale[i, j]
+    Jr = joint(models, sf, action, belief.trip[i, j, k], zhat)
+    eta = Jr.sum()
+    ok = eta > 0
+    J = Jr / jnp.where(ok, eta, 1.0)
+    robot = jnp.where(ok, link_state(models, J, link), predict(models, sf, action))
+    frame = jnp.where(ok, new_frame(belief.frame, k, link), belief.frame)
+    row = jnp.where(ok, J.sum(0), belief.trip[i, j, k])
+    trip = belief.trip.at[i, j, k].set(row)
+    return belief._replace(frame=frame.astype(jnp.int32), robot=robot, trip=trip,
+                           conflicts=belief.conflicts + (~ok).astype(jnp.int32)), eta
+
+
+def discretise(rel_a, rel_b, rel_c, num_states: int, calc) -> jax.Array:
+    """Discrete measurement ẑ = ẑ_x·Q + ẑ_τ from measured positions relative to the robot
+    (decision Z-5); ``-1`` when a state is undefined (boundary, degenerate or non-finite)."""
+    zx = calc.classify(rel_a, rel_b, jnp.zeros_like(rel_a))
+    zt = calc.classify(rel_a, rel_b, rel_c)
+    return jnp.where((zx >= 0) & (zt >= 0), zx * num_states + zt, -1)

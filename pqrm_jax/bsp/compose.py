@@ -1,0 +1,121 @@
+"""Compositions in planning: the augmented belief ``b^M`` (Z §4.2.6, eqs. 4.26–4.28).
+
+Once per planning session the measured triplets ``M`` are the sources of the minimal
+composition trees of Z Alg. 1 (``pqrm_jax.compositions.optimal_composition_graph`` with unit
+composition cost, so the tree has the minimal number of leaves, eq. 4.27). Every triplet that
+is not measured but composable is composed bottom-up along its tree; one step of eq. 4.28 is
+``prob_compose`` applied to the pattern ``(ij:k, jk:d) → ij:d`` (SPEC §2.3), and the other five
+orderings of the result are filled with the sampled unary operators ``U`` (LEFT, RIGHT,
+INVERSE). Composed triplets from shared sources are treated as independent (the thesis's
+product of marginals, eq. 4.27; decision Z-25).
+
+The Link-Graph (Z Def. 2.3.1) — triplets as nodes, an edge when two share exactly two
+landmarks — is :func:`link_graph`; Thm 4.1 says a connected Link-Graph is composable, but not
+conversely (Fig. 4.3: ``{ABC, BCD, ADE}``).
+
+>>> import networkx as nx
+>>> nx.is_connected(link_graph(["ABC", "BCD", "ADE"]))
+False
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from itertools import combinations
+
+import networkx as nx
+import numpy as np
+
+from ..compositions import as_triplet_set, optimal_composition_graph
+
+LEFT, RIGHT, INVERSE = 0, 1, 2
+
+
+def link_graph(triplets: Iterable[Iterable]) -> nx.Graph:
+    """The Link-Graph of Z Def. 2.3.1 (nodes: triplets as frozensets)."""
+    T = sorted(as_triplet_set(triplets), key=lambda t: sorted(map(str, t)))
+    g = nx.Graph()
+    g.add_nodes_from(T)
+    for a, b in combinations(T, 2):
+        if len(a & b) == 2:
+            g.add_edge(a, b)
+    return g
+
+
+def orderings(p: np.ndarray, U: np.ndarray) -> dict[tuple[int, int, int], np.ndarray]:
+    """The six orderings of ``AB:C = p`` as ``{(a, b, c) positions: distribution}``.
+
+    Positions 0, 1, 2 stand for A, B, C: ``(1, 2, 0)`` is ``BC:A = LEFT``, ``(2, 0, 1)`` is
+    ``CA:B = RIGHT``, ``(1, 0, 2)`` is ``BA:C = INVERSE`` and so on.
+    """
+    left, right = p @ U[LEFT], p @ U[RIGHT]
+    return {(0, 1, 2): p, (1, 0, 2): p @ U[INVERSE], (1, 2, 0): left,
+            (2, 1, 0): left @ U[INVERSE], (2, 0, 1): right, (0, 2, 1): right @ U[INVERSE]}
+
+
+def compose_step(p1: np.ndarray, p2: np.ndarray, tensor: np.ndarray) -> np.ndarray:
+    """Z eq. 4.28 in NumPy (the formula of ``compositions.propagation.compose``; host speed).
+
+    Jointly impossible operands (zero mass) give the uniform distribution (no information).
+    """
+    r = np.einsum("a,b,abc->c", p1, p2, tensor)
+    s = r.sum()
+    return (r / s if s > 0 else np.full(r.shape, 1.0 / r.size)).astype(np.float32)
+
+
+def augment(trip: np.ndarray, measured: np.ndarray, n: int, tensor: np.ndarray,
+            U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compose every composable, unmeasured triplet of landmarks ``0..n−1`` (host NumPy).
+
+    Args:
+        trip: (L, L, L, Q) triplet beliefs, all orderings (rows of measured triplets are used).
+        measured: (L, L, L) bool, symmetric under permutations (measured triplets).
+        n: number of real landmarks (the first ``n`` ids).
+        tensor: (Q, Q, Q) ``prob_compose``.
+        U: (3, Q, Q) probabilistic LEFT, RIGHT, INVERSE.
+
+    Returns:
+        ``(trip', src, ncomp)``: beliefs with composed rows filled, the source code per ordered
+        triplet (0 unknown, 1 measured, 2 composed) and the number of compositions of the
+        minimal tree of each composed triplet (0 elsewhere).
+    """
+    trip = np.array(trip, np.float32, copy=True)
+    L = trip.shape[0]
+    src = np.where(measured, 1, 0).astype(np.int8)
+    ncomp = np.zeros((L, L, L), np.int8)
+    nz = np.argwhere(measured)
+    sources = {frozenset(map(int, t)) for t in nz if t[0] < t[1] < t[2]}
+    if not sources:
+        return trip, src, ncomp
+    g = optimal_composition_graph(sources, landmarks=range(n))
+    done: dict[frozenset, np.ndarray] = {}  # composed triplet -> its (sorted ids) ordering
+
+    def row(a, b, c):
+        return trip[a, b, c]
+
+    def fill(ids, p, count):
+        for perm, q in orderings(p, U).items():
+            a, b, c = (ids[x] for x in perm)
+            trip[a, b, c] = q
+            src[a, b, c] = 2
+            ncomp[a, b, c] = min(count, 127)
+
+    for t in combinations(range(n), 3):
+        target = frozenset(t)
+        if target in sources or target in done:
+            continue
+        tree = g.extract(target)
+        if tree is None:
+            continue
+        for head, tl, tr in tree.steps():
+            if head in sources or head in done:
+                continue
+            shared = tl & tr
+            (i,) = tl - shared
+            (d,) = tr - shared
+            (j,) = head & shared
+            (k,) = shared - {j}
+            p = compose_step(row(i, j, k), row(j, k, d), tensor)
+            done[head] = p
+            fill((i, j, d), p, int(round(g.cost(head))))
+    return trip, src, ncomp

@@ -1,0 +1,199 @@
+"""Random study environments and initial beliefs (Z §4.3; digest decisions §3.5–3.6).
+
+* Landmarks: ``n`` uniform in ``[0, S]²`` (units of R) with minimum spacing ``r_min``.
+* Composable initial belief ``M_1`` by *nearest-landmark growth*: start with a random landmark
+  and its two nearest neighbours, then repeatedly add the excluded landmark nearest to the
+  included set together with the included pair (p, q) of smallest ``|pℓ| + |qℓ|`` whose triplet
+  is observable (minimum enclosing circle radius ≤ R). ``|M_1| = n − 2``, every landmark is
+  covered and each addition is a 2-common cut, so ``M_1`` is composable (Z Thm 3.1) while its
+  Link-Graph is often disconnected — the structure of Fig. 4.6a.
+* Initial frame ``F_1``: a random ordered pair of a random ``M_1`` triplet; the robot starts at
+  a random point within R of both frame landmarks; target τ*: uniform over the ``M_1``
+  triplets that do not contain ``F_1`` (a target outside ``M_1`` could never be observed
+  without compositions, digest §3.6).
+* Initial belief: every ``M_1`` triplet measured once by PQRM (all orderings), the robot's
+  state from the same inverse-sensor sampling, the reference scale (the known frame of
+  Z §4.2.5) is F_1's measured length bin (decision Z-10), and — with compositions — every
+  other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`).
+
+Bad input raises ``ValueError``: fewer than 3 landmarks, NaN positions, a target with repeated
+or unknown landmarks, a non-composable initial belief, a frame with repeated landmarks.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import calculi
+from ..compositions import is_composable
+from ..compositions.simulation import measure_map
+from ..pqrm import state_probabilities
+from .belief import QBelief, scale_posteriors
+from .compose import augment
+from .models import Models
+
+FAR = 1.0e3  # position of padding landmarks: never visible, never NaN
+
+
+class Environment(NamedTuple):
+    """One test: positions (n, 2) in units of R, ``M_1``, ``F_1``, goal, robot start."""
+
+    pos: np.ndarray
+    triplets: tuple
+    frame: tuple
+    goal: tuple
+    start: np.ndarray
+
+
+def mec_radius(p: np.ndarray) -> float:
+    """Radius of the minimum enclosing circle of three points."""
+    a, b, c = (float(np.linalg.norm(p[i] - p[j])) for i, j in ((1, 2), (0, 2), (0, 1)))
+    s = sorted([a, b, c])
+    if s[2] ** 2 >= s[0] ** 2 + s[1] ** 2:  # right or obtuse: the longest side is a diameter
+        return s[2] / 2
+    u, v = p[1] - p[0], p[2] - p[0]
+    area = abs(u[0] * v[1] - u[1] * v[0]) / 2
+    return a * b * c / (4 * area)
+
+
+def grow_triplets(pos: np.ndarray, rng: np.random.Generator, R: float = 1.0):
+    """Nearest-landmark growth (module docstring); ``None`` when it gets stuck."""
+    n = len(pos)
+    D = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    s = int(rng.integers(n))
+    nn = [int(x) for x in np.argsort(D[s])[1:3]]
+    first = (s, *nn)
+    if mec_radius(pos[list(first)]) > R:
+        return None
+    inc = set(first)
+    out = [tuple(sorted(first))]
+    while len(inc) < n:
+        exc = [x for x in range(n) if x not in inc]
+        l = min(exc, key=lambda x: min(D[x, y] for y in inc))
+        best = None
+        for p, q in combinations(sorted(inc), 2):
+            if mec_radius(pos[[p, q, l]]) <= R:
+                c = D[p, l] + D[q, l]
+                if best is None or c < best[0]:
+                    best = (c, p, q)
+        if best is None:
+            return None
+        inc.add(l)
+        out.append(tuple(sorted((best[1], best[2], l))))
+    return out
+
+
+def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
+             R: float = 1.0, max_tries: int = 1000) -> Environment:
+    """One random environment (module docstring)."""
+    if n < 3:
+        raise ValueError(f"an environment needs at least 3 landmarks, got {n}")
+    for _ in range(max_tries):
+        pos = rng.uniform(0, size, (n, 2))
+        D = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
+        if D.min() < r_min:
+            continue
+        M1 = grow_triplets(pos, rng, R)
+        if M1 is None:
+            continue
+        t = M1[int(rng.integers(len(M1)))]
+        a, b = (int(x) for x in rng.permutation(t)[:2])
+        goals = [g for g in M1 if not {a, b} <= set(g)]
+        if not goals:
+            continue
+        goal = goals[int(rng.integers(len(goals)))]
+        for _ in range(200):
+            x = pos[a] + rng.uniform(-R, R, 2)
+            if max(np.linalg.norm(pos[a] - x), np.linalg.norm(pos[b] - x)) <= R:
+                break
+        else:
+            continue
+        return Environment(pos=pos, triplets=tuple(M1), frame=(a, b), goal=tuple(goal), start=x)
+    raise RuntimeError(f"no valid environment after {max_tries} tries (n={n}, size={size})")
+
+
+def check_environment(env: Environment, L_max: int) -> None:
+    """``ValueError`` naming the problem (module docstring)."""
+    pos = np.asarray(env.pos, float)
+    n = len(pos)
+    if n < 3:
+        raise ValueError(f"an environment needs at least 3 landmarks, got {n}")
+    if n > L_max:
+        raise ValueError(f"{n} landmarks exceed the padding L_max={L_max}")
+    if pos.shape != (n, 2) or not np.all(np.isfinite(pos)):
+        raise ValueError("landmark positions must be finite (n, 2)")
+    if not np.all(np.isfinite(env.start)):
+        raise ValueError("robot start position must be finite")
+    g = tuple(env.goal)
+    if len(g) != 3 or len(set(g)) != 3:
+        raise ValueError(f"target triplet must have 3 distinct landmarks, got {g}")
+    if not all(0 <= x < n for x in g):
+        raise ValueError(f"target triplet {g} uses unknown landmarks (ids 0..{n - 1})")
+    f = tuple(env.frame)
+    if len(f) != 2 or f[0] == f[1] or not all(0 <= x < n for x in f):
+        raise ValueError(f"initial frame {f} must be two distinct known landmarks")
+    for t in env.triplets:
+        if len(set(t)) != 3 or not all(0 <= x < n for x in t):
+            raise ValueError(f"initial-belief triplet {t} has repeated or unknown landmarks")
+    if not is_composable(env.triplets, range(n)):
+        raise ValueError("the initial belief is not composable under the landmark set "
+                         "(Z §4.2.6 assumes a composable M_1)")
+
+
+def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
+                   L_max: int = 12, sigma_z: float = 0.05, samples: int = 256,
+                   calculus: str = "edc") -> QBelief:
+    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks."""
+    check_environment(env, L_max)
+    calc = calculi.get(calculus)
+    n = len(env.pos)
+    Q = calc.num_states
+    pos = np.full((L_max, 2), FAR, np.float32)
+    pos[:n] = env.pos
+    k1, k2 = jax.random.split(key)
+    probs, observed = measure_map(calc, k1, pos[:n], [tuple(sorted(t)) for t in env.triplets],
+                                  sigma_z, samples)
+    trip = np.full((L_max, L_max, L_max, Q), 1.0 / Q, np.float32)
+    trip[:n, :n, :n] = probs
+    measured = np.zeros((L_max, L_max, L_max), bool)
+    measured[:n, :n, :n] = observed
+    if compositions:
+        U = np.asarray(models.U)
+        trip, src, ncomp = augment(trip, measured, n, np.asarray(calc.tables.prob_compose,
+                                                                 np.float32), U)
+    else:
+        src = measured.astype(np.int8)
+        ncomp = np.zeros_like(src)
+    a, b = env.frame
+    x = np.asarray(env.start, np.float32)
+    means = jnp.asarray([[pos[a] - x, pos[b] - x, np.zeros(2)]], jnp.float32)
+    robot = state_probabilities(k2, calc, means, jnp.asarray([[sigma_z, sigma_z, 0.0]]),
+                                samples)[0]
+    ref_scale = reference_scale(models, env)
+    lm = np.arange(L_max) < n
+    scale = scale_posteriors(models, trip, src > 0, jnp.asarray([a, b]), jnp.asarray(ref_scale),
+                             jnp.asarray(lm), measured=jnp.asarray(src == 1))
+    return QBelief(frame=jnp.asarray([a, b], jnp.int32), robot=jnp.asarray(robot),
+                   trip=jnp.asarray(trip), trip_src=jnp.asarray(src, jnp.int8),
+                   ncomp=jnp.asarray(ncomp, jnp.int8), scale=scale, lm_mask=jnp.asarray(lm),
+                   conflicts=jnp.zeros((), jnp.int32))
+
+
+def reference_scale(models: Models, env: Environment) -> np.ndarray:
+    """(nb,) one-hot scale bin of the initial frame F_1 (the known scale, decision Z-10)."""
+    nb = models.num_bins
+    a, b = env.frame
+    d = float(np.linalg.norm(np.asarray(env.pos[a]) - np.asarray(env.pos[b])))
+    return np.eye(nb, dtype=np.float32)[min(int(d * (nb - 1) / 2.0), nb - 1)]
+
+
+def padded_positions(env: Environment, L_max: int) -> np.ndarray:
+    """(L_max, 2) positions with padding landmarks far away."""
+    pos = np.full((L_max, 2), FAR, np.float32)
+    pos[: len(env.pos)] = env.pos
+    return pos

@@ -1,0 +1,78 @@
+"""The frame graph of a frozen belief: observability, link hops, "plan exists" (Z §4.2.3, §4.3).
+
+With the map frozen during lookahead (decision Z-12), the association weight of candidate
+``β = ij:k`` seen from frame (i, j) factorises through
+
+    Ab[i, j, k, s_x, b] = Σ_{s_τ} A[s_x, s_τ, b] · P(ij:k = s_τ),
+
+and ``P(β | s_x) = Σ_b P(S^{ij} = b) · Ab[i, j, k, s_x, b]``. A candidate is *observable* from
+(i, j) when it is in the (augmented) belief and ``max_{s_x} P(β | s_x) ≥ eps``. Frames are
+ordered pairs; an observable ``ij:k`` links (i, j) to (i, k) and (j, k) (the landmark shared
+with the old frame is the new origin). The goal τ* = {g1, g2, g3} is reached from a frame
+inside it that observes its third landmark. :func:`hops` is the number of links from each
+frame to such a goal frame (``INF`` when none); a plan exists iff the initial frame's hop
+count is finite (decision §3.7 of the digest: existence is topology and observability, and
+therefore the same for both costs).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .models import Models
+
+INF = 10_000
+
+
+class FrameGraph(NamedTuple):
+    """Per-session frozen quantities (shapes for L landmarks, Q states, nb bins)."""
+
+    Ab: jax.Array  # (L, L, L, Q, nb)
+    obs: jax.Array  # (L, L, L) bool: ij:k observable from frame (i, j)
+    hops: jax.Array  # (L, L) int32: links to a goal-observing frame (INF: none)
+    goal_obs: jax.Array  # (L, L) bool: frame (i, j) ⊂ goal and observes the goal
+
+
+def available(trip_src, lm_mask) -> jax.Array:
+    """(L, L, L) bool: ordered triplets of distinct real landmarks present in the belief."""
+    L = trip_src.shape[0]
+    i, j, k = jnp.meshgrid(jnp.arange(L), jnp.arange(L), jnp.arange(L), indexing="ij")
+    distinct = (i != j) & (j != k) & (i != k)
+    real = lm_mask[:, None, None] & lm_mask[None, :, None] & lm_mask[None, None, :]
+    return (trip_src > 0) & distinct & real
+
+
+@partial(jax.jit, static_argnames=("eps",))
+def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float = 0.01
+                ) -> FrameGraph:
+    """Observability and hop counts of the frozen belief (module docstring); jit-able."""
+    L = trip.shape[0]
+    av = available(trip_src, lm_mask)
+    Ab = jnp.einsum("xtb,ijkt->ijkxb", models.A, trip) * av[..., None, None]
+    pbx = jnp.einsum("ijb,ijkxb->ijkx", scale, Ab)
+    obs = av & (pbx.max(-1) >= eps)
+    idx = jnp.arange(L)
+    in_goal = jnp.any(idx[:, None] == goal[None, :], axis=1)  # (L,)
+    frame_in_goal = in_goal[:, None] & in_goal[None, :] & (idx[:, None] != idx[None, :])
+    third = jnp.where(frame_in_goal, (goal.sum() - idx[:, None] - idx[None, :]), 0)
+    goal_obs = frame_in_goal & jnp.take_along_axis(obs, third[..., None], axis=2)[..., 0]
+    # edges (i, j) -> (i, k) and (j, k) for observable ij:k
+    hops0 = jnp.where(goal_obs, 0, INF).astype(jnp.int32)
+
+    def relax(_, h):
+        via_i = jnp.where(obs, h[:, None, :], INF)  # (i, j, k): hops of (i, k)
+        via_j = jnp.where(obs, h[None, :, :], INF)  # hops of (j, k)
+        best = jnp.minimum(via_i.min(-1), via_j.min(-1))
+        return jnp.minimum(h, jnp.where(best < INF, best + 1, INF))
+
+    hops = jax.lax.fori_loop(0, L * (L - 1), relax, hops0)
+    return FrameGraph(Ab=Ab, obs=obs, hops=hops, goal_obs=goal_obs)
+
+
+def plan_exists(graph: FrameGraph, frame) -> jax.Array:
+    """``True`` iff some sequence of observable links from ``frame`` reaches the goal."""
+    return graph.hops[frame[0], frame[1]] < INF

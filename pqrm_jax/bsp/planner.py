@@ -1,0 +1,203 @@
+"""Belief-tree planner over qualitative and link actions (Z §4.1.2, §4.2, eqs. 4.3–4.14, 4.29–4.30).
+
+The objective of eq. 4.3 has no goal term and links depend on the observed β, so an open-loop
+sequence is ill-defined (decision Z-11). The planner is an expectimax tree to depth ``L``:
+
+    V(F, p, ℓ) = h(F)                                                   if ℓ = L
+    V(F, p, ℓ) = min_{a ∈ Acts} [ c(p, a) + Σ_β w_β · ( 0 if β = τ* else
+                                   min_{F' ∈ {F, (i,k), (j,k)}} V(F', ψ(p, a, β, ẑ, F'), ℓ+1) ) ]
+
+* ``Acts`` — the ``n_actions`` target states with the smallest one-step proxy
+  ``c(p, a) + Σ_β w_β(a) · min_{F'} h(F')`` (goal branches 0), computed for all Q actions
+  (leaf values need no ẑ, so this costs one contraction per action);
+* β — the ``n_beta`` observable candidates containing F (Z §4.2.3 heuristic) with the largest
+  ``P(β | a)``, renormalised over those kept (the thesis renormalises over the available
+  candidates, eq. 4.14; decision Z-24);
+* ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, decision Z-6); the
+  key is a function of (level, frame, a, β) only, so pruned and full trees and any chunking of
+  lanes draw the same measurement for the same branch;
+* ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
+  eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
+  on ẑ (law of total expectation);
+* ``h(F) = c̄ · (1 + ρ) · (hops(F) + 1)`` from the frame graph, ``λ = 10⁵ c̄`` when no path.
+  The digest proposed ρ = 0; then a link of progress is worth about one step's cost and
+  the eq. 4.29 planner (where staying costs 0) dithers. ρ = 10 makes each remaining link cost
+  ten mean steps, so the tree maximises progress towards the goal first and minimises cost
+  second ("the plan that most likely achieves the task's goal while minimizing the cost",
+  Z abstract).
+
+All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
+(no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .belief import LINK_K
+from .graph import INF, FrameGraph
+from .models import Models
+
+
+class PlannerParams(NamedTuple):
+    """Static planner settings (module docstring)."""
+
+    depth: int = 2
+    n_actions: int = 4
+    n_beta: int = 3
+    cost: int = 1
+    lam: float = 1.0e5
+    rho: float = 10.0
+
+
+DEFAULT = PlannerParams()
+
+
+class Plan(NamedTuple):
+    """Planner output: root value, the first action, whether a plan exists, first-level info.
+
+    ``ks`` (n_actions, n_beta) candidates kept for each first-level action, ``links``
+    (n_actions, n_beta) their best link option, ``q`` (n_actions,) action values.
+    """
+
+    value: jax.Array
+    action: jax.Array
+    exists: jax.Array
+    actions: jax.Array
+    ks: jax.Array
+    links: jax.Array
+    q: jax.Array
+
+
+def cbar(models: Models, D1, cost) -> jax.Array:
+    """Mean one-step cost used by the leaf heuristic (``cost`` 1 or 2, may be traced)."""
+    return jnp.where(cost == 1, jnp.mean(D1),
+                     jnp.mean(models.D2) * models.mid[models.num_bins // 2])
+
+
+def step_costs(models: Models, D1, sf, p, cost) -> jax.Array:
+    """(Q,) eq. 4.29 (cost 1) or eq. 4.30 (cost 2) for every action from robot belief ``p``.
+
+    ``cost`` may be traced, so lanes of both costs share one compiled program.
+    """
+    Tf = jnp.einsum("b,bas->as", sf, models.T)
+    c1 = Tf @ (D1.T @ p)
+    c2 = jnp.einsum("b,b,bas,s->a", sf, models.mid, models.T, models.D2.T @ p)
+    return jnp.where(cost == 1, c1, c2)
+
+
+class _Level(NamedTuple):
+    cost: jax.Array  # [N, na]
+    acts: jax.Array  # [N, na]
+    ks: jax.Array  # [N, na, nb]
+    w: jax.Array  # [N, na, nb]
+    goal: jax.Array  # [N, na, nb]
+    anyobs: jax.Array  # [N, na]
+    frames: jax.Array  # [N, na, nb, 3, 2]
+    robots: jax.Array  # [N, na, nb, 3, Q]
+
+
+def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame, p,
+                pp: PlannerParams, cost):
+    L = trip.shape[0]
+    Q = models.num_states
+    i, j = frame[0], frame[1]
+    sf = scale[i, j]
+    costs = step_costs(models, D1, sf, p, cost)
+    wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
+    idx = jnp.arange(L)
+    third = goal.sum() - i - j
+    isg = fg.goal_obs[i, j] & (idx == third)
+    cb = cbar(models, D1, cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
+    h_f = leaf_values(fg, frame, cb, lam, pp.rho)
+    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
+    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
+    hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
+    wsum = wt.sum(1)
+    proxy = costs + jnp.where(wsum > 0, (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0), h_f + cb)
+    score = -proxy
+    _, acts = jax.lax.top_k(score, pp.n_actions)
+    wa = wt[acts]  # [na, L]
+    wk, ks = jax.lax.top_k(wa, pp.n_beta)  # [na, nb]
+    tot = wk.sum(-1, keepdims=True)
+    anyobs = tot[:, 0] > 0
+    w = wk / jnp.where(tot > 0, tot, 1.0)
+    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
+
+    def branch(a, k):
+        kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
+        k1, k2 = jax.random.split(kk)
+        jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
+        flat = jw.reshape(-1)
+        cell = jax.random.categorical(k1, jnp.log(jnp.maximum(flat, 1e-30)))
+        x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
+            cell % models.num_bins
+        zrow = models.AZ[x, t, b]
+        z = jax.random.categorical(k2, jnp.log(jnp.maximum(zrow, 1e-30)))
+        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ[..., z])
+        s = J.sum()
+        J = J / jnp.where(s > 0, s, 1.0)
+        stay = J.sum(1)
+        ac = jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]])
+        bc = jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])
+        frames = jnp.stack([jnp.stack([i, j]), jnp.stack([i, k]), jnp.stack([j, k])])
+        return frames, jnp.stack([stay, ac, bc])
+
+    fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
+    return _Level(cost=costs[acts], acts=acts, ks=ks, w=w,
+                  goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs, frames=fr, robots=rb)
+
+
+def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array:
+    """h(F) = c̄ (1 + ρ) (hops + 1) for frames [..., 2]; λ c̄ without a path."""
+    h = fg.hops[frames[..., 0], frames[..., 1]]
+    return jnp.where(h < INF, cb * (1.0 + rho) * (h + 1.0), lam * cb)
+
+
+@partial(jax.jit, static_argnames=("pp",))
+def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, key,
+         pp: PlannerParams = DEFAULT, cost=None) -> Plan:
+    """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
+
+    Args:
+        models: offline tables. D1: (Q, Q) neighbour distance (eq. 4.29).
+        trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
+        fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
+        frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
+        pp: static settings. cost: optional traced 1 or 2 overriding ``pp.cost``.
+    """
+    if pp.depth < 1:
+        raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
+    cost = pp.cost if cost is None else cost
+    cb = cbar(models, D1, cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    expand = jax.vmap(lambda f, p, lv: _expand_one(models, D1, trip, scale, fg, goal, key, lv,
+                                                   f, p, pp, cost), (0, 0, None))
+    frames, robots = frame[None], robot[None]
+    levels = []
+    for lv in range(pp.depth):
+        out = expand(frames, robots, lv)
+        levels.append((frames, out))
+        frames = out.frames.reshape(-1, 2)
+        robots = out.robots.reshape(-1, robot.shape[-1])
+    values = leaf_values(fg, frames, cb, lam, pp.rho)
+    q = None
+    for parent_frames, out in reversed(levels):
+        n = parent_frames.shape[0]
+        v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
+        vb = jnp.where(out.goal, 0.0, v.min(-1))
+        stuck = leaf_values(fg, parent_frames, cb, lam, pp.rho)[:, None] + cb
+        q = out.cost + jnp.where(out.anyobs, (out.w * vb).sum(-1), stuck)
+        values = q.min(-1)
+        links = v.argmin(-1)
+    root = levels[0][1]
+    best = jnp.argmin(q[0])
+    value = values[0]
+    return Plan(value=value, action=root.acts[0, best], exists=value < 0.5 * lam * cb,
+                actions=root.acts[0], ks=root.ks[0], links=links[0], q=q[0])

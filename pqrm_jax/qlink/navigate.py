@@ -1,0 +1,547 @@
+"""The Q-Link executive: one start/goal navigation as one ``lax.while_loop`` (P §4.3, §4.4.1).
+
+A trial follows a planned Link Graph path ``M_1 … M_|P|`` on the simulated rover
+(:func:`pqrm_jax.sim.step`), sensing after every step with range R′ and partial disc occlusion
+(:func:`pqrm_jax.sim.target_visibility`). The state machine (decisions in the study config):
+
+1. **Transition** M_i → M_j whenever two landmarks of L_j are visible at the same time
+   (P §4.4.1: "L_j^ref ⊆ L^{vis_t} at some time t"); the visible pair (preferring one with the
+   link) becomes the new references, measured with noise σ.
+2. **QSR search** (step 1 of P §4.3.1) for the link e ∈ L_i ∩ L_j not among the references:
+   the search POMDP (:mod:`.pomdp`) with the PQRM's ``{A, B : e}`` distribution and the
+   robot's own measured quadrant gives up to τ commands; each is the quarter arc of radius R
+   about the references' measured midpoint (:mod:`.trajectory`). After τ misses the transition
+   fails (``LINK_NOT_FOUND``).
+3. **Reference search** (step 2): once e is seen, one circle of radius R′ about ê; a full turn
+   without a pair of L_j fails (``REFS_NOT_FOUND``). With β = 1 and the link already a
+   reference, the robot goes to this step directly.
+4. **Start**: at the start landmark s (+ an offset in a seeded direction), localised into M_1 by
+   step 3 with e = s (``START_NOT_LOCALIZED`` on failure). **Goal**: once in M_|P|, success
+   when the goal landmark is visible; otherwise step 2 with e = g (``GOAL_NOT_FOUND``).
+5. Every trial has a step budget; exceeding it ends the trial with ``BUDGET``, never a hang.
+
+Length is the distance driven. :func:`navigate` ``vmap``s the loop over trials; per-trial PRNG
+keys make results independent of the batch size. Re-planning after a failure (P §4.4.2) is
+:func:`replan_inputs` + a second :func:`navigate` call from the final poses.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import calculi
+from .. import sim as _sim
+from . import pomdp as _pomdp
+from . import trajectory as tr
+from .elements import MapElements, ordering_index
+
+__all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
+           "step_budget", "replan_inputs", "localize", "start_tables", "start_poses",
+           "PairResult", "navigate_pairs", "qsr_plans"]
+
+RUNNING, SUCCESS = 0, 1
+LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
+FAILURE_REASONS = {RUNNING: "running", SUCCESS: "success", LINK_NOT_FOUND: "link_not_found",
+                   REFS_NOT_FOUND: "refs_not_found", START_NOT_LOCALIZED: "start_not_localized",
+                   GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget"}
+"""Status codes of :class:`NavResult`."""
+
+PLAN, ARC, CIRCLE = 0, 1, 2
+
+
+class NavParams(NamedTuple):
+    """Navigation parameters (all lengths in the world's units; scale-free by construction).
+
+    map_range: R, the mapping robot's range; the QSR arcs have radius R.
+    nav_range: R′, the navigating robot's sensing range (circle-search radius).
+    occluder_radius: landmark disc radius for partial occlusion (0 = none).
+    sigma: std of the navigation measurement noise on landmark positions.
+    ds: distance per rover step (``v_max·dt``). turn_per_step: ``ω_max·dt`` (radians).
+    circle_margin: circle radius = ``circle_margin · R′`` (keeps the centre in range despite
+        rounding).
+    start_offset: start pose distance from the start landmark.
+    circle_only: 1.0 = skip the QSR search and circle a reference that is a link landmark
+        whenever there is one (the strategy of Prop. 2, P §4.3.4); 0.0 = Q-Link's QSR search.
+    """
+
+    map_range: float
+    nav_range: float
+    occluder_radius: float = 0.0
+    sigma: float = 0.0
+    ds: float = 0.5
+    turn_per_step: float = 0.5
+    circle_margin: float = 0.999
+    start_offset: float = 1.0
+    circle_only: float = 0.0
+
+
+class NavResult(NamedTuple):
+    """Outcome of B trials (arrays ``[B]`` unless noted).
+
+    status: :data:`FAILURE_REASONS` code. length: distance driven. steps: loop iterations.
+    hops: transitions completed (localisation into M_1 counts as the first).
+    k: index on the path of the element the robot is localised in (−1 = none).
+    pose: ``[B, 3]`` final pose. refs: ``[B, 2]`` final references.
+    trace: ``[B, T, 2]`` positions after each of the first T steps (NaN after the end; T = 0
+        unless ``record`` is given).
+    """
+
+    status: jax.Array
+    length: jax.Array
+    steps: jax.Array
+    hops: jax.Array
+    k: jax.Array
+    pose: jax.Array
+    refs: jax.Array
+    trace: jax.Array
+
+
+class _S(NamedTuple):
+    pose: jax.Array
+    length: jax.Array
+    steps: jax.Array
+    k: jax.Array
+    refs: jax.Array
+    refs_xy: jax.Array
+    phase: jax.Array
+    seq: jax.Array
+    c: jax.Array
+    e: jax.Array
+    e_xy: jax.Array
+    motion: tr.Motion
+    status: jax.Array
+    hops: jax.Array
+    trace: jax.Array
+
+
+def qsr_plans(elements: MapElements, model: _pomdp.SearchPOMDP) -> jax.Array:
+    """``[E, 6, Q, τ]`` the exact search-POMDP command sequence for every element, ordering
+    (references A, B; link C) and robot state — solved once, batched over all of them
+    (:func:`pqrm_jax.qlink.pomdp.open_loop_plan`), looked up by the executive."""
+    probs = jnp.asarray(elements.probs)
+    e, o, q = probs.shape
+    b = jnp.repeat(probs.reshape(e * o, q), q, axis=0)
+    qr = jnp.tile(jnp.arange(q, dtype=jnp.int32), e * o)
+    _, seq = _pomdp.open_loop_plan(model, qr, b)
+    return seq.reshape(e, o, q, -1).astype(jnp.int32)
+
+
+def _sel(cond, a, b):
+    return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
+
+
+def step_budget(n_elements, params: NavParams, factor: float = 5.0, turns: int = 64):
+    """Per-trial step budget: ``factor`` × the Prop. 2 bound ``(2π+1)R|P|`` in steps, plus
+    ``turns`` in-place turning steps per element (P §4.3.4)."""
+    n = np.maximum(np.asarray(n_elements), 1)
+    return (np.ceil(factor * (2 * np.pi + 1) * params.map_range * n / params.ds)
+            + turns * n).astype(np.int32)
+
+
+def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, plans, model,
+           params: NavParams, record: int = 0):
+    quad = calculi.get("quadrant")
+    dt = 1.0
+    v_max, w_max = params.ds, params.turn_per_step
+    tau = int(model.horizon)
+    fdt = landmarks.dtype
+    key_noise = jax.random.fold_in(key, 1)
+
+    def noisy(lm_id, step):
+        z = jax.random.normal(jax.random.fold_in(jax.random.fold_in(key_noise, step), lm_id),
+                              (2,), fdt)
+        return landmarks[lm_id] + params.sigma * z
+
+    s_xy = noisy(start, 1 << 30)
+    pos0 = start_pose[:2]
+    init = _S(pose=start_pose, length=jnp.zeros((), fdt), steps=jnp.int32(0),
+              k=jnp.int32(-1), refs=jnp.full(2, -1, jnp.int32),
+              refs_xy=jnp.zeros((2, 2), fdt), phase=jnp.int32(CIRCLE),
+              seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
+              e_xy=s_xy,
+              motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
+              status=jnp.int32(RUNNING), hops=jnp.int32(0),
+              trace=jnp.full((record, 2), jnp.nan, fdt))
+
+    def body(s: _S) -> _S:
+        pos = s.pose[:2]
+        goal_stage = s.k == n - 1
+        nxt = path[jnp.clip(s.k + 1, 0, path.shape[0] - 1)]
+        members = jnp.where(goal_stage, -1, ids[jnp.maximum(nxt, 0)])       # [3]
+        targets = jnp.concatenate([members, jnp.stack([goal, s.e])])
+        vis = _sim.target_visibility(pos, landmarks, targets, params.nav_range,
+                                     params.occluder_radius)
+        vm, g_vis, e_vis = vis[:3], vis[3], vis[4]
+        # --- event A: goal reached
+        done_goal = goal_stage & g_vis
+        # --- event B: transition into nxt (two of its landmarks in view at once)
+        n_vis = jnp.sum(vm)
+        trans = ~goal_stage & (n_vis >= 2)
+        e_in = vm & (members == s.e)
+        first = jnp.where(jnp.any(e_in), jnp.argmax(e_in), jnp.argmax(vm))
+        other_mask = vm & (jnp.arange(3) != first)
+        second = jnp.argmax(other_mask)
+        new_refs = jnp.stack([members[first], members[second]]).astype(jnp.int32)
+        new_xy = jnp.stack([noisy(new_refs[0], s.steps), noisy(new_refs[1], s.steps)])
+        s_trans = s._replace(k=s.k + 1, refs=new_refs, refs_xy=new_xy, phase=jnp.int32(PLAN),
+                             hops=s.hops + 1)
+        # --- event C: link seen during the QSR search -> circle of radius R' about it
+        see_e = (s.phase == ARC) & e_vis
+        e_xy = noisy(s.e, s.steps)
+        s_circ = s._replace(phase=jnp.int32(CIRCLE), e_xy=e_xy,
+                            motion=tr.circle_motion(pos, e_xy,
+                                                    params.circle_margin * params.nav_range))
+        # --- PLAN: choose the link and the QSR commands
+        cur = path[jnp.maximum(s.k, 0)]
+        lc = ids[cur]
+        in_next = (lc[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1)
+        not_ref = (lc != s.refs[0]) & (lc != s.refs[1])
+        cand = in_next & not_ref
+        link_tr = jnp.where(jnp.any(cand), lc[jnp.argmax(cand)], lc[jnp.argmax(in_next)])
+        link = jnp.where(goal_stage, goal, link_tr).astype(jnp.int32)
+        # circle-only strategy (Prop. 2): circle a reference that is also in L_j (or any
+        # reference at the goal: the goal lies within 2R of it)
+        ref_in = jnp.where(goal_stage, jnp.array([True, True]),
+                           (s.refs[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1))
+        use_circle = (params.circle_only > 0.5) & jnp.any(ref_in)
+        link = jnp.where(use_circle, s.refs[jnp.argmax(ref_in)], link).astype(jnp.int32)
+        link_is_ref = (link == s.refs[0]) | (link == s.refs[1])
+        order = ordering_index(lc, s.refs[0], s.refs[1])
+        a_xy, b_xy = s.refs_xy[0], s.refs_xy[1]
+        q_r = jnp.maximum(quad.classify(a_xy, b_xy, pos), 0).astype(jnp.int32)
+        seq = plans[cur, order, q_r]          # the exact POMDP plan for this entry state
+        centre, lo = tr.quadrant_wedge(a_xy, b_xy, seq[0])
+        ref_pos = jnp.where(link == s.refs[0], a_xy, b_xy)
+        s_plan_arc = s._replace(phase=jnp.int32(ARC), seq=seq.astype(jnp.int32),
+                                c=jnp.int32(0), e=link,
+                                motion=tr.arc_motion(pos, centre, params.map_range, lo))
+        s_plan_circ = s._replace(phase=jnp.int32(CIRCLE), e=link, e_xy=ref_pos,
+                                 motion=tr.circle_motion(
+                                     pos, ref_pos, params.circle_margin * params.nav_range))
+        s_plan = _sel(link_is_ref, s_plan_circ, s_plan_arc)
+        # --- MOVE along the current motion
+        u, mot = tr.motion_control(s.pose, s.motion, v_max, w_max, dt)
+        new_pose = _sim.step(_sim.RoverState(s.pose, jnp.zeros((), fdt)), u,
+                             _sim.RoverParams(dt=dt, max_speed=v_max, max_turn_rate=w_max)).pose
+        mot, finished = tr.advance(mot, u, dt)
+        s_move = s._replace(pose=new_pose, length=s.length + jnp.abs(u[0]) * dt, motion=mot)
+        # arc finished without the link: next command or failure
+        c2 = s.c + 1
+        more = c2 < tau
+        centre2, lo2 = tr.quadrant_wedge(a_xy, b_xy, s.seq[jnp.minimum(c2, tau - 1)])
+        s_next_cmd = s_move._replace(c=c2, motion=tr.arc_motion(new_pose[:2], centre2,
+                                                                params.map_range, lo2))
+        arc_fail = jnp.where(goal_stage, GOAL_NOT_FOUND, LINK_NOT_FOUND)
+        circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
+        s_arc_end = _sel(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
+        s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
+        s_moved = _sel(finished & (s.phase == ARC), s_arc_end,
+                       _sel(finished & (s.phase == CIRCLE), s_circ_end, s_move))
+        # --- priority: goal > transition > link seen > plan > move
+        out = _sel(done_goal, s._replace(status=jnp.int32(SUCCESS)),
+                   _sel(trans, s_trans,
+                        _sel(see_e, s_circ,
+                             _sel(s.phase == PLAN, s_plan, s_moved))))
+        out = out._replace(steps=s.steps + 1)
+        if record:
+            out = out._replace(trace=out.trace.at[jnp.minimum(s.steps, record - 1)].set(
+                jnp.where(s.steps < record, out.pose[:2], out.trace[record - 1])))
+        over = (out.status == RUNNING) & (out.steps >= budget)
+        return out._replace(status=jnp.where(over, BUDGET, out.status))
+
+    final = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)
+    return NavResult(final.status, final.length, final.steps, final.hops, final.k, final.pose,
+                     final.refs, final.trace)
+
+
+@partial(jax.jit, static_argnames=("horizon", "record"))
+def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids, plans,
+              feasible, detect, params, *, horizon, record=0):
+    model = _pomdp.SearchPOMDP(feasible, detect, 1.0, horizon)
+    return jax.vmap(lambda k, s, g, p, nn, b, sp: _trial(
+        k, s, g, p, nn, b, sp, landmarks, ids, plans, model, params, record))(
+        keys, starts, goals, paths, n, budget, start_poses)
+
+
+def start_poses(keys, landmarks, starts, offset):
+    """Start poses ``[B, 3]``: the start landmark + ``offset`` in a seeded direction, seeded
+    heading (P §4.4.1 start landmark; decision Q20)."""
+    def one(k, s):
+        a, h = jax.random.uniform(jax.random.fold_in(k, 2), (2,), minval=-jnp.pi,
+                                  maxval=jnp.pi)
+        p = landmarks[s] + offset * jnp.stack([jnp.cos(a), jnp.sin(a)])
+        return jnp.concatenate([p, h[None]])
+    return jax.vmap(one)(keys, jnp.asarray(starts))
+
+
+def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
+             params: NavParams, model: _pomdp.SearchPOMDP | None = None,
+             poses=None, budget=None, chunk: int = 64, record: int = 0,
+             plans=None) -> NavResult:
+    """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
+
+    Args:
+        keys: ``[B]`` per-trial PRNG keys (derive them from (world, setting, pair)).
+        landmarks: ``[N, 2]`` true landmark positions.
+        elements: the map elements the paths refer to.
+        starts, goals: ``[B]`` landmark ids.
+        paths: ``[B, L]`` element indices (``-1`` padded), from
+            :func:`pqrm_jax.qlink.linkgraph.plan_pairs`; n_elements: ``[B]`` ``|P|`` (≥ 1).
+        params: :class:`NavParams`.
+        model: the search POMDP (``p_move = 1``); default :func:`pomdp.search_model`.
+        poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
+        budget: optional ``[B]`` step budgets (default :func:`step_budget`).
+        chunk: trials per compiled batch (``vmap`` width); results do not depend on it.
+        record: keep the first ``record`` positions of every trial (for plots).
+        plans: optional :func:`qsr_plans` table (computed when not given).
+
+    Raises:
+        ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
+    """
+    model = model or _pomdp.search_model(horizon=4)
+    if model.p_move != 1.0:
+        raise ValueError("the executive needs p_move = 1 (the open-loop plan is exact then)")
+    for name, v in (("nav_range R'", params.nav_range), ("map_range R", params.map_range),
+                    ("ds", params.ds), ("turn_per_step", params.turn_per_step)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be positive and finite, got {v}")
+    if params.occluder_radius < 0 or params.sigma < 0:
+        raise ValueError("occluder_radius and sigma must be non-negative")
+    landmarks = jnp.asarray(landmarks)
+    if not np.all(np.isfinite(np.asarray(landmarks))):
+        raise ValueError("landmarks contain NaN or inf values")
+    n_elements = np.asarray(n_elements, np.int32)
+    if np.any(n_elements < 1):
+        raise ValueError("every trial needs a planned path (|P| >= 1); unreachable pairs are "
+                         "reported by the planner, not navigated")
+    keys = jnp.asarray(keys)
+    if poses is None:
+        poses = start_poses(keys, landmarks, starts, params.start_offset)
+    poses = jnp.asarray(poses, landmarks.dtype)
+    if not np.all(np.isfinite(np.asarray(poses))):
+        raise ValueError("start poses contain NaN or inf values")
+    budget = step_budget(n_elements, params) if budget is None else np.asarray(budget)
+    p = NavParams(*(float(x) for x in params))
+    paths = np.asarray(paths, np.int32)
+    width = max(16, -(-paths.shape[1] // 16) * 16)        # fixed widths: fewer recompiles
+    paths = np.pad(paths, ((0, 0), (0, width - paths.shape[1])), constant_values=-1)
+    # similar trials share a chunk (a vmapped while_loop runs until its longest lane ends);
+    # the order is undone below, so results do not depend on it
+    order = np.argsort(n_elements, kind="stable")
+    inv = np.argsort(order)
+    args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
+            jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
+    args = [x[jnp.asarray(order)] for x in args]
+    if plans is None:
+        plans = qsr_plans(elements, model)
+    const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(plans),
+             model.feasible, model.detect, p)
+    res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon),
+                                        record=int(record)), args, chunk)
+    return jax.tree.map(lambda x: x[jnp.asarray(inv)], res)
+
+
+def _chunked(fn, args, chunk):
+    """Run ``fn`` over fixed-size chunks of the leading axis (the last one padded), so every
+    batch size reuses one compiled program and results do not depend on the batch."""
+    b = args[0].shape[0]
+    outs = []
+    for i in range(0, b, chunk):
+        part = [a[i:i + chunk] for a in args]
+        m = part[0].shape[0]
+        if m < chunk:
+            part = [jnp.concatenate([x, jnp.repeat(x[:1], chunk - m, axis=0)]) for x in part]
+        outs.append(jax.tree.map(lambda x, m=m: x[:m], fn(*part)))
+    return jax.tree.map(lambda *x: jnp.concatenate(x), *outs)
+
+
+def replan_inputs(result: NavResult, landmarks, elements: MapElements, graph, goals, paths,
+                  params: NavParams):
+    """Contingency re-planning (P §4.4.2): for each failed trial whose final view holds two
+    landmarks of some element, drop the failed edge and plan from those elements to the goal.
+
+    Returns ``(trial indices [M], paths [M, L'], n_elements [M])`` for the trials that can
+    continue (host side, networkx on the Link Graph with the failed edge removed); resume them
+    with :func:`navigate` (``poses = result.pose[idx]``; the start landmark is any visible
+    reference of the new first element).
+    """
+    import networkx as nx
+
+    from .linkgraph import to_networkx
+
+    ids = np.asarray(elements.ids)
+    status, k = np.asarray(result.status), np.asarray(result.k)
+    paths = np.asarray(paths)
+    base = to_networkx(graph)
+    out_idx, out_paths = [], []
+    for t in np.flatnonzero((status == LINK_NOT_FOUND) | (status == REFS_NOT_FOUND)):
+        pos = jnp.asarray(result.pose[t, :2])
+        vis = np.asarray(_sim.disc_visibility(pos, landmarks, params.nav_range,
+                                              params.occluder_radius))
+        srcs = np.flatnonzero(vis[ids].sum(1) >= 2)
+        if srcs.size == 0:
+            continue   # "cannot re-plan ... insufficient environmental features in view"
+        g = base.copy()
+        cur, nxt = paths[t, max(k[t], 0)], paths[t, k[t] + 1]
+        if g.has_edge(cur, nxt):
+            g.remove_edge(cur, nxt)
+        goal_el = set(np.flatnonzero((ids == goals[t]).any(1)).tolist())
+        try:
+            _, p = nx.multi_source_dijkstra(g, set(srcs.tolist()),
+                                            target=None, weight="weight")
+        except nx.NetworkXNoPath:
+            continue
+        reach = [v for v in goal_el if v in p]
+        if not reach:
+            continue
+        best = min(reach, key=lambda v: len(p[v]))
+        out_idx.append(int(t))
+        out_paths.append(p[best])
+    width = max([len(p) for p in out_paths], default=1)
+    arr = np.full((len(out_paths), width), -1, np.int32)
+    for i, p in enumerate(out_paths):
+        arr[i, :len(p)] = p
+    return np.array(out_idx, np.int64), arr, np.array([len(p) for p in out_paths], np.int32)
+
+
+def start_tables(elements: MapElements) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per landmark: its elements ``[N_L, C]``, their members ``[N_L, K]`` and membership
+    ``[N_L, C, K]`` (``-1`` / False padded) — what :func:`localize` needs to recognise a
+    reference pair of any element holding the start landmark."""
+    ids = np.asarray(elements.ids)
+    n = elements.num_landmarks
+    els = [np.flatnonzero((ids == lm).any(1)) for lm in range(n)]
+    c = max(1, max(len(e) for e in els))
+    nb = [np.unique(ids[e]) if len(e) else np.array([lm]) for lm, e in enumerate(els)]
+    k = max(len(x) for x in nb)
+    cand = np.full((n, c), -1, np.int32)
+    nbrs = np.full((n, k), -1, np.int32)
+    memb = np.zeros((n, c, k), bool)
+    for lm in range(n):
+        cand[lm, :len(els[lm])] = els[lm]
+        nbrs[lm, :len(nb[lm])] = nb[lm]
+        for i, e in enumerate(els[lm]):
+            memb[lm, i, :len(nb[lm])] = np.isin(nb[lm], ids[e])
+    return cand, nbrs, memb
+
+
+def _localize_one(key, start, pose0, nbrs, memb, budget, landmarks, params: NavParams):
+    fdt = landmarks.dtype
+    z = jax.random.normal(jax.random.fold_in(key, 3), (2,), fdt)
+    s_xy = landmarks[start] + params.sigma * z
+    mot0 = tr.circle_motion(pose0[:2], s_xy, params.circle_margin * params.nav_range)
+    rp = _sim.RoverParams(dt=1.0, max_speed=params.ds, max_turn_rate=params.turn_per_step)
+
+    def seen(pose):
+        vis = _sim.target_visibility(pose[:2], landmarks, nbrs, params.nav_range,
+                                     params.occluder_radius)
+        return (memb.astype(fdt) @ vis.astype(fdt)) >= 2
+
+    def body(c):
+        pose, length, steps, status, mot = c
+        u, mot = tr.motion_control(pose, mot, params.ds, params.turn_per_step, 1.0)
+        pose = _sim.step(_sim.RoverState(pose, jnp.zeros((), fdt)), u, rp).pose
+        mot, finished = tr.advance(mot, u, 1.0)
+        ok = jnp.any(seen(pose))
+        status = jnp.where(ok, SUCCESS, jnp.where(finished, START_NOT_LOCALIZED,
+                                                   jnp.where(steps + 1 >= budget, BUDGET,
+                                                             RUNNING)))
+        return pose, length + jnp.abs(u[0]), steps + 1, status.astype(jnp.int32), mot
+
+    st0 = jnp.where(jnp.any(seen(pose0)), SUCCESS, RUNNING).astype(jnp.int32)
+    pose, length, steps, status, _ = jax.lax.while_loop(
+        lambda c: c[3] == RUNNING, body,
+        (pose0, jnp.zeros((), fdt), jnp.int32(0), st0, mot0))
+    return pose, length, steps, status, seen(pose)
+
+
+@jax.jit
+def _localize(keys, starts, poses, nbrs, memb, budget, landmarks, params):
+    return jax.vmap(lambda k, s, p, nb, m, b: _localize_one(k, s, p, nb, m, b, landmarks,
+                                                            params))(
+        keys, starts, poses, nbrs, memb, budget)
+
+
+def localize(keys, landmarks, starts, poses, tables, params: NavParams, budget=None,
+             chunk: int = 64):
+    """Initial localisation (P §4.3.2): from the start pose, circle the start landmark at R′
+    until two landmarks of an element holding it are in view at once.
+
+    Returns ``(pose [B, 3], length [B], steps [B], status [B], in_view [B, C])`` where
+    ``in_view`` marks the start landmark's elements (``tables[0][starts]``) with a reference
+    pair in view.
+    """
+    cand, nbrs, memb = tables
+    starts = np.asarray(starts)
+    if budget is None:
+        budget = np.full(starts.shape, int(np.ceil(4 * (2 * np.pi + 1) * params.nav_range
+                                                   / params.ds)) + 256, np.int32)
+    p = NavParams(*(float(x) for x in params))
+    lm = jnp.asarray(landmarks)
+    args = [jnp.asarray(keys), jnp.asarray(starts, jnp.int32), jnp.asarray(poses),
+            jnp.asarray(nbrs[starts]), jnp.asarray(memb[starts]), jnp.asarray(budget, jnp.int32)]
+    return _chunked(lambda *a: _localize(*a, lm, p), args, chunk)
+
+
+class PairResult(NamedTuple):
+    """One row per start/goal trial (arrays ``[B]``).
+
+    reachable: a Link Graph path exists from the localised start (False: reported as
+        unreachable, not as a controller failure). status: :data:`FAILURE_REASONS` code
+        (``SUCCESS`` or the failure; unreachable trials keep the localisation status).
+    n_elements: ``|P|`` of the driven plan (0 if none). length: total distance driven.
+    nav: the :class:`NavResult` of the driven trials (``[B]``, meaningless where not reachable).
+    """
+
+    reachable: np.ndarray
+    status: np.ndarray
+    n_elements: np.ndarray
+    length: np.ndarray
+    nav: NavResult
+
+
+def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
+                   starts, goals, params: NavParams,
+                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
+                   record: int = 0, plans=None) -> PairResult:
+    """Localise, plan from the elements in view, and drive B start/goal trials (batched).
+
+    Args:
+        keys: ``[B]`` per-trial keys. landmarks: ``[N, 2]``. elements, graph: the map and its
+            Link Graph. to_go: ``[G, E]`` :func:`~pqrm_jax.qlink.linkgraph.goal_distances`.
+        goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
+        tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
+        params: :class:`NavParams`; model: the search POMDP; chunk: trials per compiled batch.
+    """
+    from .linkgraph import plan_from
+
+    starts, goals = np.asarray(starts, np.int32), np.asarray(goals, np.int32)
+    cand = tables[0]
+    if np.any(cand[starts, 0] < 0) or np.any(cand[goals, 0] < 0):
+        bad = starts[cand[starts, 0] < 0].tolist() + goals[cand[goals, 0] < 0].tolist()
+        raise ValueError(f"landmark {bad[0]} is not in the map (it belongs to no map element)")
+    if np.any(goal_row[goals] < 0):
+        raise ValueError("goal_row has no cost-to-go row for some goal landmark")
+    keys = jnp.asarray(keys)
+    poses = start_poses(keys, jnp.asarray(landmarks), starts, params.start_offset)
+    if not np.all(np.isfinite(np.asarray(poses))):
+        raise ValueError("start poses contain NaN or inf values")
+    pose1, len1, _, st1, in_view = localize(keys, landmarks, starts, poses, tables, params,
+                                            chunk=chunk)
+    cands = np.where(np.asarray(in_view), cand[starts], -1)
+    max_len = int(np.nanmax(np.where(np.isfinite(np.asarray(to_go)), np.asarray(to_go), 0))) + 2
+    plan = plan_from(graph, to_go, goal_row[goals], cands, max_len)
+    st1 = np.asarray(st1)
+    reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
+    n = np.where(reach, np.asarray(plan.n_elements), 1)
+    res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
+                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk,
+                   record=record, plans=plans)
+    status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
+    length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
+    return PairResult(reach, status, np.where(reach, n, 0), length, res)

@@ -1,0 +1,225 @@
+"""Q-Link trajectory level, executive and path-completion guarantees (P §4.3.4, Props. 1–4)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pqrm_jax import sim
+from pqrm_jax.qlink import elements as qel
+from pqrm_jax.qlink import guarantees as gu
+from pqrm_jax.qlink import linkgraph as lg
+from pqrm_jax.qlink import navigate as nav
+from pqrm_jax.qlink import trajectory as tr
+
+R = 15.0
+SIZE = (60.0, 60.0)
+
+
+@pytest.fixture(scope="module")
+def world():
+    """A world satisfying Assumption 1 with a 5 % margin: elements co-observed at range R, kept
+    when their minimum enclosing circle has radius <= 0.95 R; exact relations (no map noise)."""
+    lm = sim.uniform_landmarks(jax.random.key(11), 30, size=SIZE)
+    poses = sim.lawnmower(SIZE, spacing=R, step=1.0)
+    vis = np.asarray(jax.vmap(sim.visibility, (0, None, None))(
+        poses, lm, sim.SensorParams(max_range=R)))
+    ids, _ = qel.co_observed_triplets(vis, 1)
+    ids = ids[gu.assumption1(lm, ids, 0.95 * R)]
+    el = qel.exact_elements(lm, ids)
+    g = lg.link_graph(el, 2)
+    inc = qel.incidence(el)
+    lms = np.flatnonzero(inc.any(1))
+    goal_row = np.full(el.num_landmarks, -1)
+    goal_row[lms] = np.arange(len(lms))
+    to_go = lg.goal_distances(g, el, lms)
+    rng = np.random.default_rng(0)
+    pairs = np.array([(s, t) for s in lms for t in lms if s != t])
+    pairs = pairs[rng.choice(len(pairs), 96, replace=False)]
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(3), i))(jnp.arange(96))
+    return dict(lm=lm, el=el, g=g, to_go=to_go, goal_row=goal_row,
+                tables=nav.start_tables(el), pairs=pairs, keys=keys)
+
+
+def _run(w, frac=1.0, occ=0.0, **kw):
+    p = nav.NavParams(map_range=R, nav_range=frac * R, occluder_radius=occ, sigma=0.0,
+                      ds=R / 40, start_offset=R / 20, **kw)
+    return nav.navigate_pairs(w["keys"], w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"],
+                              w["tables"], w["pairs"][:, 0], w["pairs"][:, 1], p)
+
+
+def test_prop1_geometry_lemmas():
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-R, R, (20000, 3, 2))
+    pts = pts[gu.mec_radius(pts) <= R]
+    a, b, e = pts[:, 0], pts[:, 1], pts[:, 2]
+    # (a) the circle of radius R about a member has a point within R of every other member
+    u = (e - a) / np.linalg.norm(e - a, axis=1, keepdims=True)
+    assert (np.linalg.norm(a + R * u - e, axis=1) <= R * (1 + 1e-9)).all()
+    # (b) the quarter arc of radius R about the midpoint in e's quadrant passes within R of e
+    from pqrm_jax import calculi
+    q = np.asarray(calculi.get("quadrant").classify(jnp.asarray(a), jnp.asarray(b),
+                                                    jnp.asarray(e)))
+    centre, lo = jax.vmap(tr.quadrant_wedge)(jnp.asarray(a), jnp.asarray(b), jnp.asarray(q))
+    d = jax.vmap(tr.arc_min_distance, (0, 0, None, 0))(jnp.asarray(e), centre, R, lo)
+    assert float(jnp.max(d)) <= R * (1 + 1e-5)
+
+
+def test_arc_primitive_drives_a_quarter_circle():
+    m = tr.arc_motion(jnp.array([0.0, -3.0]), jnp.zeros(2), 10.0, -jnp.pi / 2)
+    pose, length, on_arc = jnp.array([0.0, -3.0, 0.3]), 0.0, []
+    for _ in range(400):
+        u, m = tr.motion_control(pose, m, 0.25, 0.5, 1.0)
+        pose = sim.step(sim.RoverState(pose, jnp.zeros(())), u,
+                        sim.RoverParams(dt=1.0, max_speed=0.25, max_turn_rate=0.5)).pose
+        length += float(u[0])
+        m, done = tr.advance(m, u, 1.0)
+        if int(m.stage) == 1:
+            on_arc.append(float(jnp.linalg.norm(pose[:2])))
+        if bool(done):
+            break
+    assert bool(done)
+    np.testing.assert_allclose(on_arc, 10.0, atol=1e-3)
+    np.testing.assert_allclose(length, 7.0 + np.pi * 10.0 / 2, rtol=1e-3)
+    np.testing.assert_allclose(np.asarray(pose[:2]), [10.0, 0.0], atol=1e-2)
+
+
+def test_no_failure_at_full_range_and_prop2_bounds(world):
+    qlink = _run(world)
+    assert qlink.reachable.all()
+    assert (qlink.status == nav.SUCCESS).all()              # 0 % failure at R' = R
+    n = qlink.n_elements
+    for k in np.unique(n):                                   # Fig. 4.7: means under the bound
+        assert qlink.length[n == k].mean() < gu.bound_prop2(k, R)
+    circ = _run(world, circle_only=1.0)
+    assert (circ.status == nav.SUCCESS).all()
+    # Prop. 2 per trial: each of the |P| transitions (localisation into M_1 included) and the
+    # goal search cost at most (2π + 1) R
+    assert (circ.length <= gu.bound_prop2(circ.n_elements + 1, R) * (1 + 1e-4)).all()
+
+
+def test_smaller_range_fails_with_reasons(world):
+    r = _run(world, frac=0.6)
+    fail = r.reachable & (r.status != nav.SUCCESS)
+    assert fail.any()
+    assert set(np.unique(r.status[fail])) <= {nav.LINK_NOT_FOUND, nav.REFS_NOT_FOUND,
+                                              nav.GOAL_NOT_FOUND}
+
+
+def test_props_3_4_straight_drives():
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, R, (5000, 3, 2))
+    tri = pts[np.array([gu.assumption3(p, np.array([[0, 1, 2]]), R)[0] for p in pts])]
+    s = np.linspace(0, 1, 41)[None, :, None]
+    for a, b, c in tri[:500]:
+        path = a + s[0] * (b - a)                            # straight drive L_n -> L_k
+        assert (np.linalg.norm(path - a, axis=1) <= R + 1e-9).all()
+        assert (np.linalg.norm(path - b, axis=1) <= R + 1e-9).all()
+        assert np.linalg.norm(b - a) <= gu.bound_prop4(1, R)
+        _ = c
+
+
+def test_partial_occlusion_matches_sampled_oracle():
+    rng = np.random.default_rng(2)
+    r = 0.4
+    disagree = 0
+    total = 0
+    for _ in range(60):
+        lm = rng.uniform(-10, 10, (12, 2))
+        pos = np.zeros(2)
+        vis = np.asarray(sim.disc_visibility(jnp.asarray(pos), jnp.asarray(lm), 30.0, r))
+        for t in range(len(lm)):
+            d_t = np.linalg.norm(lm[t])
+            if d_t <= r:
+                continue
+            # oracle: is any sampled point of t's disc hidden behind a nearer disc?
+            th = rng.uniform(0, 2 * np.pi, 400)
+            rad = r * np.sqrt(rng.uniform(0, 1, (400, 1)))
+            pts = lm[t] + rad * np.stack([np.cos(th), np.sin(th)], 1)
+            hidden = False
+            for k in range(len(lm)):
+                if k == t or np.linalg.norm(lm[k]) >= d_t:
+                    continue
+                dirs = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+                proj = dirs @ lm[k]
+                perp = np.linalg.norm(lm[k] - proj[:, None] * dirs, axis=1)
+                hidden |= bool(np.any((perp < r) & (proj > 0)))
+            total += 1
+            disagree += hidden == bool(vis[t])
+    assert disagree / total < 0.02
+    lm = jnp.asarray(rng.uniform(-10, 10, (30, 2)))
+    d = jnp.linalg.norm(lm, axis=1)
+    assert (np.asarray(sim.disc_visibility(jnp.zeros(2), lm, 8.0, 0.0)) ==
+            np.asarray(d <= 8.0)).all()
+
+
+@pytest.mark.slow
+def test_results_do_not_depend_on_the_batch(world):
+    p = nav.NavParams(map_range=R, nav_range=0.8 * R, sigma=0.3, ds=R / 40, start_offset=R / 20)
+    w = world
+    args = (w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"], w["tables"])
+    full = nav.navigate_pairs(w["keys"][:16], *args, w["pairs"][:16, 0], w["pairs"][:16, 1], p)
+    part = nav.navigate_pairs(w["keys"][5:9], *args, w["pairs"][5:9, 0], w["pairs"][5:9, 1], p)
+    assert (full.status[5:9] == part.status).all()
+    np.testing.assert_allclose(full.length[5:9], part.length, rtol=1e-5)
+
+
+def test_budget_and_bad_input(world):
+    w = world
+    s, t = w["pairs"][:4, 0], w["pairs"][:4, 1]
+    plan = lg.plan_pairs(w["g"], w["el"], s, t)
+    p = nav.NavParams(map_range=R, nav_range=R, ds=R / 40)
+    r = nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p,
+                     budget=np.full(4, 3))
+    assert (np.asarray(r.status) == nav.BUDGET).all()        # ends with a reason, no hang
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="nav_range"):
+            nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements,
+                         p._replace(nav_range=bad))
+    with pytest.raises(ValueError, match="NaN"):
+        nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p,
+                     poses=jnp.full((4, 3), jnp.nan))
+    with pytest.raises(ValueError, match="path"):
+        nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, np.zeros(4), p)
+    with pytest.raises(ValueError, match="not in the map"):
+        lg.plan_pairs(w["g"], w["el"], [999], [int(t[0])])
+
+
+@pytest.mark.slow
+def test_unreachable_goal_is_reported_not_failed():
+    # two clusters far apart: no Link Graph path between them
+    a = np.array([[0, 0], [5, 0], [2, 4], [6, 5]], float)
+    lm = jnp.asarray(np.concatenate([a, a + 500.0]))
+    el = qel.exact_elements(lm, np.array([[0, 1, 2], [1, 2, 3], [4, 5, 6], [5, 6, 7]]))
+    g = lg.link_graph(el, 2)
+    to_go = lg.goal_distances(g, el, np.arange(8))
+    p = nav.NavParams(map_range=R, nav_range=R, ds=R / 40)
+    r = nav.navigate_pairs(jax.random.split(jax.random.key(0), 2), lm, el, g, to_go,
+                           np.arange(8), nav.start_tables(el), [0, 0], [3, 7], p)
+    assert r.reachable.tolist() == [True, False]
+    assert int(r.status[0]) == nav.SUCCESS and int(r.n_elements[1]) == 0
+
+
+@pytest.mark.slow
+def test_contingency_replanning_resumes_failed_trials(world):
+    w = world
+    p = nav.NavParams(map_range=R, nav_range=0.6 * R, sigma=0.0, ds=R / 40, start_offset=R / 20)
+    s, t = w["pairs"][:, 0], w["pairs"][:, 1]
+    plan = lg.plan_pairs(w["g"], w["el"], s, t)
+    first = nav.navigate(w["keys"], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p)
+    idx, paths, n = nav.replan_inputs(first, w["lm"], w["el"], w["g"], t, plan.path, p)
+    st = np.asarray(first.status)
+    assert idx.size and set(st[idx]) <= {nav.LINK_NOT_FOUND, nav.REFS_NOT_FOUND}
+    ids = np.asarray(w["el"].ids)
+    for j, i in enumerate(idx):
+        vis = np.asarray(sim.disc_visibility(first.pose[i, :2], w["lm"], p.nav_range, 0.0))
+        assert vis[ids[paths[j, 0]]].sum() >= 2            # starts from an element in view
+        assert t[i] in ids[paths[j, n[j] - 1]]              # ends at the goal
+        k = int(first.k[i])
+        failed = (int(plan.path[i, max(k, 0)]), int(plan.path[i, k + 1]))
+        assert failed not in set(zip(paths[j, :-1].tolist(), paths[j, 1:].tolist(),
+                                     strict=True))
+    start_lm = ids[paths[:, 0], 0]
+    again = nav.navigate(w["keys"][idx], w["lm"], w["el"], start_lm, t[idx], paths, n, p,
+                         poses=first.pose[idx])
+    assert (np.asarray(again.status) != nav.RUNNING).all()
