@@ -317,6 +317,8 @@ def measure_triples(
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     bearings = jnp.asarray(bearings)
+    if jnp.issubdtype(bearings.dtype, jnp.complexfloating):
+        raise TypeError(f"bearings are complex ({bearings.dtype}); bearings must be real")
     if bearings.ndim != 2 or bearings.shape[-1] != 3:
         raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
     if bearings.shape[0] == 0:

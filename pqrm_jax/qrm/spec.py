@@ -94,9 +94,18 @@ def mask_of(calc: Calculus | str, labels) -> int:
 
 
 def states_of(calc: Calculus | str, mask: int) -> list[str]:
-    """State labels in a bitmask (inverse of :func:`mask_of`)."""
+    """State labels in a bitmask (inverse of :func:`mask_of`).
+
+    Raises ``ValueError`` for a negative mask or one with bits at or above ``num_states``
+    (no state of ``calc`` has them, so the mask is not a set of its states).
+    """
     calc = get_calculus(calc)
+    if isinstance(mask, bool | np.bool_) or not isinstance(mask, int | np.integer):
+        raise TypeError(f"a state mask must be an integer, got {type(mask).__name__}")
     mask = int(mask)
+    if mask < 0 or mask >> calc.num_states:
+        raise ValueError(f"mask {mask:#x} has bits outside the {calc.num_states} states of "
+                         f"{calc.name!r} (valid masks are < 2**{calc.num_states})")
     return [s for i, s in enumerate(calc.states) if mask >> i & 1]
 
 

@@ -41,6 +41,7 @@ HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
+NUMERICS_VERSION = 2  # bump when the map's floating-point results change (see Config notes)
 
 
 @dataclasses.dataclass
@@ -73,6 +74,7 @@ class Config:
         d.pop("chunk_runs")  # the effective layout is stored by run_study (see ``layout``)
         d["sigma_e"] = SIGMA_E
         d["levels_sigma_r"] = [lv["sigma_r"] for lv in self.sigma_levels()]
+        d["numerics"] = NUMERICS_VERSION
         d["notes"] = {
             "num_landmarks": "not stated in P §2.3.1 ('no more than 10 landmarks are observed "
                              "at a single time'); chosen so that bound always holds",
@@ -81,6 +83,9 @@ class Config:
                     "dtheta_deg (23 poses), omnidirectional sensor, no occlusion",
             "sampling": "one standard-normal bank per update shared by the triplets "
                         "(common random numbers); fresh bank every update",
+            "numerics": "2 = power-of-two rescaled EDC kernel and a fixed-order Bayes "
+                        "normaliser (entropy and p_ml differ from version 1 in the last bits); "
+                        "a directory written by another version is refused, not mixed",
         }
         return d
 
