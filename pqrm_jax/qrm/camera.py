@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
+from .exact_camera import corner_rule, range_forms, sweep_witnesses
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
@@ -35,11 +36,14 @@ class TripleMeasurement(NamedTuple):
 
     Attributes:
         sets: [T, 3] uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
-        undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded).
+        undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded);
+            all zero after the exact stage.
+        exact_decisions: number of states the exact stage (z3) decided.
     """
 
     sets: jax.Array
     undecided: jax.Array
+    exact_decisions: int = 0
 
 
 class ImageMeasurement(NamedTuple):
@@ -147,8 +151,9 @@ _CHECKPOINTS = (3, 6)
 _MIN_COMPACT_ROWS = 32  # smaller batches run the plain loop (gathers would cost more)
 
 
-@partial(jax.jit, static_argnames=("spec", "pool", "depth"))
-def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
+@partial(jax.jit, static_argnames=("spec", "pool", "depth", "sweep"))
+def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
+            sweep: bool = False):
     T = bearings.shape[0]
     O, K = len(CYCLIC), spec.k
     coef = cone_forms(spec, bearings).reshape(T, O * K, 9)  # (T, OK, 9)
@@ -160,7 +165,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     weights = jnp.asarray(3 ** np.arange(K), jnp.int32)
     target = _state_masks_to_atoms(target_states, atom_state)  # (T, O)
 
-    def evaluate(cpn, target, box, alive, proven):
+    def evaluate(cpn, target, sig, hst, box, alive, proven):
         R, QK = cpn.shape[0], cpn.shape[1] // 2
         a0, a1, b0, b1 = (box[..., i] for i in range(4))
         nb = box.shape[1]
@@ -176,7 +181,27 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         tol = _EPS * (hp - hn) + 1e-30  # m_hi · |c|
         val = cp_ + cn_
         tol_c = _EPS * (cp_ - cn_) + 1e-30  # m_centre · |c|
-        cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0)).reshape(R, -1, O, K)
+        # Bernstein enclosure on the box (tighter: its excess shrinks like the box size
+        # squared): f = Σ C_ij a^i b^j has the coefficients La C Lbᵀ in the Bernstein basis
+        # of the box, with La rows (1, a0, a0²), (1, (a0+a1)/2, a0·a1), (1, a1, a1²)
+        C3 = (cpn[:, :QK] + cpn[:, QK:]).reshape(R, QK, 3, 3)
+        La = jnp.stack([_powers(a0), jnp.stack([jnp.ones_like(a0), 0.5 * (a0 + a1), a0 * a1],
+                                               -1), _powers(a1)], -2)  # (R, B, 3, 3)
+        Lb = jnp.stack([_powers(b0), jnp.stack([jnp.ones_like(b0), 0.5 * (b0 + b1), b0 * b1],
+                                               -1), _powers(b1)], -2)
+        # (La ⊗ Lb) vec(C): one batched product per row, like the monomial bound
+        K9 = (La[:, :, :, None, :, None] * Lb[:, :, None, :, None, :]).reshape(R, nb, 9, 9)
+        bern = jnp.einsum("rbmn,rqn->rbmq", K9, C3.reshape(R, QK, 9))  # (R, B, 9, QK)
+        # rounding: |La|·|C|·|Lb|ᵀ ≤ Σ|C_ij| a1^i b1^j (rows of La, Lb are bounded by the
+        # monomials at the high corner), so the monomial tolerance covers it
+        bpos = jnp.min(bern, -2) > tol
+        bneg = jnp.max(bern, -2) < -tol
+        cert = jnp.where((lo > tol) | bpos, 1, jnp.where((hi < -tol) | bneg, -1, 0))
+        # the corner d_near = 0, d_mid = d_far (a = 0, b = 1): a constraint vanishing there
+        # has the sign of its gradient on small boxes at the corner (exact_camera)
+        at = ((a0 == 0) & (b1 == 1))[..., None] & (a1[..., None] <= hst[:, None]) & \
+            ((1 - b0)[..., None] <= hst[:, None]) & (sig[:, None] != 0)
+        cert = jnp.where(at, sig[:, None], cert).reshape(R, -1, O, K)
         cmask = jnp.where(cert == 1, pos, jnp.where(cert == -1, neg, amb))
         compat = _and_reduce(cmask, 3)  # (R, B, O)
         compat = jnp.where(alive[..., None], compat, jnp.uint32(0))
@@ -225,7 +250,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
 
         A row without useful boxes has no live box left after the split: it is final.
         """
-        cpn, target = rows
+        cpn, target, sig, hst = rows
 
         def cond(c):
             it, _, alive, _ = c
@@ -233,7 +258,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
 
         def body(c):
             it, box, alive, proven = c
-            _, useful, proven = evaluate(cpn, target, box, alive, proven)
+            _, useful, proven = evaluate(cpn, target, sig, hst, box, alive, proven)
             box, alive = split(box, useful)
             return it + 1, box, alive, proven
 
@@ -271,14 +296,20 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     dtype = coef.dtype
     box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
     alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
-    proven = jnp.zeros((T, O), jnp.uint32)
+    if sweep:  # witnesses of the arrangement sweep first: the boxes then only exclude
+        proven = sweep_witnesses(spec, range_forms(spec, bearings.astype(dtype)))  # (T, O)
+    else:
+        proven = jnp.zeros((T, O), jnp.uint32)
     cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
-    proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
+    sig, hst = corner_rule(spec, coef.reshape(T, O * K, 3, 3))  # (T, OK)
+    proven, remaining = stage((cpn, target, sig, hst), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
     all_atoms = jnp.uint32(spec.atom_full)
     sets = _atom_masks_to_states(possible & all_atoms, atom_state)
     und = _atom_masks_to_states(remaining & target & ~proven & all_atoms, atom_state)
-    return sets, und
+    # three equal bearings: collinear for every range assignment, no open state (exact)
+    ray = jnp.all(bearings == bearings[:, :1], -1)[:, None]
+    return jnp.where(ray, jnp.uint32(0), sets), jnp.where(ray, jnp.uint32(0), und)
 
 
 def measure_triples(
@@ -288,6 +319,7 @@ def measure_triples(
     *,
     pool: int = 16,
     depth: int = 12,
+    exact: bool = True,
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV), batched.
 
@@ -308,12 +340,27 @@ def measure_triples(
         ValueError: for an empty batch (T = 0), bearings of the wrong shape or with NaN/inf,
             a ``target`` of the wrong shape, ``pool < 4`` or ``depth < 1``.
 
+    ``exact=True`` (concrete input only): the kernel is seeded with the witnesses of the
+    arrangement sweep (:mod:`pqrm_jax.qrm.exact_camera`), and the states it still leaves
+    undecided are settled by z3 on the exact polynomial systems
+    (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets are exactly the
+    feasible sets; ``exact_decisions`` counts them. ``exact=False`` returns the kernel's
+    sound sets (undecided states kept and reported).
+
+    Bearings all equal (three landmarks on one ray): the points are collinear for every
+    range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
+    the row's sets are empty, which the map update reports as inconsistent). Two equal
+    bearings and ties in the ranges are ordinary input (the cone is closed; ties add no
+    state, see :mod:`pqrm_jax.qrm.exact_camera`). A camera on a landmark: that landmark's
+    range is 0 and its bearing arbitrary; ``d_near = 0`` lies in the closed cone, so the sets
+    still contain the true states (they are the sets of the reported bearing).
+
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
     >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far; truth: 1
     >>> m = measure_triples(np.arctan2(P[:, 1], P[:, 0])[None].astype(np.float32))
-    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 4
-    ['1', '5', '11', '12']
+    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 3 (exact)
+    ['1', '5', '11']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     bearings = jnp.asarray(bearings)
@@ -335,7 +382,20 @@ def measure_triples(
         raise ValueError(f"target must have shape {bearings.shape[:1] + (3,)}, got {target.shape}")
     if pool < 4 or depth < 1:
         raise ValueError(f"pool must be >= 4 and depth >= 1, got pool={pool}, depth={depth}")
-    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth)
+    concrete = not any(isinstance(x, jax.core.Tracer) for x in (bearings, target))
+    if concrete:
+        b = np.asarray(bearings, np.float64)
+        same = (np.remainder(b - b[:, :1] + np.pi, 2 * np.pi) - np.pi == 0).all(-1)
+        if same.any():
+            raise ValueError(f"bearings of triple(s) {np.flatnonzero(same).tolist()} are all "
+                             "equal: three landmarks on one ray are collinear, no open EDC "
+                             "state fits")
+    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth, sweep=exact)
+    if exact and concrete:
+        from .camera_oracle import settle_undecided
+
+        sets, n = settle_undecided(spec, bearings, sets, und)
+        return TripleMeasurement(jnp.asarray(sets), jnp.zeros_like(und), n)
     return TripleMeasurement(sets, und)
 
 

@@ -183,10 +183,18 @@ def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
 def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
     n = m.rel.shape[0]
-    meas = jnp.full_like(m.rel, spec.full)
+    q = spec.num_states
     tri = jnp.where(valid[:, None], triples, n)  # out of range → dropped
+    # repeated rows for the same relation are intersected: a state survives only if no row
+    # clears it (scatter-max of the cleared bits is an OR over the rows, in any order)
+    shifts = jnp.arange(q, dtype=jnp.uint32)
+    cleared = jnp.zeros(m.rel.shape + (q,), jnp.uint8)
     for o, (X, Y, Z) in enumerate(CYCLIC):
-        meas = meas.at[tri[:, X], tri[:, Y], tri[:, Z]].set(sets[:, o], mode="drop")
+        off = (((~sets[:, o, None]) >> shifts) & 1).astype(jnp.uint8)  # (T, Q)
+        cleared = cleared.at[tri[:, X], tri[:, Y], tri[:, Z]].max(off, mode="drop")
+    meas = jnp.uint32(spec.full) & ~jax.lax.reduce(
+        jnp.where(cleared.astype(bool), jnp.uint32(1) << shifts, jnp.uint32(0)),
+        np.uint32(0), jax.lax.bitwise_or, (3,))
     nodes = jnp.zeros((n,), bool).at[tri.ravel()].set(True, mode="drop")
     return _merge(spec, m, meas, nodes, max_sweeps)
 
@@ -213,6 +221,11 @@ def apply_relations(
 
     ``triples`` [T, 3] are landmark ids (X, Y, Z) and ``sets`` [T, 3] the masks of XY:Z, YZ:X,
     ZX:Y. New ids become known nodes.
+
+    Rows that measure the same relation (the same triple, or the same relation reached through
+    another rotation of the triple) are intersected, so all images of a sequence can be fused
+    in one call and reach the fixed point of fusing them one by one (the result is the
+    greatest fixed point below all measurements, independent of their order).
 
     >>> m, rep = apply_relations(empty_map(3), [[0, 1, 2]], [[1 << 6, (1 << 20) - 1,
     ...                                                     (1 << 20) - 1]])
