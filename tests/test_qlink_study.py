@@ -64,3 +64,23 @@ def test_reduced_study(tmp_path):
     with Store.open(out, "qlink", None):
         with pytest.raises(StoreError, match="in use by another process"):
             mod.main(["--reduced", "--out", str(out), "--no-progress"])
+
+
+def test_failed_table_dependency_fails_the_study(tmp_path, monkeypatch, capsys):
+    """A table cache that cannot be read while the map is built fails the study (exit 2 from
+    the CLI, one line naming the table) and stores no trials."""
+    from pqrm_jax import cli
+    from pqrm_jax.studies import qlink
+    from pqrm_jax.studies.store import StudyError
+    from pqrm_jax.tables import CacheError
+
+    def broken(cfg, w):
+        raise CacheError("table file quadrant.json is corrupt (truncated)")
+
+    monkeypatch.setattr(qlink, "build_world", broken)
+    out = tmp_path / "q"
+    with pytest.raises(StudyError, match="table the map of world 0 needs"):
+        qlink.main(["--reduced", "--out", str(out), "--no-progress"])
+    assert cli.main(["study", "qlink", "--reduced", "--out", str(out), "--no-progress"]) == 2
+    assert "quadrant.json is corrupt" in capsys.readouterr().err
+    assert not list(out.rglob("*.csv"))
