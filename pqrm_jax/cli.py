@@ -52,10 +52,11 @@ def _study(argv: list[str]) -> int:
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """The exception types the CLI reports as a one-line user error (exit code 2)."""
+    from .studies.distributed import DistributedError
     from .studies.store import StudyError
     from .tables import CacheError
 
-    return (StudyError, CacheError, OSError, ValueError, KeyError)
+    return (StudyError, CacheError, DistributedError, OSError, ValueError, KeyError)
 
 
 def _message(exc: BaseException) -> str:
