@@ -143,6 +143,36 @@ def test_processes_with_different_configs_are_refused(tmp_path):
     assert not (tmp_path / "o").exists()  # refused before anything was written
 
 
+_SLURM_DRIVER = """
+import numpy as np
+from pqrm_jax.studies import distributed as d
+c = d.initialize(timeout_s=30)
+print(c.process_id, c.num_processes, d.gather(np.array([c.process_id * 7]), c).ravel().tolist())
+"""
+
+
+def test_slurm_environment_is_detected():
+    """Two tasks with the variables ``srun`` sets (faked on localhost): JAX's Slurm detection
+    gives the coordinator (port from the job id), ours the count and the ids."""
+    for job in range(1000, 5096):  # JAX takes port 61440 + job % 4096
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", 61440 + job % 4096))
+                break
+            except OSError:
+                continue
+    envs = [dict(_env(), SLURM_JOB_ID=str(job), SLURM_STEP_NODELIST="localhost",
+                 SLURM_NTASKS="2", SLURM_PROCID=str(i), SLURM_LOCALID=str(i)) for i in (0, 1)]
+    procs = [subprocess.Popen([sys.executable, "-c", _SLURM_DRIVER], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=e, cwd=ROOT) for e in envs]
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (_, se) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, se[-2000:]
+    assert [so.strip().splitlines()[-1] for so, _ in outs] == ["0 2 [0, 7]", "1 2 [0, 7]"]
+    # a batch script outside srun (no step node list) is one process
+    assert distributed.initialize(env={"SLURM_JOB_ID": "1", "SLURM_NTASKS": "4"}).num_processes == 1
+
+
 @pytest.mark.slow
 def test_cli_two_processes_equal_one_full_representations(tmp_path):
     """The real command line, all six representations, 2 processes vs 1."""

@@ -16,8 +16,10 @@ Where the process count, id and coordinator come from, first match wins:
 1. the arguments (``--coordinator HOST:PORT --num-processes N --process-id I``);
 2. the environment: ``JAX_COORDINATOR_ADDRESS`` (JAX's own variable), ``JAX_NUM_PROCESSES``,
    ``JAX_PROCESS_ID``;
-3. cluster auto-detection as JAX provides it (Slurm: ``SLURM_JOB_ID`` with more than one task
-   in ``SLURM_NTASKS``; JAX derives the coordinator from the node list and job id);
+3. Slurm (inside ``srun``, more than one task): the count and id from ``SLURM_NTASKS`` and
+   ``SLURM_PROCID``, and JAX's own Slurm detection derives the coordinator from the node list
+   and job id (then JAX's timeout applies: after ``timeout_s`` JAX ends the process with a
+   fatal ``DEADLINE_EXCEEDED`` log line instead of our message);
 4. none of these: one process, and ``jax.distributed`` is not started.
 
 Bad input is refused before anything is computed: a process count below 1, an id outside
@@ -107,9 +109,13 @@ def _int_env(env: Mapping[str, str], name: str) -> int | None:
         raise ValueError(f"${name} must be an integer, got {raw!r}") from None
 
 
+_SLURM = ("SLURM_JOB_ID", "SLURM_STEP_NODELIST", "SLURM_NTASKS", "SLURM_PROCID",
+          "SLURM_LOCALID")  # the variables JAX's Slurm detection reads (inside ``srun``)
+
+
 def _slurm(env: Mapping[str, str]) -> bool:
     try:
-        return "SLURM_JOB_ID" in env and int(env.get("SLURM_NTASKS", "1")) > 1
+        return all(v in env for v in _SLURM) and int(env["SLURM_NTASKS"]) > 1
     except ValueError:
         return False
 
@@ -124,14 +130,19 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
     """
     env = os.environ if env is None else env
     coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS") or None
+    slurm = _slurm(env)
     if num_processes is None:
         num_processes = _int_env(env, "JAX_NUM_PROCESSES")
+        if num_processes is None and slurm:
+            num_processes = _int_env(env, "SLURM_NTASKS")
     if process_id is None:
         process_id = _int_env(env, "JAX_PROCESS_ID")
+        if process_id is None and slurm:
+            process_id = _int_env(env, "SLURM_PROCID")
     if timeout_s is None or int(timeout_s) < 1:
         raise ValueError(f"the initialization timeout must be >= 1 s, got {timeout_s}")
     explicit = (coordinator, num_processes, process_id)
-    if all(v is None for v in explicit) and not _slurm(env):
+    if all(v is None for v in explicit):
         return Cluster(0, 1, None)
     if num_processes is not None and (isinstance(num_processes, bool)
                                       or int(num_processes) != num_processes
@@ -143,7 +154,7 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
             0 <= process_id < num_processes):
         raise ValueError(f"process id {process_id} is out of range for {num_processes} "
                          f"processes (need 0 <= id < {num_processes})")
-    if not _slurm(env) and None in explicit:
+    if not slurm and None in explicit:
         missing = [n for n, v in zip(("coordinator address (--coordinator or "
                                       "$JAX_COORDINATOR_ADDRESS)",
                                       "process count (--num-processes or $JAX_NUM_PROCESSES)",
