@@ -24,7 +24,8 @@ import sys
 from pathlib import Path
 from pqrm_jax.studies import distributed, padgett_mc as P
 out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60)
+hb = int(sys.argv[5]) if len(sys.argv) > 5 else 60
+cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=hb)
 cfg = P.Config(runs=4, levels=2, num_samples=8, num_landmarks=4, chunk_runs=2,
                representations=("edc",))
 P.run_study(cfg, Path(out), quiet=True, cluster=cluster)
@@ -188,3 +189,32 @@ def test_cli_two_processes_equal_one_full_representations(tmp_path):
         assert r.returncode == 0, r.stderr[-2000:]
     assert _same_results(tmp_path / "one", tmp_path / "two") == 6
     assert (tmp_path / "two" / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
+    """Kill process 1 after the first level is written: process 0 stops within the heartbeat
+    timeout (no hang); re-running both processes resumes and ends with the 1-process files."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _DRIVER, str(two), "2", str(i), port, "5"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=_env(), cwd=ROOT) for i in (1, 0)]
+    deadline = time.monotonic() + 300
+    while not (two / "level_00.npz").exists():
+        assert time.monotonic() < deadline and procs[1].poll() is None
+        time.sleep(0.2)
+    procs[0].kill()
+    t_kill = time.monotonic()
+    procs[1].communicate(timeout=120)  # process 0 must give up, not hang
+    procs[0].communicate()
+    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    done = len(list(two.glob("level_*.npz")))
+    assert 1 <= done < 6
+    port = str(free_port())
+    r1, *rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
+                      + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
+                         for i in (1, 0)])
+    for r in (r1, *rs):
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_results(one, two) == 6
