@@ -311,9 +311,14 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
         idx = np.minimum(idx, cfg.runs - 1)  # pad the last chunk by repeating a run
         keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(idx, jnp.uint32))
         keys = jax.device_put(keys, sharding)
-        parts.append(jax.tree_util.tree_map(np.asarray,
-                                            jax.device_get(batched(keys,
-                                                                   jnp.float32(sigma_r)))))
+        try:
+            res = jax.device_get(batched(keys, jnp.float32(sigma_r)))
+        except Exception as exc:  # noqa: BLE001  (XLA's runtime error type varies by version)
+            oom = memory_error(exc, cfg, chunk)
+            if oom is None:
+                raise
+            raise oom from exc
+        parts.append(jax.tree_util.tree_map(np.asarray, res))
         if progress is not None and n_done < len(mine):
             progress.update(min(chunk, cfg.runs - start) * cluster.num_processes)
     if cluster.distributed:
@@ -324,6 +329,28 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
                  for c in range(len(starts))]
     out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts[:len(starts)])
     return jax.tree_util.tree_map(lambda x: x[:cfg.runs], out)
+
+
+def memory_error(exc: BaseException, cfg: Config, chunk: int):
+    """A :class:`~pqrm_jax.studies.store.StudyError` naming ``--chunk-runs`` when ``exc`` is
+    the device running out of memory for one chunk, else None.
+
+    >>> memory_error(RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 9 GiB"),
+    ...              Config(chunk_runs=500), 500)  # doctest: +ELLIPSIS
+    StudyError('padgett-mc: a chunk of 500 runs does not fit in the memory of ...')
+    >>> memory_error(ValueError("bad"), Config(), 250) is None
+    True
+    """
+    from .store import StudyError
+
+    text = str(exc)
+    if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
+        return None
+    dev = jax.local_devices()[0]
+    return StudyError(f"{NAME}: a chunk of {chunk} runs does not fit in the memory of "
+                      f"{dev.device_kind} ({dev.platform}); lower --chunk-runs (now "
+                      f"{cfg.chunk_runs}, per device {chunk // len(jax.local_devices())} "
+                      f"runs): {text.splitlines()[0][:200]}")
 
 
 def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tuple[dict, dict]:
@@ -551,5 +578,5 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "run_study", "run_level", "summarise_level", "load_results", "main",
-           "boundary_distance"]
+__all__ = ["Config", "run_study", "run_level", "summarise_level", "memory_error", "load_results",
+           "main", "boundary_distance"]
