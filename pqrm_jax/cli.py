@@ -2,7 +2,7 @@
 
     pqrm-jax tables NAME --json PATH        export a calculus's exact tables as JSON
     pqrm-jax tables NAME --format F PATH    export as F: json (default format) or sparq
-                                            (a SparQ def-calculus file, docs/sparq.md)
+                                            (a SparQ def-calculus file, docs/tables.md §sparq)
     pqrm-jax tables --rebuild [NAME ...]    regenerate cached tables (progress bar)
     pqrm-jax tables --plot DIR              table figures and a report (the main job's first part)
     pqrm-jax study NAME [args...]           run a study (``pqrm-jax study --list``)

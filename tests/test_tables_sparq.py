@@ -1,5 +1,6 @@
 """SparQ export: the written def-calculus file, read back by an independent s-expression
-reader, carries exactly our tables under the documented operation mapping (docs/sparq.md)."""
+reader, carries exactly our tables under the documented operation mapping
+(docs/tables.md §sparq)."""
 
 from __future__ import annotations
 

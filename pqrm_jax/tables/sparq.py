@@ -5,7 +5,7 @@ form ``(def-calculus "NAME" :arity :ternary ... :base-relations (...) :inverse-o
 :shortcut-operation (...) :homing-operation (...) :composition-operation (...))``. A ternary
 constraint ``(A B r C)`` there is what pqrm-jax writes ``AB:C = r``: the relation of the
 point C to the directed pair A→B (M §III.A). The operations map as follows (derivation in
-``docs/sparq.md``):
+docs/tables.md §sparq):
 
 * ``inverse``: ``(A B r C) -> (B A r' C)`` is pqrm-jax INVERSE (the same permutation);
 * ``homing``: ``(A B r C) -> (B C r' A)`` is pqrm-jax LEFT (the same permutation);
