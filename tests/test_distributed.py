@@ -121,10 +121,10 @@ def test_unreachable_coordinator_and_missing_peer_fail_in_bounded_time():
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
     argv = ["study", "padgett-mc", "--out", str(tmp_path / "o"), "--quiet"]
-    assert main([*argv, "--coordinator", "127.0.0.1:1", "--num-processes", "2",
+    assert main([*argv, "--coordinator", "127.0.0.1:1", "--processes", "2",
                  "--process-id", "7"]) == 2
     assert "process id 7 is out of range for 2 processes" in capsys.readouterr().err
-    assert main([*argv, "--coordinator", f"127.0.0.1:{free_port()}", "--num-processes", "2",
+    assert main([*argv, "--coordinator", f"127.0.0.1:{free_port()}", "--processes", "2",
                  "--process-id", "1", "--init-timeout", "1"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("pqrm-jax: error: process 1 could not reach") and err.count("\n") == 1
@@ -135,7 +135,7 @@ def test_processes_with_different_configs_are_refused(tmp_path):
     port = str(free_port())
     base = [sys.executable, "-m", "pqrm_jax.cli", "study", "padgett-mc", "--out",
             str(tmp_path / "o"), "--quiet", "--runs", "2", "--levels", "2",
-            "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
+            "--coordinator", f"127.0.0.1:{port}", "--processes", "2"]
     rs = _launch([[*base, "--samples", "8", "--process-id", "1"],
                   [*base, "--samples", "16", "--process-id", "0"]], timeout=120)
     for r in rs:
@@ -183,7 +183,7 @@ def test_cli_two_processes_equal_one_full_representations(tmp_path):
     (r1,) = _launch([[*py, *args, "--out", str(tmp_path / "one")]], timeout=600)
     port = str(free_port())
     two = [*py, *args, "--out", str(tmp_path / "two"), "--coordinator", f"127.0.0.1:{port}",
-           "--num-processes", "2"]
+           "--processes", "2"]
     rs = _launch([[*two, "--process-id", "1"], [*two, "--process-id", "0"]], timeout=600)
     for r in (r1, *rs):
         assert r.returncode == 0, r.stderr[-2000:]

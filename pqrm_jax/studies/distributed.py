@@ -13,7 +13,7 @@ processes write one file. A study adopts it in a few lines::
 
 Where the process count, id and coordinator come from, first match wins:
 
-1. the arguments (``--coordinator HOST:PORT --num-processes N --process-id I``);
+1. the arguments (``--coordinator HOST:PORT --processes N --process-id I``);
 2. the environment: ``JAX_COORDINATOR_ADDRESS`` (JAX's own variable), ``JAX_NUM_PROCESSES``,
    ``JAX_PROCESS_ID``;
 3. Slurm (inside ``srun``, more than one task): the count and id from ``SLURM_NTASKS`` and
@@ -86,12 +86,12 @@ class Cluster(NamedTuple):
 
 
 def add_arguments(parser) -> None:
-    """The ``--coordinator``, ``--num-processes``, ``--process-id``, ``--init-timeout`` flags."""
+    """The ``--coordinator``, ``--processes``, ``--process-id``, ``--init-timeout`` flags."""
     g = parser.add_argument_group("multi-process (jax.distributed; README 'Running on a "
                                   "cluster')")
     g.add_argument("--coordinator", metavar="HOST:PORT",
                    help="address of process 0 (default: $JAX_COORDINATOR_ADDRESS, Slurm)")
-    g.add_argument("--num-processes", type=int, metavar="N",
+    g.add_argument("--processes", dest="num_processes", type=int, metavar="N",
                    help="process count (default: $JAX_NUM_PROCESSES, Slurm, else 1)")
     g.add_argument("--process-id", type=int, metavar="I",
                    help="this process's id, 0 <= I < N (default: $JAX_PROCESS_ID, Slurm)")
@@ -157,7 +157,7 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
     if not slurm and None in explicit:
         missing = [n for n, v in zip(("coordinator address (--coordinator or "
                                       "$JAX_COORDINATOR_ADDRESS)",
-                                      "process count (--num-processes or $JAX_NUM_PROCESSES)",
+                                      "process count (--processes or $JAX_NUM_PROCESSES)",
                                       "process id (--process-id or $JAX_PROCESS_ID)"),
                                      explicit, strict=True) if v is None]
         raise ValueError("a multi-process run needs " + ", ".join(missing))

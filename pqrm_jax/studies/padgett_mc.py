@@ -7,7 +7,7 @@ locations against the published numbers. The open choices (number of landmarks, 
 update) are recorded in ``config.json``; a killed study resumes at the first unfinished level.
 
 Setup, recorded choices and engineering: docs/studies.md §padgett-mc. As N processes on
-``jax.distributed`` (``--coordinator/--num-processes/--process-id``, the environment or Slurm;
+``jax.distributed`` (``--coordinator/--processes/--process-id``, the environment or Slurm;
 :mod:`pqrm_jax.studies.distributed`) the chunks of each level are split over the processes and
 gathered, bit-identical to one process; process 0 alone writes.
 """
