@@ -195,11 +195,7 @@ def true_layout(world, experience) -> np.ndarray:
     first = {}
     for i, (p, c) in enumerate(zip(experience.true_places, lab, strict=True)):
         if c not in first:
-            star, arr = experience.views[i]
-            # heading at arrival = world bearing of the arrival entry
-            true_star = world.stars[int(p)]
-            s = next(s for s in range(len(true_star)) if true_star.rotate(s) == star)
-            heading = world.bearings[int(p)][(arr + s) % len(star)]
+            heading = world.bearings[int(p)][int(experience.true_arrivals[i])]
             first[c] = np.array([*world.positions[int(p)], heading])
     x0 = first[0]
     return np.stack([np.asarray(compose(inverse(x0), first[c])) for c in range(len(first))])

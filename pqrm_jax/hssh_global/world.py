@@ -76,6 +76,7 @@ class Experience(NamedTuple):
         odometry: ``[n, 3]`` noisy displacement λ_i (x, y, θ) between consecutive arrivals.
         true_places: ``[n+1]`` ground-truth place of each view (for evaluation only).
         true_odometry: ``[n, 3]`` noise-free displacements (for evaluation only).
+        true_arrivals: ``[n+1]`` arrival entry of each view in the world's star numbering.
     """
 
     views: tuple
@@ -84,6 +85,7 @@ class Experience(NamedTuple):
     odometry: np.ndarray
     true_places: np.ndarray
     true_odometry: np.ndarray
+    true_arrivals: np.ndarray
 
 
 def world_from_lattice(open_edges: set, scale: float = 1.0) -> CorridorWorld:
@@ -217,6 +219,7 @@ def explore(world: CorridorWorld, n_travels: int, seed: int = 0, sigma_xy: float
     gates = [e for e in range(len(world.stars[p])) if world.stars[p].alpha[e]]
     arr = world.stars[p].opp[int(rng.choice(gates))]  # initial action a0 arrived through it
     visited: set = set()
+    arrivals = [arr]
     views, bears, turns, odo, todo, places = [], [], [], [], [], [p]
 
     def observe(p, arr):
@@ -252,7 +255,36 @@ def explore(world: CorridorWorld, n_travels: int, seed: int = 0, sigma_xy: float
         odo.append(true + noise)
         p, arr = q, new_arr
         places.append(p)
+        arrivals.append(arr)
         observe(p, arr)
     return Experience(tuple(views), tuple(bears), np.array(turns, np.int32),
                       np.array(odo, float).reshape(-1, 3), np.array(places, np.int32),
-                      np.array(todo, float).reshape(-1, 3))
+                      np.array(todo, float).reshape(-1, 3),
+                      np.array(arrivals, np.int32))
+
+
+def global_paths(world: CorridorWorld) -> list[list[int]]:
+    """The global paths of a world: chains of local paths joined by corridors (B §3.2.3).
+
+    Returns:
+        One list of places per path, in order along the path.
+    """
+    seen, out = set(), []
+    for p, star in enumerate(world.stars):
+        for e in range(len(star)):
+            node = (p, star.path[e])
+            if node in seen:
+                continue
+            chain = [p]
+            seen.add(node)
+            for first, prepend in ((e, False), (star.opp[e], True)):
+                cp, ce = p, first
+                while (cp, ce) in world.edges:
+                    q, f, _ = world.edges[(cp, ce)]
+                    if (q, world.stars[q].path[f]) in seen:
+                        break
+                    seen.add((q, world.stars[q].path[f]))
+                    chain = [q, *chain] if prepend else [*chain, q]
+                    cp, ce = q, world.stars[q].opp[f]
+            out.append(chain)
+    return out
