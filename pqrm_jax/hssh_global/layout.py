@@ -19,6 +19,7 @@ True
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -167,15 +168,20 @@ def relax(problem: LayoutProblem, iters: int = 10, damping: float = 1e-3):
     return _relax_batched(problem, iters, damping)
 
 
+@functools.partial(jax.jit, static_argnames=("iters",))
 def _relax_batched(problem, iters, damping):
-    fn = jax.jit(jax.vmap(lambda *a: _relax_one(*a, iters=iters, damping=damping)))
-    return fn(*problem)
+    return jax.vmap(lambda *a: _relax_one(*a, iters=iters, damping=damping))(*problem)
+
+
+@functools.partial(jax.jit, static_argnames=("iters",))
+def _relax_single(problem, iters, damping):
+    return _relax_one(*problem, iters=iters, damping=damping)
 
 
 def relax_loop(problem: LayoutProblem, iters: int = 10, damping: float = 1e-3):
     """The same relaxation one hypothesis at a time (the benchmark reference)."""
-    fn = jax.jit(lambda *a: _relax_one(*a, iters=iters, damping=damping))
-    outs = [fn(*(x[k] for x in problem)) for k in range(problem.init.shape[0])]
+    outs = [_relax_single(LayoutProblem(*(x[k] for x in problem)), iters, damping)
+            for k in range(problem.init.shape[0])]
     return jnp.stack([o[0] for o in outs]), jnp.stack([o[1] for o in outs])
 
 

@@ -232,9 +232,21 @@ def canonical_places(places) -> tuple:
 
 
 def is_true_map(h: MapHypothesis, experience: Experience) -> bool:
-    """Whether the hypothesis assigns the experience's views to the true places."""
-    return (canonical_places([v[0] for v in h.visits])
-            == canonical_places(experience.true_places))
+    """Whether the hypothesis is the true map of the explored part of the world.
+
+    The views must be assigned to the true places (up to relabelling), and at each place the
+    map's dstates must correspond to the true ones by one fixed rotation of the star (a map that
+    closes a loop onto the right place but the wrong gateway is another map).
+    """
+    if (canonical_places([v[0] for v in h.visits])
+            != canonical_places(experience.true_places)):
+        return False
+    offset: dict = {}
+    for (p, e), t in zip(h.visits, experience.true_arrivals, strict=True):
+        d = (int(e) - int(t)) % len(h.stars[p])
+        if offset.setdefault(p, d) != d:
+            return False
+    return True
 
 
 def preference_order(leaves: list, layout_cost=None) -> list[int]:

@@ -104,7 +104,7 @@ def world_from_lattice(open_edges: set, scale: float = 1.0) -> CorridorWorld:
 
     def is_place(n):
         o = open_dirs(n)
-        return not (sum(o) == 2 and (o == [True, False, True, False] or o == [False, True, False, True]))
+        return o not in ([True, False, True, False], [False, True, False, True])
 
     places = sorted(n for n in nbrs if is_place(n))
     if not places:
