@@ -126,8 +126,8 @@ def test_layout_relaxation_reduces_error_and_is_scale_free():
 
 
 def test_batched_relaxation_equals_loop_and_ranks_the_true_map():
-    w = hg.grid_world(4, 3, loop_prob=0.6, seed=5)
-    e = hg.explore(w, 24, seed=1)
+    w = hg.grid_world(3, 3, loop_prob=0.6, seed=5)
+    e = hg.explore(w, 16, seed=1)
     log = hg.build_tree(e)
     prob = hg.pack(log.leaves, e.odometry)
     chi_b, cost_b = hg.relax(prob)
@@ -164,3 +164,16 @@ def test_commands_round_trip():
                 if star.alpha[x]:
                     assert hg.apply_command(star, a, hg.command(star, a, x)) == x
     assert hg.command(PLUS, 0, 1) == ("Right", 0) and hg.command(PLUS, 0, 3) == ("Left", 0)
+
+
+def test_star_views_give_no_more_leaves_than_basic_ssh():
+    more = 0
+    for seed in range(10):
+        w = hg.grid_world(3, 3, loop_prob=0.5, seed=seed)
+        e = hg.explore(w, 8, seed=seed)
+        star_leaves = len(hg.build_tree(e).leaves)
+        basic = hg.build_basic_tree(e)
+        assert star_leaves <= len(basic.leaves)
+        more += star_leaves < len(basic.leaves)
+        assert basic.n_leaves.shape[0] > e.turns.shape[0] + 1  # turns are actions too
+    assert more >= 5

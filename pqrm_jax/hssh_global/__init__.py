@@ -32,6 +32,7 @@ from .tree import (
     MapHypothesis,
     TreeLog,
     TreeTooLarge,
+    build_basic_tree,
     build_tree,
     canonical_places,
     extend,
@@ -39,6 +40,7 @@ from .tree import (
     minimal_models,
     preference_order,
     root,
+    view_symbol,
 )
 from .world import (
     CorridorWorld,
@@ -53,8 +55,8 @@ from .world import (
 __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "CorridorWorld", "Experience", "explore", "grid_world", "office_world",
            "world_from_lattice", "global_paths",
-           "MapHypothesis", "TreeLog", "TreeTooLarge", "build_tree", "canonical_places", "extend",
-           "is_true_map", "minimal_models", "preference_order", "root",
+           "MapHypothesis", "TreeLog", "TreeTooLarge", "build_basic_tree", "build_tree", "canonical_places", "extend",
+           "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
            "LayoutProblem", "compose", "inverse", "pack", "relax", "relax_loop",
            "score_hypotheses", "true_layout",
            "NavigationError", "apply_command", "command", "evaluate_navigation", "execute",

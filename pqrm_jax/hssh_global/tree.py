@@ -268,3 +268,80 @@ def minimal_models(leaves: list) -> list[int]:
         return []
     m = min(h.n_places for h in leaves)
     return [i for i, h in enumerate(leaves) if h.n_places == m]
+
+
+def view_symbol(view) -> tuple:
+    """A view as a symbol: the star read clockwise from the arrival entry (``match`` ⇔ equal)."""
+    star, a = view
+    n, opp = len(star), star.opp
+    return (tuple(star.alpha[(a + i) % n] for i in range(n)),
+            tuple((opp[(a + i) % n] - a) % n for i in range(n)))
+
+
+def build_basic_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
+    """The basic-SSH tree of maps (B Alg. 3.1): symbol views, branching on turns and travels.
+
+    The experience is replayed as ``v0 Turn_k v0' Travel v1 Turn_k v1' …``: each turn is its own
+    action ``Turn_k`` (``k`` clockwise steps) and reaches a dstate whose view symbol is the star
+    read from the exit entry (:func:`view_symbol`, the same information as the HSSH view, so
+    only the branching differs). A leaf is the schema set ``R`` over dstates, their views and the
+    current dstate; new territory branches over every known dstate with an equal symbol plus a
+    new dstate; a turn closure merges the two dstates' places (axiom 3.2), and a dstate keeps one
+    place. Unlike the HSSH, nothing tells the basic SSH that ``Turn_j ∘ Turn_k = Turn_{j+k}``.
+
+    Returns:
+        A :class:`TreeLog` whose ``leaves`` are ``(R, views, places, q)`` tuples and whose
+        ``n_leaves`` has one entry per view *and* per turn.
+    """
+    if len(experience.views) == 0:
+        raise ValueError("an empty exploration has no view: the tree of maps has no root")
+    v0 = view_symbol(experience.views[0])
+    leaves = [({}, (v0,), (0,), 0)]
+    n_leaves, n_bad, branching = [1], [], []
+    events, k_max = 0, 0
+    for i, turn in enumerate(np.asarray(experience.turns)):
+        star, a = experience.views[i]
+        steps = []
+        if int(turn) % len(star):
+            steps.append((("turn", int(turn)), view_symbol((star, (a + int(turn)) % len(star)))))
+        steps.append((("travel", 0), view_symbol(experience.views[i + 1])))
+        for act, v in steps:
+            nxt, bad_i, br, branched = [], 0, 0, False
+            for r, views, places, q in leaves:
+                if (q, act) in r:
+                    q2 = r[(q, act)]
+                    if views[q2] == v:
+                        nxt.append((r, views, places, q2))
+                    else:
+                        bad_i += 1
+                    continue
+                succ, k = [], 0
+                for qj, vj in enumerate(views):
+                    if vj != v:
+                        continue
+                    k += 1
+                    r2 = dict(r)
+                    r2[(q, act)] = qj
+                    pl = places
+                    if act[0] == "turn" and places[qj] != places[q]:
+                        old, new = places[qj], places[q]
+                        pl = tuple(new if x == old else x for x in places)
+                    succ.append((r2, views, pl, qj))
+                r2 = dict(r)
+                nq = len(views)
+                r2[(q, act)] = nq
+                place = places[q] if act[0] == "turn" else max(places) + 1
+                succ.append((r2, (*views, v), (*places, place), nq))
+                nxt.extend(succ)
+                k_max = max(k_max, k)
+                br = max(br, len(succ))
+                branched |= len(succ) > 1
+                if len(nxt) > max_leaves:
+                    raise TreeTooLarge(f"more than {max_leaves} basic-SSH leaves")
+            leaves = nxt
+            events += int(branched)
+            n_leaves.append(len(leaves))
+            n_bad.append(bad_i)
+            branching.append(br)
+    return TreeLog(leaves, np.array(n_leaves), np.array(n_bad, int), np.array(branching, int),
+                   events, k_max)
