@@ -177,3 +177,15 @@ def test_star_views_give_no_more_leaves_than_basic_ssh():
         more += star_leaves < len(basic.leaves)
         assert basic.n_leaves.shape[0] > e.turns.shape[0] + 1  # turns are actions too
     assert more >= 5
+
+
+def test_trajectory_scaling_ends_on_the_relaxed_pose():
+    rng = np.random.default_rng(0)
+    mu = rng.normal(size=(7, 3)) * [1.0, 0.2, 0.05]
+    x0, x1 = np.array([1.0, -2.0, 0.3]), np.array([1.0, -2.0, 0.3]) + mu.sum(0) + [0.4, -0.1, 0.02]
+    p = np.asarray(hg.scale_trajectory(x0, x1, mu))
+    np.testing.assert_allclose(p[0], x0, atol=1e-5)
+    np.testing.assert_allclose(p[-1], x1, atol=1e-5)
+    # the larger increments absorb more of the discrepancy (Λ ∝ |μ|)
+    corr = np.abs(np.diff(p, axis=0) - mu)[:, 0]
+    assert np.argmax(corr) == np.argmax(np.abs(mu[:, 0]))

@@ -14,6 +14,7 @@ from .layout import (
     pack,
     relax,
     relax_loop,
+    scale_trajectory,
     score_hypotheses,
     true_layout,
 )
@@ -59,6 +60,7 @@ __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "canonical_places", "extend",
            "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
            "LayoutProblem", "compose", "inverse", "pack", "relax", "relax_loop",
+           "scale_trajectory",
            "score_hypotheses", "true_layout",
            "NavigationError", "apply_command", "command", "evaluate_navigation", "execute",
            "map_graph", "plan_route", "shortest_distance"]

@@ -205,3 +205,36 @@ def true_layout(world, experience) -> np.ndarray:
             first[c] = np.array([*world.positions[int(p)], heading])
     x0 = first[0]
     return np.stack([np.asarray(compose(inverse(x0), first[c])) for c in range(len(first))])
+
+
+@jax.jit
+def scale_trajectory(x_start, x_end, increments) -> jax.Array:
+    """Trajectory fitting between two relaxed place poses (B §9.3.3).
+
+    The recorded increments ``μ_j`` (global-frame pose differences ``[J, 3]``) leave a
+    discrepancy ``δ = x_end − x_start − Σ_j μ_j``; each component ``c`` of each increment absorbs
+    a share proportional to its magnitude (``Λ`` diagonal ∝ ``|μ|``):
+    ``ξ̂^c_j = μ^c_j + |μ^c_j| / Σ_h |μ^c_h| · δ^c`` (an even split when all ``μ^c`` are 0).
+
+    Args:
+        x_start, x_end: ``[3]`` corrected poses at the two places.
+        increments: ``[J, 3]`` recorded increments.
+
+    Returns:
+        ``[J + 1, 3]`` corrected poses from ``x_start`` to ``x_end``.
+
+    >>> import numpy as np
+    >>> p = scale_trajectory(np.zeros(3), np.array([2.2, 0.0, 0.0]), np.array([[1.0, 0, 0]] * 2))
+    >>> [round(float(v), 3) for v in p[:, 0]]
+    [0.0, 1.1, 2.2]
+    """
+    mu = jnp.asarray(increments)
+    x0, x1 = jnp.asarray(x_start), jnp.asarray(x_end)
+    delta = x1 - x0 - mu.sum(0)
+    delta = delta.at[2].set(wrap(delta[2]))
+    a = jnp.abs(mu)
+    tot = a.sum(0)
+    share = jnp.where(tot > 0, a / jnp.where(tot > 0, tot, 1.0), 1.0 / mu.shape[0])
+    xi = mu + share * delta
+    poses = x0 + jnp.concatenate([jnp.zeros((1, 3)), jnp.cumsum(xi, 0)])
+    return poses.at[:, 2].set(wrap(poses[:, 2]))
