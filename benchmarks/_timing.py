@@ -8,8 +8,10 @@ import jax
 
 
 def best_of(f, n: int = 3):
-    """(fastest of ``n`` wall-clock runs of ``f`` in seconds, the last run's output); JAX
-    results are waited for inside the timing."""
+    """(fastest of ``n`` wall-clock runs of ``f`` in seconds, the last run's output).
+
+    JAX results are waited for inside the timing.
+    """
     ts, out = [], None
     for _ in range(n):
         t0 = time.perf_counter()

@@ -6,18 +6,7 @@ Usage::
     .venv/bin/python benchmarks/bench_compositions.py --quick    # smoke run
     .venv/bin/python benchmarks/bench_compositions.py --json out.json
 
-Part 1 (item 5): probabilistic composition over **all** ordered triplets of a 30-landmark EDC
-map (every triplet observed, ``mode="fuse"``: 24 360 targets × 27 paths = 657 720 candidate
-``(τ1, τ2)`` pairs), the batched :func:`propagate` against per-triplet loops in the same run:
-the plain NumPy loop and a loop over one jitted per-target kernel. Then the batched time for
-growing landmark counts (the work grows like ``L⁴·Q²``).
-
-Part 2 (item 4): held-out triplet prediction with vs without propagation at equal
-measurements (:func:`heldout_study`).
-
-The composition tensor is ``calc.tables.prob_compose`` when the calculus core provides it,
-else a Monte Carlo tensor under the simulation's world prior (``sample_compose_tensor``);
-the output says which.
+The two parts and the composition tensor used: docs/benchmarks.md §bench_compositions.
 """
 
 from __future__ import annotations

@@ -2,23 +2,8 @@
 
     .venv/bin/python benchmarks/bench_pqrm.py [--triplets N] [--samples S] [--json PATH]
 
-Same inputs, same process, same estimator: N triplets with means uniform in 100 m × 100 m and
-per-landmark σ uniform in [0, 20] m, S Gaussian samples per triplet from one standard-normal
-bank shared by the rows (common random numbers), EDC states counted per triplet.
-
-* JAX: :func:`pqrm_jax.pqrm.fine_counts` (fused sign kernel + packed-byte variadic reduction),
-  jitted, warmed up, best of 5; and :func:`multi_state_probabilities` (all six Padgett
-  representations from that one pass).
-* NumPy: :func:`pqrm_jax.pqrm.reference.numpy_state_probabilities` (vectorised over (N, S):
-  divide into the AB frame, evaluate the constraint polynomials, sign-table lookup,
-  ``np.bincount``), best of 3; the same with independent draws per row for reference.
-
-Study step (``--study-runs``): per-run time of the padgett-mc runner, dense reference (every
-triplet sampled every step) vs the sparse batched runner (only seen triplets), same process.
-
-Targets (SPEC §10): ≥ 50× NumPy and ≥ 10⁸ triplet-samples/s on a 2-core CPU. The machine may
-be shared; the ratio is measured in one process under the same conditions. Writes
-``benchmarks/results/pqrm.json``.
+Writes ``benchmarks/results/pqrm.json``. Inputs, references and targets
+(docs/decisions.md §10): docs/benchmarks.md §bench_pqrm.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Q-Link batched navigation vs one pair at a time (issue 15, SPEC §10).
+"""Q-Link batched navigation vs one pair at a time (issue 15, docs/decisions.md §10).
 
 The same executive (:func:`pqrm_jax.qlink.navigate_pairs`: localise, plan, drive) on the
 same trials of one world: all B trials as ``vmap``-ped compiled batches of 32 lanes (a

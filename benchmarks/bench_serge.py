@@ -1,37 +1,12 @@
-"""Benchmark: SERGE trials batched in one program vs a plain NumPy reference and vs a
-sequential loop of the same jitted trials.
+"""Benchmark: batched SERGE trials vs a plain NumPy reference and a loop of jitted trials.
+
+The batched program runs all trials in one program; the sequential loop runs the same jitted
+trials one at a time.
 
     .venv/bin/python benchmarks/bench_serge.py [--trials T] [--seq-trials S] [--ref-trials R]
                                                [--json PATH] [--one-core]
 
-Scene: the simulated 55-object lab (P§3.4.1), grid 96², μ = 20, σ = 2. Everything runs the
-same trials (same keys) in the same process.
-
-* ``speedup_vs_numpy`` — the team's usual reference: the batched run
-  (:func:`pqrm_jax.serge.serge`: blocks of trials, each one while loop over a vmapped trial
-  step) against
-  :func:`pqrm_jax.serge.reference.serge_reference`, a plain NumPy/Python loop over the trials
-  implementing the same algorithm (Padgett Alg. 2; direct per-step gains, no pair-gain cache).
-  It is timed (best of 3, after a warm-up) on R = ``--ref-trials`` trials and scaled
-  linearly to T (``numpy_reference_s``; ``numpy_reference_measured_s`` is the measured
-  time); ``numpy_reference_us_per_step`` is its time per merge-search step.
-  ``numpy_reference_equals_batched`` checks that it reproduced a batched run of the same R
-  trials (same step count per trial, same best map, per-trial log ψ within 1e-5).
-* ``speedup`` / ``speedup_vs_cond`` — what batching alone buys on this CPU: the batched run
-  against :func:`pqrm_jax.serge.serge_sequential`, a Python loop over the same jitted single
-  trial, branch-free (the step that is vmapped) or with the merge under ``lax.cond``; the
-  honest batching ratio is the smaller of the two (the faster loop). When ``--seq-trials``
-  < T the sequential time is measured on S trials and scaled linearly. A single trial's state
-  is tiny, so the loop pays a dispatch and small-kernel overhead per step that the batched
-  block amortises (≈ 8–11× on one quiet core; ≈ 1.5 µs per trial-step batched).
-
-Also reports the time per SERGE solve (T = 100·K trials, P§3.3) and of the relaxed optimiser.
-
-``--one-core`` runs the whole process on one core, the resources of the NumPy reference
-(``cores`` in the JSON). On more cores the batched run deals its blocks to one queue per core
-(``queues``), run side by side: one program over both cores' XLA threads is slower than on one
-core (≈ 1.0 s vs ≈ 0.6 s for T = 5501 on 2 cores), as XLA splits its many tiny per-step
-kernels over both threads and the synchronisation costs more than it gains.
+What each reported ratio compares and how the reference is timed: docs/benchmarks.md §bench_serge.
 """
 
 from __future__ import annotations

@@ -1,34 +1,9 @@
 """Batched branch-and-bound vs per-problem references on the table builds (issue #2, item 7).
 
-Workload (the issue's "build all tables"): every batch the exact table builds of the two
-constraint-defined calculi, ``edc`` and ``dcc``, send to the branch-and-bound (the other
-shipped calculi are merges of these). The builds run first with a recording solver, which
-also gives the build times; then, in the same process, on exactly the recorded batches:
-
-* **batched JAX** (``feasibility.solve``): all problems of a batch in jit-compiled
-  work-queue programs whose frontier of box rows holds the boxes of every problem in flight;
-  on CPU the problems are dealt to one queue per usable core (``queues``), run side by side.
-  Best of ``--repeat`` warm runs (``batched_first_call_s``: the build's own calls, compilation
-  included). ``batched_one_queue_s`` / ``ratio_vs_numpy_one_queue``: the same on one queue;
-* **NumPy reference** (the team's usual reference, ``ratio_vs_numpy``):
-  ``tables.reference.solve_reference``, the same algorithm in plain NumPy, one problem at a
-  time, each round vectorised over that problem's boxes (best of ``--repeat`` runs too);
-* **one problem per call** (``ratio_vs_one_per_call``): the same compiled JAX program on a
-  batch of one problem (constraints ordered for the whole batch, so one compiled program
-  serves every problem), one call per problem — what batching alone buys on this CPU (same
-  kernels), not a speed-up over a plain implementation. Timed once on the first
-  ``--single-problems`` problems of each batch and scaled linearly (marked in the JSON).
-
-Every solver draws the same probe points (at problem, round, box and coordinate), so the
-statuses must agree exactly (``status_agreement*``: 1.0). ``--random N`` also times N random
-EDC compose problems (the earlier, smaller workload); ``--certify`` also times an EDC build
-with z3 confirmation of every refutation.
-
-``--one-core`` runs the whole process on one core (the NumPy reference's resources; ``cores``
-in the JSON).
-
     .venv/bin/python benchmarks/bench_tables.py [--repeat 3] [--random 384] [--certify]
                                                 [--one-core] [--out PATH]
+
+The workload, the three references and the JSON fields: docs/benchmarks.md §bench_tables.
 """
 
 from __future__ import annotations

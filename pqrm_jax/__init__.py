@@ -1,6 +1,6 @@
 """pqrm-jax: qualitative relational mapping and navigation as vectorised JAX programs.
 
-Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.):
+Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.; design notes in docs/):
 
 * :mod:`~pqrm_jax.calculi` — ternary qualitative calculi, the registry and their protocol.
 * :mod:`~pqrm_jax.tables` — exact operator tables (unary, compose, adjacency).
@@ -30,7 +30,7 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp", "hssh_global"]
+           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global"]
 SUBPACKAGES = tuple(__all__)
 
 

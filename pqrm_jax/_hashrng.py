@@ -1,5 +1,8 @@
-"""A cheap counter-based uniform stream for hot loops (an integer hash; far faster to compile
-and run on CPU than threefry when a loop draws a few thousand numbers per step)."""
+"""A cheap counter-based uniform stream for hot loops (an integer hash).
+
+It is far faster to compile and run on CPU than threefry when a loop draws a few thousand
+numbers per step.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +12,10 @@ import numpy as np
 
 
 def mix32(x):
-    """The hash's finaliser (an avalanche of xor-shifts and odd multiplies) on uint32 arrays,
-    NumPy or JAX (uint32 arithmetic wraps)."""
+    """The hash's finaliser on uint32 arrays, NumPy or JAX (uint32 arithmetic wraps).
+
+    An avalanche of xor-shifts and odd multiplies.
+    """
     with np.errstate(over="ignore"):  # NumPy scalars warn on the wrap
         x = x ^ (x >> 16)
         x = x * np.uint32(0x7FEB352D)
@@ -32,9 +37,11 @@ def hash_uniform(seed: jax.Array, counter: jax.Array, n: int) -> jax.Array:
 
 
 def hash_uniform_at(seed, *keys):
-    """Uniforms in [0, 1) (float32, 24-bit) at integer coordinates ``keys`` (broadcast
-    together): the value at a coordinate does not depend on what else is drawn, so a batched
-    program and a one-at-a-time loop draw the same numbers. Works on NumPy and JAX arrays."""
+    """Uniforms in [0, 1) (float32, 24-bit) at integer coordinates ``keys`` (broadcast together).
+
+    The value at a coordinate does not depend on what else is drawn, so a batched program and a
+    one-at-a-time loop draw the same numbers. Works on NumPy and JAX arrays.
+    """
     x = seed
     with np.errstate(over="ignore"):  # uint32 arithmetic wraps (NumPy scalars warn)
         for key, mult in zip(keys, _MULTS, strict=False):

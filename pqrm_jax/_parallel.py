@@ -25,14 +25,18 @@ def usable_cpus() -> int:
 
 
 def default_queues() -> int:
-    """One queue per usable core on CPU (the affinity mask, e.g. under ``taskset``), one on an
-    accelerator."""
+    """One queue per usable core on CPU, one on an accelerator.
+
+    Usable cores are those of the affinity mask (e.g. under ``taskset``).
+    """
     return usable_cpus() if jax.default_backend() == "cpu" else 1
 
 
 def side_by_side(fn: Callable, items: Sequence) -> list:
-    """``[fn(x) for x in items]``, the calls in threads side by side (each thread keeps the
-    caller's float64 setting, which JAX holds per thread)."""
+    """``[fn(x) for x in items]``, with the calls run side by side in threads.
+
+    Each thread keeps the caller's float64 setting, which JAX holds per thread.
+    """
     if len(items) <= 1:
         return [fn(x) for x in items]
     x64 = bool(jax.config.jax_enable_x64)

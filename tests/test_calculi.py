@@ -1,4 +1,7 @@
-"""Calculus core: registry, classification, invariances, merges, bad input (SPEC §2)."""
+"""Calculus core: registry, classification, invariances, merges, bad input.
+
+Decisions tested: docs/decisions.md §2.
+"""
 
 import jax
 import numpy as np

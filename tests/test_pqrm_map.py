@@ -13,7 +13,7 @@ from pqrm_jax.pqrm import metrics
 POS = jnp.array([[0.0, 0.0], [0.0, 10.0], [4.0, 4.0], [-6.0, 2.0]])
 ALL = jnp.ones(4, bool)
 
-# SPEC §2.1 EDC conceptual neighbourhood (test fixture only)
+# docs/decisions.md §2.1 EDC conceptual neighbourhood (test fixture only)
 EDC_NEIGHBOURS = {
     1: (2, 3, 4, 5, 6), 2: (1, 3, 4, 9, 10), 3: (1, 2, 4, 5, 6, 7, 8),
     4: (1, 2, 3, 7, 8, 9, 10), 5: (1, 3, 6, 7, 11, 12, 13), 6: (1, 3, 5, 7, 11, 12, 13),
@@ -169,7 +169,7 @@ def test_metrics_on_known_maps():
     nd = float(metrics.neighbor_distance(onehot, truth, mask, jnp.asarray(d)))
     assert nd == (0 + d[5, 6]) / 2 == 0.5
     assert float(metrics.mean_map_entropy(onehot, jnp.zeros(3, bool))) == 0.0  # empty: 0
-    try:  # the lead's tables, when present, must agree with the SPEC fixture
+    try:  # the lead's tables, when present, must agree with the fixture (docs/decisions.md §2.1)
         np.testing.assert_array_equal(np.asarray(calculi.get("edc").neighbor_distance), d)
     except (ImportError, AttributeError, FileNotFoundError):
         pass

@@ -134,3 +134,32 @@ def test_bad_ids():
         H.apply_relations(H.empty_map(4), [[0, 1, 1]], [[full, full, full]])
     with pytest.raises(ValueError, match="capacity"):
         H.empty_map(2)
+
+
+def test_repeated_rows_are_intersected():
+    """Issue #14 item 3: rows for the same relation in one call intersect (not last-wins)."""
+    full = (1 << 20) - 1
+    a, b, c = (mask_of("edc", s) for s in ([1, 5, 11, 12], [1, 2, 3, 5], [2, 4]))
+    m, rep = H.apply_relations(H.empty_map(3), [[0, 1, 2], [0, 1, 2]], [[a, full, full],
+                                                                      [b, full, full]])
+    assert not bool(rep.inconsistent)
+    assert states_of("edc", int(m.rel[0, 1, 2])) == ["1", "5"]
+    # the same relation reached through a rotation of the triple is intersected too
+    m, rep = H.apply_relations(H.empty_map(3), [[0, 1, 2], [1, 2, 0]], [[a, full, full],
+                                                                      [full, full, b]])
+    assert states_of("edc", int(m.rel[0, 1, 2])) == ["1", "5"]
+    m0 = H.empty_map(3)
+    m, rep = H.apply_relations(m0, [[0, 1, 2], [0, 1, 2]], [[a, full, full], [c, full, full]])
+    assert bool(rep.inconsistent)
+    np.testing.assert_array_equal(np.asarray(m.rel), np.asarray(m0.rel))
+
+
+def test_all_images_in_one_call_reach_the_image_by_image_fixed_point(world):
+    _, _, meas = world
+    one_by_one = _apply_all(meas, range(len(meas)))
+    tri = np.concatenate([np.asarray(mz.triples) for mz in meas])
+    sets = np.concatenate([np.asarray(mz.sets) for mz in meas])
+    valid = np.concatenate([np.asarray(mz.valid) for mz in meas])
+    at_once, rep = H.apply_relations(H.empty_map(N), tri, sets, valid=valid)
+    assert not bool(rep.inconsistent)
+    np.testing.assert_array_equal(np.asarray(at_once.rel), np.asarray(one_by_one.rel))

@@ -11,7 +11,8 @@ import pytest
 from pqrm_jax.studies import fdc_design, mars_yard, mcclelland_mc
 from pqrm_jax.studies.store import StoreError
 
-MCC = ["--reduced", "--runs", "2", "--images", "6", "--ns", "6", "8", "--no-progress"]
+MCC = ["--reduced", "--runs", "2", "--images", "6", "--ns", "6", "8", "--no-progress",
+       "--exact-sample", "2"]
 
 
 def _runs(out):
@@ -25,6 +26,10 @@ def test_mcclelland_mc_report_resume_and_shards(tmp_path):
     summary = json.loads((a / "summary.json").read_text())["per_n"]
     assert set(summary) == {"6", "8"}
     assert all(s["truth_kept"] and s["runs"] == 2 for s in summary.values())
+    # kernel vs exact (z3) sets on first-image triples: sound, and the report shows both
+    assert all(s["exact_first_image"]["sound"] and s["exact_first_image"]["triples"] == 2
+               for s in summary.values())
+    assert "Exact sets (z3 oracle" in (a / "report.md").read_text()
     assert summary["8"]["removed_pct_final"] > summary["6"]["removed_pct_final"]
     full = _runs(a)
     assert set(full) == {f"n{n}_r{r}.npz" for n in (6, 8) for r in (0, 1)}

@@ -289,7 +289,7 @@ def test_problem_from_partition_roundtrip(separated):
 @pytest.mark.parametrize("steps", [6, 30])
 def test_incremental_pair_gains_equal_direct_evaluation(overlapping, steps):
     """The merge search's cached pair gains (updated only for the merged region) equal the
-    direct (R0, R0) evaluation on the partial map, and log ψ3 equals the direct sum."""
+    direct [R0, R0] evaluation on the partial map, and log ψ3 equals the direct sum."""
     import jax.numpy as jnp
 
     from pqrm_jax.serge import search as S

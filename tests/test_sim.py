@@ -1,4 +1,7 @@
-"""Tests for the ``sim`` rover simulator (SPEC §9): kinematics, worlds, sensors, trajectories."""
+"""Tests for the ``sim`` rover simulator: kinematics, worlds, sensors, trajectories.
+
+Decisions tested: docs/decisions.md §9.
+"""
 
 import doctest
 import math

@@ -1,4 +1,7 @@
-"""The build pipeline's fast paths give exactly what their plain versions give (SPEC §2.3)."""
+"""The build pipeline's fast paths give exactly what their plain versions give.
+
+Decisions tested: docs/decisions.md §2.3.
+"""
 
 from fractions import Fraction
 

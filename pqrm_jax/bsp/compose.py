@@ -1,13 +1,13 @@
 """Compositions in planning: the augmented belief ``b^M`` (Z §4.2.6, eqs. 4.26–4.28).
 
-Once per planning session the measured triplets ``M`` are the sources of the minimal
-composition trees of Z Alg. 1 (``pqrm_jax.compositions.optimal_composition_graph`` with unit
-composition cost, so the tree has the minimal number of leaves, eq. 4.27). Every triplet that
-is not measured but composable is composed bottom-up along its tree; one step of eq. 4.28 is
-``prob_compose`` applied to the pattern ``(ij:k, jk:d) → ij:d`` (SPEC §2.3), and the other five
-orderings of the result are filled with the sampled unary operators ``U`` (LEFT, RIGHT,
-INVERSE). Composed triplets from shared sources are treated as independent (the thesis's
-product of marginals, eq. 4.27; decision Z-25).
+Once per planning session the measured triplets ``M`` are the sources of the minimal composition
+trees of Z Alg. 1 (``pqrm_jax.compositions.optimal_composition_graph`` with unit composition cost,
+so the tree has the minimal number of leaves, eq. 4.27). Every triplet that is not measured but
+composable is composed bottom-up along its tree; one step of eq. 4.28 is ``prob_compose`` applied to
+the pattern ``(ij:k, jk:d) → ij:d`` (docs/decisions.md §2.3), and the other five orderings of the
+result are filled with the sampled unary operators ``U`` (LEFT, RIGHT, INVERSE). Composed triplets
+from shared sources are treated as independent (the thesis's product of marginals, eq. 4.27;
+decision Z-25).
 
 The Link-Graph (Z Def. 2.3.1) — triplets as nodes, an edge when two share exactly two
 landmarks — is :func:`link_graph`; Thm 4.1 says a connected Link-Graph is composable, but not

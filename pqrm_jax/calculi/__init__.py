@@ -1,4 +1,4 @@
-"""Qualitative calculi: definitions, registry and classification (SPEC §2).
+"""Qualitative calculi: definitions, registry and classification (docs/decisions.md §2).
 
 >>> from pqrm_jax import calculi
 >>> calculi.get("edc").num_states

@@ -1,23 +1,12 @@
-"""Ternary point calculi as polynomial sign constraints (SPEC §2, P2.2.1, MT App. C).
+"""Ternary point calculi as polynomial sign constraints (docs/decisions.md §2, P2.2.1, MT App. C).
 
-A relation ``AB:C`` places C in the frame of the ordered pair (A, B). In the canonical frame
-A=(0,0), B=(0,1), C=(α, β) (right of AB is α > 0), a calculus is k polynomial constraints
-``f_a(α, β, ρ)`` (ρ = α² + β²) and a map from their sign patterns in {−,0,+}^k to states.
+Offers :class:`Calculus`: a calculus defined by k polynomial constraints in the canonical
+frame and a map from sign patterns to states, or by merging the states of another calculus;
+a division-free, jit-able ``classify`` with documented sentinels; and the definition hash
+that keys its tables.
 
-``classify`` never divides: with d = B − A, e = C − A, u = e×d, v = e·d, m = |e|², n = |d|²
-we have α = u/n, β = v/n, ρ = m/n, and every constraint is multiplied by n^D (D its weighted
-degree), which keeps its sign. Integer coordinates are therefore classified exactly (in float64
-up to |x| ≲ 2^12 for degree-one constraints), so collinear, perpendicular and coincident
-configurations get their boundary relations.
-
-Sentinel results (documented, never a silent wrong state):
-
-* ``BOUNDARY`` (−1): C lies on a boundary of an *open* calculus (measure zero).
-* ``DEGENERATE`` (−2): A = B in an open calculus (the frame does not exist).
-* ``INVALID`` (−3): a NaN or infinite coordinate.
-
-Boundary-inclusive calculi (``dcc``, ``lr_full``) give a state for every configuration,
-including A = B ≠ C (``dou``) and A = B = C (``tri``).
+The canonical frame, division-free classification and the sentinels:
+docs/calculi.md §calculus and docs/decisions.md §2.
 """
 
 from __future__ import annotations
@@ -25,7 +14,9 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
+from fractions import Fraction
 from functools import cached_property
 
 import jax
@@ -35,6 +26,8 @@ import numpy as np
 from .poly import Poly, as_constraint
 from .protocol import BOUNDARY, DEGENERATE, INVALID
 
+SENTINEL_NAMES = {BOUNDARY: "BOUNDARY", DEGENERATE: "DEGENERATE", INVALID: "INVALID"}
+
 SignRule = Callable[[tuple[int, ...]], "str | None"]
 
 
@@ -43,8 +36,11 @@ def pattern_index(signs: Sequence[int]) -> int:
 
 
 def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarray:
-    """Sign table for an open calculus: full patterns from ``full``; a pattern with zeros gets
-    a state only when every realisable completion of its zeros is that same state."""
+    """Sign table for an open calculus: full patterns from ``full``.
+
+    A pattern with zeros gets a state only when every realisable completion of its zeros is that
+    same state.
+    """
     table = np.full(3**k, BOUNDARY, dtype=np.int32)
     for signs in itertools.product((-1, 0, 1), repeat=k):
         zeros = [a for a, s in enumerate(signs) if s == 0]
@@ -65,7 +61,7 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
 
 
 class Calculus:
-    """A ternary qualitative calculus; see the module docstring.
+    """A ternary qualitative calculus; see docs/calculi.md §calculus.
 
     >>> from pqrm_jax import calculi
     >>> edc = calculi.get("edc")
@@ -90,6 +86,8 @@ class Calculus:
     ):
         self.name = name
         self.states = tuple(states)
+        if not self.states:
+            raise ValueError(f"calculus {name!r} has no states")
         if len(set(self.states)) != len(self.states):
             raise ValueError(f"calculus {name!r}: duplicate state labels")
         self.constraints = tuple(as_constraint(c) for c in constraints)
@@ -109,11 +107,22 @@ class Calculus:
         self.description = description
         # homogenised monomials: coefficient, exponents of (u, v, m) and the power of n
         self._homog = []
+        # the same with integer coefficients (times L > 0, the lcm of the denominators)
+        self._int_homog = []
         for c in self.constraints:
             top = c.weighted_degree()
             self._homog.append(
                 [(float(coef), e[0], e[1], e[2], top - sum(e)) for e, coef in c.terms.items()]
             )
+            scale = math.lcm(*(q.denominator for q in c.terms.values())) if c.terms else 1
+            self._int_homog.append(
+                [(int(coef * scale), e[0], e[1], e[2], top - sum(e))
+                 for e, coef in c.terms.items()])
+        # exact constraint signs at the coincidences C = B (α, β, ρ = 0, 1, 1) and C = A (0)
+        self._signs_c_eq_b = np.array([_sign(c.evaluate([0, 1, 1])) for c in self.constraints],
+                                      np.int32)
+        self._signs_c_eq_a = np.array([_sign(c.evaluate([0, 0, 0])) for c in self.constraints],
+                                      np.int32)
         self._jit_classify = jax.jit(self._classify)
 
     # construction -------------------------------------------------------------------------
@@ -155,6 +164,9 @@ class Calculus:
             elif lab not in labels:
                 raise ValueError(f"calculus {name!r}: rule returned unknown state {lab!r}")
             assign[signs] = lab
+        if not assign:
+            raise ValueError(f"calculus {name!r}: the rule returned no state for any sign "
+                             "pattern (every pattern was None)")
         if degenerate is not None:
             for lab in degenerate:
                 if lab not in labels:
@@ -245,7 +257,29 @@ class Calculus:
         return [self.index(x) for x in labels]
 
     def labels(self, indices) -> list[str]:
-        return [self.states[int(i)] for i in indices]
+        """State labels of state indices; a sentinel gets its name.
+
+        ``BOUNDARY``, ``DEGENERATE`` and ``INVALID`` (−1, −2, −3) give ``"BOUNDARY"``,
+        ``"DEGENERATE"`` and ``"INVALID"``, so ``labels(classify(...))`` never turns a
+        sentinel into a state; any other index outside ``[0, num_states)`` raises
+        ``ValueError``.
+
+        >>> from pqrm_jax import calculi
+        >>> edc = calculi.get("edc")
+        >>> edc.labels([6, edc.classify([0., 0.], [0., 1.], [0., 0.5])])
+        ['7', 'BOUNDARY']
+        """
+        out = []
+        for i in np.asarray(indices).reshape(-1).tolist():
+            i = int(i)
+            if 0 <= i < len(self.states):
+                out.append(self.states[i])
+            elif i in SENTINEL_NAMES:
+                out.append(SENTINEL_NAMES[i])
+            else:
+                raise ValueError(f"{i} is not a state index of {self.name!r} "
+                                 f"(0..{len(self.states) - 1}) nor a sentinel (-1, -2, -3)")
+        return out
 
     def __repr__(self) -> str:
         kind = "boundary-inclusive" if self.boundary_inclusive else "open"
@@ -273,36 +307,213 @@ class Calculus:
             vals.append(acc)
         return jnp.stack(vals, axis=-1)
 
-    def _classify(self, a, b, c):
-        vals = self.constraint_values(a, b, c)
-        signs = jnp.sign(vals).astype(jnp.int32)
-        weights = jnp.asarray(3 ** np.arange(self.k), dtype=jnp.int32)
-        idx = jnp.sum((signs + 1) * weights, axis=-1)
-        state = jnp.asarray(self.sign_table)[idx]
+    def exact_integer_bound(self, dtype=jnp.float32) -> int:
+        """Largest B such that integer-valued ``dtype`` coordinates with every coordinate
+        difference |Δ| ≤ B are classified exactly by the float path.
+
+        Every monomial of u, v, m, n (each ≤ 2B²) and every partial sum of a constraint's
+        positive or negative part then stays below 2^p (p the mantissa bits), so no product
+        or sum is rounded. Integer dtypes given eagerly are always exact (integer arithmetic).
+
+        >>> from pqrm_jax import calculi
+        >>> calculi.get("edc").exact_integer_bound("float32")
+        2048
+        """
+        p = jnp.finfo(dtype).nmant + 1
+        best = 1 << p
+        for terms in self._int_homog:
+            deg = max((iu + iv + im + pn for _, iu, iv, im, pn in terms), default=1) or 1
+            coef = max(sum(c for c, *_ in terms if c > 0), -sum(c for c, *_ in terms if c < 0),
+                       1)
+            lo, hi = 0, best
+            while lo < hi:  # largest b with coef · (2 b²)^deg ≤ 2^p
+                mid = (lo + hi + 1) // 2
+                if coef * (2 * mid * mid) ** deg <= 1 << p:
+                    lo = mid
+                else:
+                    hi = mid - 1
+            best = min(best, lo)
+        return best
+
+    def _signs_and_flags(self, a, b, c):
+        """Sign-pattern index (...,) and an ``invalid`` mask by the scale-free float path."""
+        dtype = a.dtype
+        finfo = jnp.finfo(dtype)
         d = b - a
         e = c - a
-        n = d[..., 0] ** 2 + d[..., 1] ** 2
-        m = e[..., 0] ** 2 + e[..., 1] ** 2
+        c_eq_b = jnp.all(c == b, axis=-1)
+        c_eq_a = jnp.all(c == a, axis=-1)
+        finite = jnp.all(jnp.isfinite(d) & jnp.isfinite(e), axis=-1)
+        d = jnp.where(finite[..., None], d, 0)
+        e = jnp.where(finite[..., None], e, 0)
+        # rescale d and e by the power of two nearest max |component| (exact, keeps signs)
+        big = jnp.maximum(jnp.max(jnp.abs(d), axis=-1), jnp.max(jnp.abs(e), axis=-1))
+        d, e = rescale_pow2(big[..., None], d, e)
+        dx, dy, ex_, ey = d[..., 0], d[..., 1], e[..., 0], e[..., 1]
+        prods = (ex_ * dy, ey * dx, ex_ * dx, ey * dy, ex_ * ex_, ey * ey, dx * dx, dy * dy)
+        # after rescaling every component is ≤ 1, so a product can only underflow when one of
+        # its factors is a non-zero component below 2^(emin/2)
+        small = float(2.0 ** (finfo.minexp // 2))
+        underflow = jnp.zeros(big.shape, bool)
+        for x in (dx, dy, ex_, ey):
+            underflow = underflow | ((x != 0) & (jnp.abs(x) < small))
+        u_pos, u_neg, v_a, v_b, m_a, m_b, n_a, n_b = prods
+        u = u_pos - u_neg
+        v = v_a + v_b
+        m = m_a + m_b
+        n = n_a + n_b
+        base = (u, v, m, n)
+        idx = jnp.zeros(big.shape, jnp.int32)
+        ambiguous = jnp.zeros(big.shape, bool)
+        nonfinite = jnp.zeros(big.shape, bool)
+        for a_i, terms in enumerate(self._int_homog):
+            pos = jnp.zeros_like(n)
+            neg = jnp.zeros_like(n)
+            for coef, iu, iv, im, pn in terms:
+                deg = iu + iv + im + pn
+                mag = abs(coef)
+                if deg == 1 and iu == 1:
+                    # a linear u term: its two products go to opposite sides (no subtraction)
+                    hi_side, lo_side = (u_pos, u_neg) if coef > 0 else (u_neg, u_pos)
+                    pos = pos + mag * hi_side
+                    neg = neg + mag * lo_side
+                    continue
+                t = jnp.full_like(n, float(mag))
+                for bv, pw in zip(base, (iu, iv, im, pn), strict=True):
+                    if pw:
+                        t = t * bv**pw
+                if coef > 0:
+                    pos = pos + t
+                else:
+                    neg = neg + t
+            # (sign + 1) · 3^a: 0 below, 3^a equal, 2·3^a above
+            idx = idx + jnp.where(pos > neg, 2 * 3**a_i, jnp.where(pos < neg, 0, 3**a_i))
+            nonfinite = nonfinite | ~jnp.isfinite(pos) | ~jnp.isfinite(neg)
+            ambiguous = ambiguous | (jnp.abs(pos - neg) < jnp.sqrt(finfo.tiny))
+        idx = jnp.where(c_eq_b, pattern_index(self._signs_c_eq_b.tolist()), idx)
+        idx = jnp.where(c_eq_a, pattern_index(self._signs_c_eq_a.tolist()), idx)
+        coincident = c_eq_a | c_eq_b
+        invalid = ~finite | (~coincident & (nonfinite | (underflow & ambiguous)))
+        return idx, invalid
+
+    @cached_property
+    def _extended_table(self) -> np.ndarray:
+        """``sign_table`` + [INVALID, A=B≠C, A=B=C]: one gather gives every result."""
         if self.boundary_inclusive:
-            degen = jnp.where(m == 0, self.tri, self.dou)
+            degen = [self.dou, self.tri]
         else:
-            degen = jnp.full_like(state, DEGENERATE)
-        state = jnp.where(n == 0, degen, state)
-        finite = jnp.all(jnp.isfinite(a) & jnp.isfinite(b) & jnp.isfinite(c), axis=-1)
-        return jnp.where(finite, state, INVALID)
+            degen = [DEGENERATE, DEGENERATE]
+        return np.concatenate([self.sign_table, [INVALID, *degen]]).astype(np.int32)
+
+    def _classify(self, a, b, c):
+        """Traced classification (see :meth:`classify`); floats or integers of one shape."""
+        a, b, c = (jnp.asarray(x) for x in (a, b, c))
+        int_input = all(jnp.issubdtype(x.dtype, jnp.integer) or jnp.issubdtype(x.dtype, jnp.bool_)
+                        for x in (a, b, c))
+        if int_input:
+            dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+        else:
+            dtype = jnp.result_type(a, b, c, jnp.float32)
+        af, bf, cf = (x.astype(dtype) for x in (a, b, c))
+        idx, invalid = self._signs_and_flags(af, bf, cf)
+        a_eq_b = jnp.all(af == bf, axis=-1)
+        c_eq_a = jnp.all(cf == af, axis=-1)
+        full = 3**self.k
+        idx = jnp.where(a_eq_b, jnp.where(c_eq_a, full + 2, full + 1), idx)
+        finite = jnp.all(jnp.isfinite(af) & jnp.isfinite(bf) & jnp.isfinite(cf), axis=-1)
+        invalid = invalid | ~finite
+        if int_input:
+            bound = self.exact_integer_bound(dtype)
+            lim = float(2 ** (jnp.finfo(dtype).nmant + 1))
+            big = jnp.maximum(jnp.max(jnp.abs(bf - af), -1), jnp.max(jnp.abs(cf - af), -1))
+            huge = jnp.max(jnp.abs(jnp.stack([af, bf, cf])), axis=(0, -1))
+            invalid = invalid | (big > bound) | (huge > lim)
+        idx = jnp.where(invalid, full, idx)
+        return jnp.asarray(self._extended_table)[idx]
+
+    def _classify_integers(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Exact classification of integer coordinates (NumPy int64, or Python ints)."""
+        a, b, c = np.broadcast_arrays(a, b, c)
+        batch = a.shape[:-1]
+        a, b, c = (x.reshape(-1, 2) for x in (a, b, c))
+        top = max((abs(int(x.max(initial=0))) for x in (a, b, c)), default=0)
+        bot = max((abs(int(x.min(initial=0))) for x in (a, b, c)), default=0)
+        big = max(top, bot)
+        worst = max((sum(abs(t[0]) for t in terms) * (8 * big * big + 1)
+                     ** max((sum(t[1:]) for t in terms), default=1)
+                     for terms in self._int_homog), default=1)
+        kind = np.int64 if worst < 2**62 and big < 2**30 else object
+        a, b, c = (x.astype(kind) for x in (a, b, c))
+        d = b - a
+        e = c - a
+        dx, dy, ex, ey = d[..., 0], d[..., 1], e[..., 0], e[..., 1]
+        u = ex * dy - ey * dx
+        v = ex * dx + ey * dy
+        m = ex * ex + ey * ey
+        n = dx * dx + dy * dy
+        signs = []
+        for terms in self._int_homog:
+            acc = np.zeros(n.shape, kind)
+            for coef, iu, iv, im, pn in terms:
+                t = np.full(n.shape, coef, kind)
+                for bv, pw in zip((u, v, m, n), (iu, iv, im, pn), strict=True):
+                    if pw:
+                        t = t * bv**pw
+                acc = acc + t
+            signs.append(np.sign(acc).astype(np.int32))
+        signs = np.stack(signs, axis=-1) if signs else np.zeros((*n.shape, 0), np.int32)
+        idx = np.sum((signs + 1) * (3 ** np.arange(self.k)), axis=-1)
+        state = self.sign_table[idx]
+        a_eq_b = np.all(d == 0, axis=-1)
+        c_eq_a = np.all(e == 0, axis=-1)
+        if self.boundary_inclusive:
+            degen = np.where(c_eq_a, self.tri, self.dou)
+        else:
+            degen = np.full(state.shape, DEGENERATE)
+        return np.where(a_eq_b, degen, state).astype(np.int32).reshape(batch)
 
     def classify(self, a, b, c) -> jax.Array:
-        """State index of ``AB:C`` for points of shape (..., 2) (broadcast); jit-able.
+        """State index of ``AB:C`` for points of shape [..., 2] (broadcast); jit-able.
 
-        Returns an int32 array of the broadcast batch shape; sentinels as in the module doc.
+        Returns an int32 array of the broadcast batch shape; sentinels as in docs/decisions.md §2.
+        Integer dtypes are classified exactly (eagerly); complex input raises ``TypeError``.
+
+        >>> from pqrm_jax import calculi
+        >>> lr = calculi.get("lr_full")
+        >>> b = [0.1, 0.7]
+        >>> lr.states[int(lr.classify([0.3, -0.2], b, b))]      # C = B: the relation 'e'
+        'e'
+        >>> int(lr.classify([0, 0], [0, 3_000_000_000], [-3, 1_000_000_000]))  # exact int64
+        0
         """
-        a, b, c = (jnp.asarray(x) for x in (a, b, c))
+        raw = []
         for nm, x in (("a", a), ("b", b), ("c", c)):
+            if not isinstance(x, jax.Array | np.ndarray):
+                try:
+                    x = np.asarray(x)
+                except (TypeError, ValueError) as err:
+                    raise TypeError(f"classify: {nm} is not an array of coordinates") from err
+            dt = x.dtype
+            if jnp.issubdtype(dt, jnp.complexfloating):
+                raise TypeError(f"classify: {nm} is complex ({dt}); coordinates must be real")
+            if jnp.issubdtype(dt, jnp.bool_) or not (jnp.issubdtype(dt, jnp.integer)
+                                  or jnp.issubdtype(dt, jnp.floating)):
+                raise TypeError(f"classify: {nm} has dtype {dt}; coordinates must be real "
+                                "numbers (integer or float)")
             if x.ndim < 1 or x.shape[-1] != 2:
                 raise ValueError(f"classify: {nm} must have shape (..., 2), got {x.shape}")
-        dtype = jnp.result_type(a, b, c, jnp.float32)
-        a, b, c = (jnp.broadcast_arrays(a, b, c))
-        return self._jit_classify(a.astype(dtype), b.astype(dtype), c.astype(dtype))
+            raw.append(x)
+        try:
+            shape = np.broadcast_shapes(*(x.shape for x in raw))
+        except ValueError as err:
+            raise ValueError(f"classify: shapes {[x.shape for x in raw]} do not "
+                             "broadcast") from err
+        concrete = not any(isinstance(x, jax.core.Tracer) for x in raw)
+        if concrete and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw):
+            out = self._classify_integers(*(np.asarray(x) for x in raw))
+            return jnp.asarray(out.reshape(shape[:-1]), jnp.int32)
+        a, b, c = jnp.broadcast_arrays(*(jnp.asarray(x) for x in raw))
+        return self._jit_classify(a, b, c)
 
     # operators (computed lazily by pqrm_jax.tables) ----------------------------------------
     @property
@@ -318,7 +529,7 @@ class Calculus:
 
     @property
     def adjacency(self) -> np.ndarray:
-        """(Q, Q) bool conceptual neighbourhood computed from geometry (P§2.3.1).
+        """[Q, Q] bool conceptual neighbourhood computed from geometry (P§2.3.1).
 
         Read from :attr:`tables`, so the first access may build them.
         """
@@ -326,11 +537,43 @@ class Calculus:
 
     @property
     def neighbor_distance(self) -> np.ndarray:
-        """(Q, Q) int shortest-path length in the conceptual neighbourhood graph.
+        """[Q, Q] int shortest-path length in the conceptual neighbourhood graph.
 
         Read from :attr:`tables`, so the first access may build them.
         """
         return self.tables.neighbor_distance
+
+
+def _sign(x: Fraction) -> int:
+    return (x > 0) - (x < 0)
+
+
+def rescale_pow2(big: jax.Array, *xs: jax.Array) -> tuple[jax.Array, ...]:
+    """``xs`` times the power of two 2^-k that brings ``big`` (≥ 0) into [½, 1) (exactly).
+
+    A power of two changes no bit of a mantissa, so products formed afterwards round exactly
+    as they would at scale one, without overflow or underflow at any scale (used by
+    ``classify`` and the fused PQRM kernel). ``big`` = 0 or non-finite leaves ``xs`` as is.
+    ``big`` broadcasts against each of ``xs``.
+
+    >>> import jax.numpy as jnp
+    >>> rescale_pow2(jnp.float32(3e30), jnp.float32(3e30))[0].item()
+    0.5916456580162048
+    """
+    dtype = jnp.result_type(*xs)
+    ok = (big > 0) & jnp.isfinite(big)
+    _, k = jnp.frexp(jnp.where(ok, big, 1).astype(dtype))
+    s1 = _pow2(-(k // 2), dtype)
+    s2 = _pow2(-k + k // 2, dtype)
+    return tuple(x * s1 * s2 for x in xs)
+
+
+def _pow2(k: jax.Array, dtype) -> jax.Array:
+    """2**k exactly, for integer k in the normal exponent range of ``dtype``."""
+    finfo = jnp.finfo(dtype)
+    itype = jnp.int64 if finfo.bits == 64 else jnp.int32
+    bits = (k.astype(itype) + (finfo.maxexp - 1)) << finfo.nmant
+    return jax.lax.bitcast_convert_type(bits, dtype)
 
 
 def _natural_key(s: str):

@@ -1,8 +1,9 @@
-"""The named calculi of SPEC §2.1–2.2.
+"""The named calculi of docs/decisions.md §2.1–2.2.
 
-* ``edc`` — the 20-state Extended Double Cross, SPEC numbering (M Table I/II, MT App. C).
+* ``edc`` — the 20-state Extended Double Cross, numbered as in docs/decisions.md §2.1
+  (M Table I/II, MT App. C).
 * ``edc_lune``, ``triple_cross``, ``double_cross``, ``single_cross``, ``lr`` — Padgett's
-  reduced representations (P Fig. 2.2, decisions in SPEC §2.2), merges of ``edc``.
+  reduced representations (P Fig. 2.2, decisions in docs/decisions.md §2.2), merges of ``edc``.
 * ``quadrant`` — LR × front/behind the mid-perpendicular (P Fig. 4.5), a merge of ``edc``.
 * ``dcc`` — boundary-inclusive Double Cross (MT ch. 1): 15 relations for A≠B, index
   3·(row−1)+col with rows front-of-B / on-perpendicular-through-B / between /
@@ -71,7 +72,7 @@ _EDC_BANDS = {
 def edc() -> Calculus:
     return Calculus.from_rule(
         "edc", EDC_CONSTRAINTS, _edc_rule, [str(i) for i in range(1, 21)],
-        description="Extended Double Cross, 20 open states (M§II, SPEC §2.1)",
+        description="Extended Double Cross, 20 open states (M§II, docs/decisions.md §2.1)",
     )
 
 

@@ -1,8 +1,9 @@
 """Exact sparse polynomials with rational coefficients.
 
 A qualitative calculus is a set of sign constraints ``f_a(α, β)`` in the canonical frame
-A=(0,0), B=(0,1), C=(α, β) (SPEC §2, P2.2.1). We write them over three symbols ``alpha``,
-``beta`` and ``rho = α² + β²`` so that a line or circle constraint has weighted degree one.
+A=(0,0), B=(0,1), C=(α, β) (docs/decisions.md §2, P2.2.1). We write them over three
+symbols ``alpha``, ``beta`` and ``rho = α² + β²`` so that a line or circle constraint has
+weighted degree one.
 The same class represents the feasibility problems' polynomials over the free coordinates
 (M§III.B Table II), exactly, so witnesses can be re-verified in rational arithmetic.
 

@@ -1,42 +1,12 @@
 """Composable sets of triplets and the constructive proof of Z Thm. 3.1.
 
-Zilberman (Z) ch. 3.2.1 defines, for a set ``T`` of (unordered) landmark triplets:
+Offers the landmark space of a set of unordered triplets, the cut tree that decides
+composability (Z Def. 3.2.1–3.2.4) with its certificate, the composable triplets, and the
+composition tree of a target built by the proof of Thm. 3.1. Repeated landmarks, an empty
+source set or a target outside the landmark space raise ``ValueError``.
 
-* the *landmark space* ``L(T)`` = union of the triplets (Z Def. 3.2.1),
-* a *cut* ``(T_L, T_R)``: a partition of ``T`` into two disjoint subsets (Def. 3.2.2),
-  *α-common* when ``|L(T_L) ∩ L(T_R)| ≥ α`` (Def. 3.2.3),
-* ``T`` *composable under* ``L`` iff ``L ⊆ L(T)`` and either ``|T| = 1`` or there is a
-  2-common cut whose two sides are composable under their own landmark spaces (Def. 3.2.4).
-
-Decision procedure (:func:`cut_tree`)
--------------------------------------
-Searching over cuts is exponential, but the definition has a polynomial characterisation:
-``T`` is composable iff repeatedly merging any two *clusters* (groups of triplets) whose
-landmark spaces share at least two landmarks ends with a single cluster. Merging is monotone
-(a merged cluster's landmark space contains both parts, so every merge that was possible
-before is still possible), hence the final partition does not depend on the merge order, and
-every cut tree of Def. 3.2.4 is a particular merge order read top-down. The merge history *is*
-a cut tree (the certificate, :class:`CutTree`); when ``T`` is not composable the final clusters
-are the certificate of the negative answer (no two share two landmarks, so no 2-common cut
-exists between any grouping of them). The composable triplets are then exactly the triplets
-inside one cluster's landmark space (two triplets that share two landmarks always lie in the
-same cluster).
-
-Constructive Thm. 3.1 (:func:`compose_from_cut_tree`)
------------------------------------------------------
-Follows the three cases of Z's induction proof on the cut tree, with one shortcut: a target
-that is itself a source triplet is a leaf. Sub-targets are memoised, so the result is a DAG
-(a composition tree whose repeated subtrees are shared); :meth:`CompositionTree.steps`
-lists each distinct composition once, in an executable order.
-
-Conventions and bad input
--------------------------
-Triplets are unordered here (Z §3.1 omits the colon once all orderings are reachable with the
-unary operators). A triplet is any iterable of three distinct hashable landmarks (``"ABC"``,
-``(0, 1, 2)``, a frozenset). Repeated landmarks raise ``ValueError``. Duplicate triplets,
-including different orderings of the same three landmarks (``ABC``/``BCA``/``CBA``), collapse
-to one source (documented handling of "cyclic" source lists). An empty source set raises
-``ValueError``. Targets with a landmark outside the landmark space raise ``ValueError``.
+The polynomial decision procedure, why its answer does not depend on the merge order, and
+the conventions: docs/compositions.md §composable.
 
 >>> tree = cut_tree(["ABC", "BCD", "ADE"])
 >>> sorted(tree.common)
@@ -141,7 +111,10 @@ class CutTree:
 
 
 def _merge_clusters(T: frozenset[Triplet]) -> list[CutTree]:
-    """Greedy 2-common merging; returns the final clusters as cut trees (see module doc)."""
+    """Greedy 2-common merging; returns the final clusters as cut trees.
+
+    Why the merge order does not matter: docs/compositions.md §composable.
+    """
     order = sorted(T, key=fmt)  # deterministic
     nodes: dict[int, CutTree] = {}
     by_landmark: dict[Landmark, set[int]] = {}
@@ -191,9 +164,18 @@ def cut_tree(triplets: Iterable[Iterable[Landmark]],
              landmarks: Iterable[Landmark] | None = None) -> CutTree | None:
     """Decide whether ``triplets`` is composable under ``landmarks`` (Z Def. 3.2.4).
 
-    Returns the certificate (a :class:`CutTree`) or ``None``. ``landmarks`` defaults to
-    ``L(T)``; a landmark space that is not inside ``L(T)`` makes the answer ``None``.
-    Runs in about O(|T|·|L|) set operations.
+    Runs in about O(|T|·|L|) set operations (docs/compositions.md §composable).
+
+    Args:
+        triplets: the source triplets T (each three distinct hashable landmarks).
+        landmarks: the landmark space; defaults to ``L(T)``. A landmark space that is not inside
+            ``L(T)`` makes the answer ``None``.
+
+    Returns:
+        The certificate (a :class:`CutTree`), or ``None`` when T is not composable.
+
+    Raises:
+        ValueError: for a triplet with a repeated landmark or an empty source set.
 
     >>> cut_tree(["ABC", "BCD", "ADE"]) is not None
     True
@@ -219,7 +201,8 @@ def is_composable(triplets: Iterable[Iterable[Landmark]],
 def composable_triplets(triplets: Iterable[Iterable[Landmark]]) -> set[Triplet]:
     """Every triplet that some sequence of compositions from ``triplets`` can produce.
 
-    Exactly the triplets inside one cluster's landmark space (module doc).
+    Exactly the triplets inside one cluster's landmark space; see
+    docs/compositions.md §composable.
     """
     from itertools import combinations
 
@@ -362,9 +345,18 @@ def _recursion(depth: int):
 def compose_from_cut_tree(tree: CutTree, target: Iterable[Landmark]) -> CompositionTree:
     """Constructive proof of Z Thm. 3.1: a composition tree for ``target`` from ``tree``'s sources.
 
-    ``target`` must lie in ``L(T)`` (``ValueError`` otherwise). The tree is valid (leaves are
-    sources, every step obeys Lemma 2.4.1) but not optimal; use
+    The tree is valid (leaves are sources, every step obeys Lemma 2.4.1) but not optimal; use
     :func:`pqrm_jax.compositions.optimal_composition_tree` for the optimal one (Alg. 1).
+
+    Args:
+        tree: a cut tree (:func:`cut_tree`).
+        target: the triplet to compose.
+
+    Returns:
+        The :class:`CompositionTree` of ``target`` (a DAG: repeated subtrees are shared).
+
+    Raises:
+        ValueError: when ``target`` has a landmark outside ``L(T)``.
 
     >>> t = compose_from_cut_tree(cut_tree(["ABC", "BCD"]), "ABD")
     >>> [(fmt(a), fmt(b), fmt(c)) for a, b, c in t.steps()]

@@ -1,51 +1,12 @@
 """Probabilistic composition (Z eq. 2.4 / 4.28) and its propagation over a PQRM map.
 
-Map representation (independent of :mod:`pqrm_jax.pqrm`'s internal format):
+Offers the composition of two distributions through a ``[Q, Q, Q]`` tensor, the fusion rule
+that combines several composition paths (and optionally the measurement), and the batched
+propagation over a dense ``[L, L, L, Q]`` map with an ``[L, L, L]`` ``observed`` mask, with
+converters from and to PQRM rows. Bad input raises ``ValueError``.
 
-* ``probs`` — shape ``(L, L, L, Q)``; ``probs[i, j, k, q] = P(ij:k = q)`` for the ordered
-  triplet of landmark ids ``(i, j, k)`` (P ch. 2 maps all orderings);
-* ``observed`` — shape ``(L, L, L)`` bool; rows with ``observed`` set are the measured
-  triplets. Rows that are not observed are ignored (their content may be anything, even NaN).
-
-Composition (Z §2.4): the pair ``τ1 = AB:C``, ``τ2 = BC:D`` composes ``τ3 = AB:D``; with
-landmark ids ``(i, j, k, d)`` the pair ``(ij:k, jk:d)`` composes ``ij:d``. Under the
-approximations of Z eq. 4.28 (the metric prior of each source triplet is uniform within its
-state and the two are independent) eq. 2.4 becomes
-
-    P(ij:d = c) = Σ_a Σ_b P(ij:k = a) · P(jk:d = b) · T[a, b, c],
-
-with ``T = calc.tables.prob_compose`` (``(Q, Q, Q)``, ``T[a, b, c] = P(AB:D = c | AB:C = a,
-BC:D = b)``). For every ordered target ``ij:d`` there is one candidate path per intermediate
-landmark ``k ∉ {i, j, d}``; :func:`propagate` evaluates all ``L·(L−1)·(L−2)·(L−3)`` candidate
-pairs in one jit-compiled array program (two einsums per middle landmark ``j``).
-Only this canonical operand pattern is used (no unary LEFT/RIGHT/INVERSE re-orderings), so a
-target ``ij:d`` is reachable only through an available triplet with the prefix ``ij``; PQRM maps
-store every ordering of a measured triplet (P§2.3), which makes this no restriction there.
-
-Fusion rule (:func:`fuse`)
---------------------------
-Several composition paths (and, in ``mode="fuse"``, the measurement itself) are combined by a
-**smoothed, tempered product of experts**: each source distribution ``p_s`` is first mixed
-with the uniform distribution, ``p̃_s = (1 − ε)·p_s + ε/Q`` (a source is wrong with
-probability ``ε`` and then says nothing), and then
-
-    P(c | all sources) ∝ Π_s p̃_s(c)^{w_s}.
-
-With ``w_s = 1`` this is Bayes' rule under the assumption that **the sources are conditionally
-independent given the target state** and the prior over states is uniform (naive Bayes: every
-``p_s`` is a posterior under the same uniform prior). Paths through different intermediates
-``k`` use different source triplets, but they share the landmarks ``i, j, d``, so they are
-positively correlated and the product is over-confident; the weights ``w_s ≤ 1`` temper it
-(``w = 1/K`` for ``K`` paths is the geometric-mean "logarithmic opinion pool"). The defaults
-(``eps = 0.05``, ``path_weight = 0.5``) were chosen with the held-out simulation of
-``benchmarks/bench_compositions.py`` / ``notebooks/05_compositions.ipynb``. Because every
-factor is at least ``(ε/Q)^{w}`` > 0 and normalisation uses log-sum-exp, the result is always
-a proper distribution: no NaN, no negative entries, no division by zero. A composed path whose
-operands are jointly impossible under ``T`` (zero mass) is dropped rather than used.
-
-Bad input: negative, non-finite or non-normalised observed rows, ``observed`` set on a
-triplet with a repeated landmark, and tensors of the wrong shape or with negative entries
-raise ``ValueError``; ``renormalize=True`` rescales observed rows that merely do not sum to 1.
+Map layout, the composition sum, the fusion rule (a smoothed, tempered product of experts)
+and its defaults: docs/compositions.md §propagation.
 
 >>> import numpy as np
 >>> T = np.zeros((2, 2, 2), np.float32); T[0, 0, 0] = T[1, 1, 0] = 1; T[0, 1, 1] = T[1, 0, 1] = 1
@@ -74,7 +35,7 @@ DEFAULT_PATH_WEIGHT = 0.5
 
 # -------------------------------------------------------------------------------- checks
 def check_tensor(tensor, atol: float = 1e-3) -> jax.Array:
-    """Validate a ``(Q, Q, Q)`` probabilistic composition tensor; rows sum to 1 (or 0).
+    """Validate a ``[Q, Q, Q]`` probabilistic composition tensor; rows sum to 1 (or 0).
 
     A row ``T[a, b, :]`` summing to 0 marks a jointly impossible pair of source states.
     """
@@ -93,7 +54,7 @@ def check_tensor(tensor, atol: float = 1e-3) -> jax.Array:
 
 
 def check_map(probs, observed, atol: float = 1e-3, renormalize: bool = False):
-    """Validate the ``(L, L, L, Q)`` map and ``(L, L, L)`` mask; returns float32 arrays.
+    """Validate the ``[L, L, L, Q]`` map and ``[L, L, L]`` mask; returns float32 arrays.
 
     Unobserved rows are zeroed (they may hold anything, including NaN).
     """
@@ -141,9 +102,16 @@ def _log(x):
 
 
 def compose(p1, p2, tensor) -> jax.Array:
-    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)`` (``(..., Q)`` each, broadcast).
+    """Z eq. 2.4: ``P(AB:D)`` from ``P(AB:C)`` and ``P(BC:D)``.
 
-    The result is renormalised; an impossible pair (zero mass) returns all zeros.
+    Args:
+        p1: [..., Q] distribution of ``AB:C``.
+        p2: [..., Q] distribution of ``BC:D`` (broadcast against ``p1``).
+        tensor: [Q, Q, Q] probabilistic composition tensor, ``T[a, b, c] = P(AB:D = c | a, b)``.
+
+    Returns:
+        [..., Q] renormalised distribution of ``AB:D``; all zeros for an impossible pair (zero
+        mass).
     """
     t = jnp.asarray(tensor, jnp.float32)
     r = jnp.einsum("...a,...b,abc->...c", jnp.asarray(p1, jnp.float32),
@@ -153,10 +121,20 @@ def compose(p1, p2, tensor) -> jax.Array:
 
 
 def fuse(dists, weights=None, eps: float = DEFAULT_EPS, axis: int = 0) -> jax.Array:
-    """Smoothed tempered product of experts over ``axis`` of ``dists`` (module doc).
+    """Smoothed tempered product of experts over ``axis`` of ``dists``.
 
-    ``weights`` (broadcast against ``dists`` without its last axis) gives ``w_s``; a weight
-    of 0 removes a source. Assumes the sources are conditionally independent given the state.
+    Assumes the sources are conditionally independent given the state; the rule is described
+    in docs/compositions.md §propagation.
+
+    Args:
+        dists: the source distributions, [..., Q] with the sources along ``axis``.
+        weights: the exponents ``w_s``, broadcast against ``dists`` without its last axis; a
+            weight of 0 removes a source. Default 1 each.
+        eps: smoothing of every source towards uniform, ``(1 − ε)·p + ε/Q``.
+        axis: the axis of the sources.
+
+    Returns:
+        The fused distribution (a proper distribution: no NaN, no negative entries).
 
     >>> print(np.asarray(fuse(np.array([[0.7, 0.3], [0.6, 0.4]]), eps=0.0)).round(3))
     [0.778 0.222]
@@ -176,8 +154,8 @@ def fuse(dists, weights=None, eps: float = DEFAULT_EPS, axis: int = 0) -> jax.Ar
 class PropagationResult:
     """Output of :func:`propagate`.
 
-    ``probs`` (L, L, L, Q) the updated map; ``n_paths`` (L, L, L) int32 number of composition
-    paths that contributed to each ordered triplet; ``filled`` (L, L, L) bool — unobserved
+    ``probs`` [L, L, L, Q] the updated map; ``n_paths`` [L, L, L] int32 number of composition
+    paths that contributed to each ordered triplet; ``filled`` [L, L, L] bool — unobserved
     triplets that received a composed distribution; ``known`` = observed | filled.
     """
 
@@ -190,8 +168,8 @@ class PropagationResult:
 def _paths_for_j(pj, pij, aj, aij, tensor, eps, prior_log, j):
     """All paths ``(ij:k, jk:d) → ij:d`` through one middle landmark ``j``.
 
-    ``pj = P(jk:d)`` (k, d, Q), ``pij = P(ij:k)`` (i, k, Q), ``aj``/``aij`` their availability.
-    Returns the summed log-evidence (i, d, Q) and the path counts (i, d).
+    ``pj = P(jk:d)`` [k, d, Q], ``pij = P(ij:k)`` [i, k, Q], ``aj``/``aij`` their availability.
+    Returns the summed log-evidence [i, d, Q] and the path counts [i, d].
     """
     n, q = pij.shape[0], pij.shape[-1]
     # N[k, d, a, c] = Σ_b P(jk:d = b) T[a, b, c]   (independent of i)
@@ -245,26 +223,33 @@ def propagate(probs, observed, tensor, *, mode: str = "fill", rounds: int = 1,
               renormalize: bool = False, validate: bool = True) -> PropagationResult:
     """Fill in / sharpen a PQRM map by probabilistic composition (Z eq. 2.4, 4.28).
 
-    Parameters
-    ----------
-    probs, observed:
-        the map, ``(L, L, L, Q)`` and ``(L, L, L)`` (module doc).
-    tensor:
-        ``(Q, Q, Q)`` probabilistic composition tensor (``calc.tables.prob_compose``).
-    mode:
-        ``"fill"`` — only unobserved triplets are inferred, observed rows are returned as
-        given; ``"fuse"`` — observed rows are also fused with their composition paths.
-    rounds:
-        round ``r > 1`` also uses triplets filled in earlier rounds as path operands, for
-        targets still without a path (reaches triplets that need deeper composition trees).
-    eps, path_weight, measurement_weight, prior:
-        the fusion rule (module doc); ``prior`` (Q,) defaults to uniform.
-    batch_size:
-        how many middle landmarks ``j`` are processed at once (``None``: one at a time;
-        memory ``≈ batch_size·L³·Q`` floats).
+    Args:
+        probs: ``[L, L, L, Q]`` map, ``probs[i, j, k] = P(ij:k)``; layout in
+            docs/compositions.md §propagation.
+        observed: ``[L, L, L]`` bool, the measured triplets; other rows are ignored.
+        tensor: ``[Q, Q, Q]`` probabilistic composition tensor
+            (``calc.tables.prob_compose``).
+        mode: ``"fill"`` — only unobserved triplets are inferred, observed rows are returned
+            as given; ``"fuse"`` — observed rows are also fused with their composition paths.
+        rounds: round ``r > 1`` also uses triplets filled in earlier rounds as path operands,
+            for targets still without a path (reaches triplets that need deeper composition
+            trees).
+        eps: smoothing of every source towards uniform in the fusion rule.
+        path_weight: tempering exponent of each composition path in the fusion rule.
+        measurement_weight: tempering exponent of the measurement (``mode="fuse"``).
+        prior: ``[Q]`` prior over states; defaults to uniform.
+        batch_size: how many middle landmarks ``j`` are processed at once (``None``: one at
+            a time; memory ``≈ batch_size·L³·Q`` floats).
+        renormalize: rescale observed rows that merely do not sum to 1 instead of raising.
+        validate: check the map and the tensor first (see Raises).
 
-    Returns a :class:`PropagationResult`. Unobserved triplets with no path get ``prior``;
-    triplets with a repeated landmark get ``prior`` and are never marked known.
+    Returns:
+        A :class:`PropagationResult`. Unobserved triplets with no path get ``prior``;
+        triplets with a repeated landmark get ``prior`` and are never marked known.
+
+    Raises:
+        ValueError: for an unknown ``mode``, ``eps`` outside [0, 1], negative weights,
+            ``rounds < 1``, and (with ``validate``) a malformed map or tensor.
 
     >>> import numpy as np
     >>> from pqrm_jax.compositions.propagation import propagate
@@ -421,5 +406,5 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
 
 
 def to_pqrm_rows(probs, num_landmarks: int) -> np.ndarray:
-    """``(T, Q)`` rows in ``pqrm.ordered_triplets`` order from an ``(L, L, L, Q)`` array."""
+    """``[T, Q]`` rows in ``pqrm.ordered_triplets`` order from an ``[L, L, L, Q]`` array."""
     return dense_to_rows(np.asarray(probs), num_landmarks)

@@ -1,27 +1,12 @@
 """Optimal composition sequence: composition graph, hypergraph Dijkstra, tree extraction.
 
-Implements Z §3.2.2 (Alg. 1–4):
+Implements Z §3.2.2 (Alg. 1–4): the composition graph over a landmark space, its incremental
+update by a generalised Dijkstra on the composition hypergraph, the extraction of the
+optimal composition tree of a target, and Alg. 1 end to end. Costs are user-defined;
+negative or non-finite costs raise ``ValueError``.
 
-* :class:`CompositionGraph` — the bipartite graph of Def. 3.2.6 over a landmark space: one
-  node per triplet, one per quartet, a triplet joined to the quartets containing it
-  (Alg. 2, ``INITCOMPGRAPH``). The quartet nodes are kept implicit — the quartets adjacent to
-  triplet ``{a,b,c}`` are ``{a,b,c,x}`` for every other landmark ``x`` — so memory is
-  ``O(|L|^3)``; :meth:`CompositionGraph.to_networkx` materialises the explicit bipartite graph.
-* :meth:`CompositionGraph.add_source` — ``UPDATECOMPGRAPH`` (Alg. 3): the generalised
-  (SBT-) Dijkstra on the directed hypergraph whose hyperedges are "two triplets of a quartet
-  compose each of the other two" (Z §3.2.3), run incrementally, one source at a time.
-* :meth:`CompositionGraph.extract` — ``EXTRACTCOMPTREE`` (Alg. 4).
-* :func:`optimal_composition_tree` — Alg. 1 end to end.
-
-Costs (Z §3.2.2): ``C(τ) = C_source(τ)`` for a source, ``C_comp(τ_L, τ_R)`` for a triplet
-composed directly from ``τ_L, τ_R``; a tree costs the sum over its nodes (eq. 3.2), subtrees
-used twice counted twice. ``comp_cost`` receives ``(τ_L, τ_R, τ)`` (the paper's
-``C_comp`` ignores the head ``τ``; passing it lets a user price the result too) and must be
-symmetric in its first two arguments and non-negative. Decision: source costs must be finite
-and **non-negative** too (the paper allows any real ``C_source``, but a negative leaf cost
-can be reused arbitrarily often in a tree, so eq. 3.2 would have no minimum and Dijkstra's
-invariant would fail); both are checked with a ``ValueError``. Alg. 3 only accepts
-*improvements* of a source cost (line 6); a worse cost for a known source is ignored.
+The graph representation, the costs and the decision on negative source costs:
+docs/compositions.md §sequence.
 
 >>> g = optimal_composition_graph(["ABC", "BCD", "ADE"])
 >>> g.cost("ACE"), g.cost("BCE")
@@ -59,12 +44,14 @@ def unit_cost(left: Triplet, right: Triplet, head: Triplet) -> float:
 class CompositionGraph:
     """Composition graph over a landmark space with cumulative costs (Z Def. 3.2.6, Alg. 2).
 
-    Parameters
-    ----------
-    landmarks:
-        the landmark space ``L`` (distinct hashable items; at least 3).
-    comp_cost:
-        ``C_comp(τ_L, τ_R, τ) ≥ 0`` (callable) or a constant; default 1 per composition.
+    Args:
+        landmarks: the landmark space ``L`` (distinct hashable items; at least 3).
+        comp_cost: ``C_comp(τ_L, τ_R, τ) ≥ 0`` (callable) or a constant; default 1 per
+            composition.
+
+    Raises:
+        ValueError: for repeated landmarks, fewer than 3, or a constant cost that is
+            negative or not finite.
     """
 
     def __init__(self, landmarks: Iterable[Hashable], comp_cost: CompCost | float = 1.0):
@@ -284,9 +271,20 @@ def optimal_composition_tree(sources: Iterable[Iterable[Hashable]] | Mapping,
                              target: Iterable[Hashable],
                              source_cost: Callable[[Triplet], float] | float = 0.0,
                              comp_cost: CompCost | float = 1.0) -> CompositionTree | None:
-    """Z Alg. 1: the optimal composition tree of ``target`` from ``sources`` (``None`` if none).
+    """Z Alg. 1: the optimal composition tree of ``target`` from ``sources``.
 
-    ``target`` must lie in ``L(T)`` (``ValueError`` otherwise).
+    Args:
+        sources: the source triplets, or a mapping from source triplet to its cost.
+        target: the triplet to compose.
+        source_cost: ``C_source`` of each source, a callable or a constant (finite, ≥ 0).
+        comp_cost: ``C_comp(τ_L, τ_R, τ)``, a callable or a constant (finite, ≥ 0).
+
+    Returns:
+        The optimal :class:`CompositionTree`, or ``None`` when ``target`` cannot be composed.
+
+    Raises:
+        ValueError: when ``target`` has a landmark outside ``L(T)``, or for negative or
+            non-finite costs.
 
     >>> t = optimal_composition_tree(["ABC", "BCD", "ADE"], "BCE")
     >>> t.num_compositions(), t.cost

@@ -1,6 +1,6 @@
 """Simulation helpers: does composition propagation improve a PQRM map? (issue #6 item 4).
 
-* :func:`sample_compose_tensor` — a Monte Carlo ``(Q, Q, Q)`` composition tensor
+* :func:`sample_compose_tensor` — a Monte Carlo ``[Q, Q, Q]`` composition tensor
   ``P(AB:D | AB:C, BC:D)`` under "four landmarks uniform in a square" (the world prior of the
   study below), with per-row sample counts. Rows never hit stay zero, which
   :func:`~pqrm_jax.compositions.propagation.propagate` treats as "no information" (the path
@@ -39,9 +39,16 @@ __all__ = ["sample_compose_tensor", "random_world", "true_states", "measure_map"
 def sample_compose_tensor(calc, key, num_samples: int = 2_000_000, chunk: int = 500_000):
     """Monte Carlo composition tensor under four landmarks i.i.d. uniform in a square.
 
-    Returns ``(tensor, counts)``: ``tensor[a, b, c] = P(AB:D = c | AB:C = a, BC:D = b)``
-    (float32, rows sum to 1 where ``counts[a, b] > 0``, else 0) and the ``(Q, Q)`` sample
-    counts. The sampling error of a row is about ``sqrt(p(1-p)/counts)``.
+    Args:
+        calc: the calculus (object or registered name).
+        key: PRNG key.
+        num_samples: configurations of four landmarks drawn.
+        chunk: configurations per compiled call.
+
+    Returns:
+        ``(tensor, counts)``: the [Q, Q, Q] float32 ``tensor[a, b, c] = P(AB:D = c | AB:C = a,
+        BC:D = b)`` (rows sum to 1 where ``counts[a, b] > 0``, else 0) and the [Q, Q] sample
+        counts. The sampling error of a row is about ``sqrt(p(1-p)/counts)``.
     """
     q = calc.num_states
     hist = np.zeros((q, q, q), np.int64)
@@ -71,7 +78,7 @@ def random_world(key, num_landmarks: int, size: float = 100.0) -> jax.Array:
 
 
 def true_states(calc, pos) -> np.ndarray:
-    """``(L, L, L)`` true state of every ordered triplet (sentinel < 0 on repeated landmarks).
+    """``[L, L, L]`` true state of every ordered triplet (sentinel < 0 on repeated landmarks).
 
     The dense layout of :func:`pqrm_jax.triplets.true_states` (repeated entries as classified).
     """
@@ -81,7 +88,19 @@ def true_states(calc, pos) -> np.ndarray:
 def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 256):
     """PQRM-style measurement of the given unordered triplets (each measured once).
 
-    Returns ``probs`` (L, L, L, Q) and ``observed`` (L, L, L); unobserved rows are uniform.
+    The inverse sensor model is sampled around the noisy positions and every ordering of a
+    triplet is classified from the same samples (P eq. 2.9).
+
+    Args:
+        calc: the calculus.
+        key: PRNG key of the noise and the samples.
+        pos: [L, 2] true landmark positions.
+        observed_triplets: the unordered triplets measured.
+        sigma: std of the Gaussian position noise (and of the inverse sensor model).
+        samples: samples per triplet.
+
+    Returns:
+        ``probs`` [L, L, L, Q] and ``observed`` [L, L, L]; unobserved rows are uniform.
     """
     pos = jnp.asarray(pos, jnp.float32)
     n, q = pos.shape[0], calc.num_states
@@ -137,6 +156,23 @@ def heldout_study(calc, tensor, key, *, num_landmarks: int = 20, fraction: float
       targets without any path keep the uniform row and are counted as such,
     * ``observed/measured`` and ``observed/fused`` — observed triplets before and after
       ``mode="fuse"``.
+
+    Args:
+        calc: the calculus.
+        tensor: [Q, Q, Q] probabilistic composition tensor.
+        key: PRNG key; each run splits its own keys off it in turn.
+        num_landmarks: landmarks per world (uniform in a 100 m square).
+        fraction: probability that an unordered triplet is observed.
+        sigma: std of the position noise (m).
+        runs: worlds averaged.
+        samples: inverse-sensor samples per triplet.
+        eps: smoothing of the fusion rule.
+        path_weight: tempering exponent of each composition path.
+        rounds: propagation rounds.
+
+    Returns:
+        A dict from each score name above to its error rate, mean entropy, mean −log P(truth)
+        and Brier score (and the coverage of the propagated held-out triplets).
     """
     q = calc.num_states
     acc: dict[str, list[dict[str, float]]] = {}

@@ -1,4 +1,4 @@
-"""PQRM — probabilistic qualitative relational mapping (P ch. 2, SPEC §3).
+"""PQRM — probabilistic qualitative relational mapping (P ch. 2, docs/decisions.md §3).
 
 * :mod:`.measurement` — ``p(R^n = q | Z^n)`` by sampling (eq. 2.9), one pass for every
   representation that is a merge of the sampled calculus (the EDC for Padgett's six).

@@ -1,31 +1,12 @@
 """The online PQRM map: a recursive Bayes filter per ordered landmark triplet (P §2.2.3).
 
-The map holds ``p(R^n | Z^n_{1:t})`` for every ordered triplet n = (i, j, k) of distinct
-landmarks (P §2.3: "the reported results record all possible orderings"), for one or several
-representations at once. An update with the landmarks seen at time t (Alg. 1):
+Offers the map state over every ordered triplet of M landmarks (T = M(M−1)(M−2) rows, for one
+or several representations at once) and the mapper's pure ``init``/``update`` functions
+(P eq. 2.10, Alg. 1), with static shapes so that ``update`` runs under ``jit``, ``lax.scan``
+and ``vmap``. Degenerate evidence never gives a NaN map; it is counted.
 
-* every triplet whose three landmarks are all seen gets the measurement distribution
-  ``p(R^n | Z^n_t)`` (eq. 2.9, :mod:`.measurement`) — one sampling pass for all
-  representations, which must be merges of one root calculus (the EDC for Padgett's six);
-* a triplet already in the map is updated by eq. 2.10,
-  ``p_t(q) ∝ p(q | Z_t) · p_{t-1}(q)``; a triplet seen for the first time is initialised with
-  ``p(q | Z_t)``; triplets not seen keep their distribution.
-
-Everything has static shapes (T = M(M−1)(M−2) rows for M landmarks, masks for what was seen),
-so ``update`` runs under ``jit``, ``lax.scan`` over time and ``vmap`` over Monte Carlo runs.
-
-Documented handling of degenerate evidence (never a NaN map):
-
-* **Conflict** — the product in eq. 2.10 is zero for every state (the sampled likelihood is
-  zero on all states the prior allows; with finite S this happens at low noise near state
-  boundaries): the prior is kept and ``num_conflicts`` of that triplet and representation is
-  incremented.
-* **Rejected measurement** — no sample had a defined state (σ = 0 with a landmark exactly on a
-  boundary or two landmarks coincident): the triplet is not updated, ``num_rejected`` counts it.
-* **Non-finite positions** of a landmark flagged visible: the landmark is treated as not seen
-  at this step and ``num_dropped`` counts it. Eager :func:`update_observed` raises instead.
-* Negative or NaN ``sigma`` raises ``ValueError`` when concrete; inside ``jit`` a NaN sigma makes
-  every sample undefined, i.e. every seen triplet is a rejected measurement.
+The update rule and the handling of conflicts, rejected measurements and non-finite
+positions: docs/pqrm.md §map.
 """
 
 from __future__ import annotations
@@ -42,6 +23,7 @@ from .. import calculi
 from ..calculi import Calculus
 from ..triplets import ordered_triplets  # the rows layout (re-exported as pqrm.ordered_triplets)
 from .measurement import (
+    DEFAULT_MAX_BYTES,
     aggregation_matrix,
     counts_to_probabilities,
     edc_block_counts,
@@ -53,19 +35,57 @@ from .measurement import (
     sample_bank,
 )
 
-__all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed"]
+__all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed",
+           "map_bytes_per_triplet", "check_triplets"]
+
+
+def check_triplets(triplets, num_landmarks: int) -> np.ndarray:
+    """Validate an explicit triplet list ``[T, 3]`` of landmark ids; returns it as int32.
+
+    Raises ``ValueError`` unless every row holds three distinct ids in ``[0, num_landmarks)``
+    and no row is repeated; ``TypeError`` for non-integer ids.
+    """
+    tri = np.asarray(triplets)
+    if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] < 1:
+        raise ValueError(f"triplets must have shape (T, 3) with T >= 1, got {tri.shape}")
+    if not np.issubdtype(tri.dtype, np.integer) or tri.dtype == np.bool_:
+        raise TypeError(f"triplets must be integer landmark ids, got dtype {tri.dtype}")
+    if np.any(tri < 0) or np.any(tri >= num_landmarks):
+        raise ValueError(f"triplet ids must be in [0, {num_landmarks})")
+    if np.any((tri[:, 0] == tri[:, 1]) | (tri[:, 0] == tri[:, 2]) | (tri[:, 1] == tri[:, 2])):
+        raise ValueError("every triplet needs three distinct landmarks")
+    if len(np.unique(tri, axis=0)) != len(tri):
+        raise ValueError("triplets contain a repeated row")
+    return tri.astype(np.int32)
+
+
+def map_bytes_per_triplet(representations: Sequence[Calculus | str]) -> int:
+    """Estimated bytes per triplet row of a map: its state and one update's temporaries.
+
+    State: 4 B per state and per conflict counter of each representation, 9 B of flags and
+    counters; update: means and sigmas (36 B), the root counts (4·Q_root B) and, per
+    representation, the measurement and posterior rows (8·Q B).
+
+    >>> map_bytes_per_triplet(("edc",))
+    369
+    """
+    cals = [calculi.get(c) for c in representations]
+    state = sum(4 * c.num_states + 4 for c in cals) + 9
+    root = root_of(cals[0]).num_states if cals else 0
+    return state + 36 + 4 * root + sum(8 * c.num_states for c in cals)
 
 
 class MapState(NamedTuple):
     """State of a PQRM map (a pytree).
 
-    probs: representation name → (T, Q) ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
-    mapped: (T,) bool, the triplet has been initialised.
-    num_updates: (T,) int32, measurements incorporated (including the initialisation).
-    num_conflicts: name → (T,) int32, eq. 2.10 products that were zero everywhere (prior kept).
-    num_rejected: (T,) int32, measurements with no defined sample (not incorporated).
-    num_dropped: () int32, visible landmarks dropped for non-finite positions.
-    step: () int32, number of update calls.
+    Attributes:
+        probs: representation name → [T, Q] ``p(R^n | Z^n_{1:t})``; all-zero rows are unmapped.
+        mapped: [T] bool, the triplet has been initialised.
+        num_updates: [T] int32, measurements incorporated (including the initialisation).
+        num_conflicts: name → [T] int32, eq. 2.10 products that were zero everywhere (prior kept).
+        num_rejected: [T] int32, measurements with no defined sample (not incorporated).
+        num_dropped: () int32, visible landmarks dropped for non-finite positions.
+        step: () int32, number of update calls.
     """
 
     probs: dict[str, jax.Array]
@@ -81,10 +101,12 @@ class Mapper(NamedTuple):
     """A PQRM map's pure functions and static description (like an optax transformation).
 
     init() -> MapState
-    update(state, key, positions (M, 2), visible (M,), sigma) -> MapState (jitted)
-    update_batch(states, keys (R,), positions (R, M, 2), visible (R, M), sigma) -> MapState
+    update(state, key, positions [M, 2], visible [M], sigma) -> MapState (jitted)
+    update_batch(states, keys [R], positions [R, M, 2], visible [R, M], sigma) -> MapState
         R independent maps at once (leading axis R on every leaf), equal to ``vmap(update)``
-        bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``).
+        bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``);
+        it holds one (S, 6) bank per map, so R·(48·S + T·bytes per triplet) must fit
+        ``max_bytes`` (refused up front otherwise).
     """
 
     init: Callable[[], MapState]
@@ -97,9 +119,16 @@ class Mapper(NamedTuple):
 
 
 def _bayes(prior, meas, mapped, seen):
-    """Eq. 2.10 with initialisation and the conflict rule; returns (new, conflict)."""
+    """Eq. 2.10 with initialisation and the conflict rule; returns (new, conflict).
+
+    The normaliser is summed column by column in a fixed order: XLA's row reduction picks
+    its summation order from the number of rows, which would make a row's bits depend on how
+    many triplets share the call (a sparse map must give exactly the dense map's rows).
+    """
     post = meas * prior
-    z = jnp.sum(post, axis=-1, keepdims=True)
+    z = post[:, :1]
+    for q in range(1, post.shape[-1]):
+        z = z + post[:, q:q + 1]
     conflict = seen & mapped & (z[:, 0] <= 0)
     post = post / jnp.where(z > 0, z, 1.0)
     new = jnp.where((seen & ~mapped)[:, None], meas, prior)
@@ -108,7 +137,7 @@ def _bayes(prior, meas, mapped, seen):
 
 
 def _prepare(positions, visible, sigma, triplets):
-    """Per-call inputs of the kernel: (means (T,3,2), sigma (T,3), seen (T,), dropped ())."""
+    """Per-call inputs of the kernel: (means [T, 3, 2], sigma [T, 3], seen [T], dropped ())."""
     m = positions.shape[0]
     dtype = jnp.result_type(positions, jnp.float32)
     positions = positions.astype(dtype)
@@ -124,7 +153,7 @@ def _prepare(positions, visible, sigma, triplets):
 
 
 def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
-    """Eq. 2.10 for every seen triplet from its root-calculus sample counts (T, Q_root)."""
+    """Eq. 2.10 for every seen triplet from its root-calculus sample counts [T, Q_root]."""
     defined = jnp.sum(counts, axis=-1) > 0
     use = seen & defined
     fine = counts.astype(jnp.float32)
@@ -193,7 +222,7 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
 def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
-    z (Rg, c, C, 6) banks of the Rg maps; m (Rg·N, 6), s (Rg·N, 3), mask (Rg·N,) per triplet
+    z [Rg, c, C, 6] banks of the Rg maps; m [Rg·N, 6], s [Rg·N, 3], mask [Rg·N] per triplet
     row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
     the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
     ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, so every seen row is updated and nothing
@@ -236,7 +265,29 @@ def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
     return rows
 
 
+def _check_map_bytes(t: int, cals, max_bytes, *, dense: bool) -> None:
+    if max_bytes is None:
+        return
+    need = t * map_bytes_per_triplet(cals)
+    if need > max_bytes:
+        what = "the dense map over all ordered triplets" if dense else "this map"
+        raise ValueError(
+            f"{what} has {t} triplets, about {need / 2**30:.2f} GiB (≈ "
+            f"{map_bytes_per_triplet(cals)} B per triplet) > max_bytes = "
+            f"{max_bytes / 2**30:.2f} GiB: pass triplets=[[i, j, k], ...] (a sparse map over "
+            "only the triplets you need) or raise max_bytes")
+
+
+def _check_real(x, name: str) -> None:
+    dt = getattr(x, "dtype", None)
+    if dt is None:
+        dt = np.asarray(x).dtype
+    if jnp.issubdtype(dt, jnp.complexfloating):
+        raise TypeError(f"{name} is complex ({dt}); positions must be real")
+
+
 def _check_sigma(sigma) -> None:
+    _check_real(sigma, "sigma")
     if isinstance(sigma, jax.core.Tracer):
         return
     s = np.asarray(sigma, dtype=float)
@@ -251,16 +302,39 @@ def mapper(
     *,
     chunk_triplets: int = 4096,
     sparse_block: int = 1024,
+    triplets=None,
+    max_bytes: int | None = DEFAULT_MAX_BYTES,
 ) -> Mapper:
     """A PQRM map over all ordered triplets of ``num_landmarks`` landmarks (P Alg. 1).
 
+    ``triplets`` (T, 3) makes a sparse map over only those ordered triplets (same interface,
+    rows identical to the dense map's rows for them); the dense map has
+    T = M(M−1)(M−2) rows of about :func:`map_bytes_per_triplet` bytes, and a map whose
+    estimate exceeds ``max_bytes`` (``None``: no check) is refused with ``ValueError``.
+
     ``update`` samples eq. 2.9 for all T triplets (static shapes) and masks the unseen ones.
     ``update_batch(states, keys, positions, visible, sigma, groups=1)`` updates R maps at once
-    (sigma: scalar, (R,) or (R, M)): with the EDC as root it gathers the seen triplets of all R
-    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so
-    the sampling work is proportional to what is seen (in Padgett's study about 1 triplet in
-    8), with results identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static)
-    compacts that many slices of the R maps independently (one per device when sharded).
+    (sigma: scalar, [R] or [R, M]): with the EDC as root it gathers the seen triplets of all R
+    maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so the sampling
+    work is proportional to what is seen (in Padgett's study about 1 triplet in 8), with results
+    identical to ``jax.vmap(update)`` for the same keys; ``groups`` (static) compacts that many
+    slices of the R maps independently (one per device when sharded).
+
+    Args:
+        representations: the calculi mapped at once (objects or registered names); all must be
+            merges of one root calculus.
+        num_landmarks: M, the landmark capacity (T = M(M−1)(M−2) ordered triplets).
+        num_samples: S, samples per triplet per update.
+        chunk_triplets: triplets per sampling block (bounds the working set).
+        sparse_block: rows per piece of the batched sparse update.
+
+    Returns:
+        A :class:`Mapper` of pure functions (``init``, ``update``, ``update_batch``).
+
+    Raises:
+        ValueError: for no or duplicate representations, representations without a common root
+            calculus, or a non-positive ``num_samples``; the returned functions raise for inputs
+            of the wrong shape and bad ``sigma``.
 
     >>> import jax, jax.numpy as jnp
     >>> pq = mapper(("edc", "lr"), num_landmarks=4, num_samples=64)
@@ -269,6 +343,9 @@ def mapper(
     >>> st = pq.update(st, jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
     >>> int(st.mapped.sum()), st.probs["lr"].shape      # the 6 orderings of landmarks 0, 1, 2
     (6, (24, 2))
+    >>> sp = mapper(("edc", "lr"), num_landmarks=4, num_samples=64, triplets=[[0, 1, 2]])
+    >>> sp.init().probs["lr"].shape
+    (1, 2)
     """
     cals = tuple(calculi.get(c) for c in representations)
     if not cals:
@@ -282,7 +359,17 @@ def mapper(
                          "(one sampling pass serves them all)")
     if not isinstance(num_samples, int | np.integer) or num_samples < 1:
         raise ValueError(f"num_samples must be a positive integer, got {num_samples!r}")
-    triplets = ordered_triplets(num_landmarks)
+    if triplets is None:
+        if isinstance(num_landmarks, int | np.integer) and num_landmarks >= 3:
+            t_dense = int(num_landmarks) * (int(num_landmarks) - 1) * (int(num_landmarks) - 2)
+            _check_map_bytes(t_dense, cals, max_bytes, dense=True)
+        triplets = ordered_triplets(num_landmarks)
+    else:
+        if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
+            raise ValueError(f"a PQRM map needs at least three landmarks, got "
+                             f"{num_landmarks!r}")
+        triplets = check_triplets(triplets, int(num_landmarks))
+        _check_map_bytes(triplets.shape[0], cals, max_bytes, dense=False)
     t = triplets.shape[0]
     root = root_of(cals[0])
 
@@ -300,7 +387,7 @@ def mapper(
 
     def update(state: MapState, key: jax.Array, positions: jax.Array, visible: jax.Array,
                sigma) -> MapState:
-        """Incorporate one measurement of all landmarks (eq. 2.10); see the module doc."""
+        """Incorporate one measurement of all landmarks (eq. 2.10); see docs/pqrm.md §map."""
         if np.shape(positions) != (num_landmarks, 2):
             raise ValueError(f"positions must have shape ({num_landmarks}, 2), "
                              f"got {tuple(np.shape(positions))}")
@@ -310,6 +397,7 @@ def mapper(
         if np.ndim(sigma) not in (0, 1) or (np.ndim(sigma) == 1
                                             and np.shape(sigma) != (num_landmarks,)):
             raise ValueError(f"sigma must be a scalar or ({num_landmarks},)")
+        _check_real(positions, "positions")
         _check_sigma(sigma)
         return impl(state, key, positions, visible, sigma)
 
@@ -332,7 +420,16 @@ def mapper(
             raise ValueError(f"sigma must be a scalar, ({r},) or ({r}, {num_landmarks})")
         if np.shape(keys)[:1] != (r,):
             raise ValueError(f"keys must have leading shape ({r},)")
+        _check_real(positions, "positions")
         _check_sigma(sigma)
+        # the sparse path holds one (S, 6) bank per map and R·T rows of state
+        need = r * (int(num_samples) * 6 * 8 + t * map_bytes_per_triplet(cals))
+        if max_bytes is not None and need > max_bytes:
+            raise ValueError(
+                f"update_batch of {r} maps needs about {need / 2**30:.2f} GiB (one bank of "
+                f"num_samples = {num_samples} draws and {t} triplet rows per map) > max_bytes = "
+                f"{max_bytes / 2**30:.2f} GiB: update fewer maps per call, lower num_samples, "
+                "pass triplets=..., or raise max_bytes")
         return batch_impl(state, keys, positions, visible, sigma, groups=int(groups))
 
     return Mapper(init, update, triplets, cals, int(num_landmarks), int(num_samples),
@@ -341,12 +438,26 @@ def mapper(
 
 def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
                     sigma) -> MapState:
-    """Eager convenience: update with the landmarks ``ids`` (K,) seen at ``positions`` (K, 2).
+    """Eager convenience: update with the landmarks ``ids`` [K] seen at ``positions`` [K, 2].
 
-    Raises ``ValueError`` for duplicate or out-of-range ids, NaN/inf positions and bad sigma.
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
+
+    Args:
+        pq: the mapper (:func:`mapper`).
+        state: the current :class:`MapState`.
+        key: PRNG key of this update's samples.
+        ids: [K] int landmark ids, distinct, in ``[0, num_landmarks)``.
+        positions: [K, 2] measured positions (robot frame).
+        sigma: noise std, scalar or [K] (one per id).
+
+    Returns:
+        The updated :class:`MapState`.
+
+    Raises:
+        ValueError: for duplicate or out-of-range ids, NaN/inf positions and bad ``sigma``.
     """
     ids = np.asarray(ids)
+    _check_real(positions, "positions")
     positions = np.asarray(positions, dtype=np.float32)
     if ids.ndim != 1 or positions.shape != (ids.shape[0], 2):
         raise ValueError(f"ids (K,) and positions (K, 2) expected, got {ids.shape} and "
@@ -359,6 +470,11 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
         raise ValueError(f"landmark ids must be in [0, {pq.num_landmarks}), got {ids.tolist()}")
     if not np.all(np.isfinite(positions)):
         raise ValueError("positions contain NaN or infinite measurements")
+    with np.errstate(over="ignore", invalid="ignore"):
+        spread = positions.max(axis=0, initial=0) - positions.min(axis=0, initial=0)
+    if not np.all(np.isfinite(spread)):
+        raise ValueError("differences between observed positions overflow float32; translate "
+                         "or rescale the positions")
     _check_sigma(sigma)
     full = np.zeros((pq.num_landmarks, 2), np.float32)
     vis = np.zeros(pq.num_landmarks, bool)

@@ -1,44 +1,12 @@
 """The PQRM measurement model: ``p(R^n = q | Z^n)`` by sampling (P §2.2.2, eq. 2.9).
 
-For each landmark triplet n the three measured positions ``means[n] = (A, B, C)`` (robot frame)
-are the centres of an isotropic Gaussian inverse sensor model ``p(L^n | Z^n)`` with standard
-deviation ``sigma[n, i]`` per landmark. Eq. 2.9 is estimated by drawing S landmark
-configurations, evaluating the k constraint signs of each and counting the samples per state:
-``p̂(q) = #{s : state(s) = q} / #{s : state(s) is defined}``.
+Offers the state probabilities of N triplets (``means`` ``[N, 3, 2]``, ``sigma`` ``[N, 3]``)
+for one calculus or for several at once, the fused EDC sign kernel and its per-state counts,
+and the aggregation of EDC counts into any calculus that merges the EDC. Eager calls raise
+``ValueError`` for bad input; inside ``jit`` a row with no defined sample is all zeros.
 
-**One sampling pass for every representation.** All of Padgett's representations (P Fig. 2.2)
-are merges of the 20-state EDC, so the kernel counts EDC states once and every coarser
-calculus is an exact aggregation of those counts (``calc.parent_map``): the six
-representations of the Monte Carlo study cost one pass. A calculus that is not a merge of the
-EDC takes a generic (slower) path through ``Calculus.classify``.
-
-**The fused EDC kernel.** Per sample the kernel computes ``u = e×d``, ``v = e·d``, ``m = |e|²``,
-``n = |d|²`` (d = B−A, e = C−A), the six homogenised EDC constraints and from their strict signs
-an arithmetic state key (side × band × circle count) — no table lookup, no division. It equals
-``edc.classify`` on every sample whose constraint values are all non-zero and finite (a test
-checks this); a sample with a zero constraint (C exactly on a boundary, A = B) or a non-finite
-value is *rejected* (counted in no state), which is what ``classify`` does for EDC boundaries.
-Because every representation is aggregated from EDC counts, a sample on an EDC boundary is
-rejected for a coarser calculus too, even where that boundary is internal to a coarse state
-(e.g. β = ½ for LR); with σ > 0 this has probability zero, with σ = 0 it affects only inputs
-exactly on an EDC boundary.
-The counts are accumulated with a single variadic XLA reduction into byte fields packed four
-per uint32 word (chunks of at most 255 samples, so a field never overflows) — a histogram
-without scatter and without a one-hot tensor.
-
-**Common random numbers.** One bank of S standard-normal draws (S, 3, 2) is shared by all
-triplets of a call and scaled by each triplet's means and sigmas. Every row is therefore
-exactly the S-sample Monte Carlo estimator of eq. 2.9 (same distribution as with independent
-draws); only the errors of different rows are correlated. Use a fresh key per call.
-
-**Bounded memory.** The sample axis is reduced inside the fusion (chunks of ≤ 255 samples) and
-the triplet axis is processed in blocks of ``chunk_triplets`` with ``lax.map``, so the working
-set is O(chunk_triplets · 255) regardless of N·S; the output is (N, Q).
-
-**Bad input.** ``means`` must be (N, 3, 2); eager calls raise ``ValueError`` for NaN/inf
-means, negative or NaN sigma and non-positive ``num_samples``. Inside ``jit``/``vmap`` values
-are not inspected: a row whose samples are all rejected (non-finite input, σ = 0 with C exactly
-on a boundary or A = B) is all zeros — never NaN — and ``valid`` reports 0 samples for it.
+One sampling pass for every representation, the fused kernel, common random numbers, bounded
+memory and bad input: docs/pqrm.md §measurement.
 """
 
 from __future__ import annotations
@@ -53,11 +21,13 @@ import numpy as np
 
 from .. import calculi
 from ..calculi import Calculus
+from ..calculi.calculus import rescale_pow2
 
 __all__ = [
     "EDC_NUM_STATES", "fine_counts", "state_counts", "state_probabilities",
     "multi_state_probabilities", "aggregation_matrix", "root_of", "edc_states_fused",
-    "check_measurement_inputs",
+    "check_measurement_inputs", "normal_bank_rows", "sample_block", "working_set_bytes",
+    "MAX_NUM_SAMPLES", "DEFAULT_MAX_BYTES",
 ]
 
 EDC_NUM_STATES = 20
@@ -65,9 +35,15 @@ _FIELD_BITS = 8
 _CHUNK_SAMPLES = (1 << _FIELD_BITS) - 1  # 255: a byte field never overflows
 _WORDS = math.ceil(EDC_NUM_STATES * _FIELD_BITS / 32)  # 5 uint32 words
 _REJECT_KEY = 2 * 10  # keys 0..19 are states; 20 = rejected sample (in no counted word)
+MAX_NUM_SAMPLES = 2**31 - 1  # counts are int32
+DEFAULT_MAX_BYTES = 8 << 30  # refuse a request whose estimated working set is above this
+_BLOCK_PAIRS = 1 << 24  # sample–triplet pairs per streamed block (EDC kernel)
+_BLOCK_SAMPLES_MAX = 1 << 18  # samples per streamed block at most (bank rows 6 MiB)
+_GENERIC_BLOCK_PAIRS = 1 << 20  # the generic path materialises (B, S, Q) per block
 
 # Realisable (inside A-circle, inside B-circle) pairs per band, behind A .. in front of B; the
-# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5, SPEC §2.1).
+# key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5,
+# docs/decisions.md §2.1).
 _BAND_CIRCLES = (
     ((0, 0), (1, 0)),
     ((0, 0), (1, 0), (1, 1)),
@@ -115,7 +91,7 @@ def key_to_edc_state() -> np.ndarray:
 
 
 def aggregation_matrix(calc: Calculus) -> np.ndarray:
-    """(Q_root, Q) 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
+    """[Q_root, Q] 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
     fine_to = np.arange(calc.num_states)
     c = calc
     while getattr(c, "parent", None) is not None:
@@ -158,7 +134,12 @@ def edc_states_fused(a: jax.Array, b: jax.Array, c: jax.Array) -> jax.Array:
     Exposed so tests can check it against ``calculi.get("edc").classify``.
     """
     a, b, c = (jnp.asarray(x, jnp.result_type(x, jnp.float32)) for x in (a, b, c))
-    key = _edc_keys(*_uvmn(a[..., 0], a[..., 1], b[..., 0], b[..., 1], c[..., 0], c[..., 1]))
+    a, b, c = jnp.broadcast_arrays(a, b, c)
+    d, e = b - a, c - a
+    big = jnp.maximum(jnp.max(jnp.abs(d), axis=-1), jnp.max(jnp.abs(e), axis=-1))
+    d, e = rescale_pow2(big[..., None], d, e)
+    zero = jnp.zeros_like(d[..., 0])
+    key = _edc_keys(*_uvmn(zero, zero, d[..., 0], d[..., 1], e[..., 0], e[..., 1]))
     table = jnp.asarray(np.append(key_to_edc_state(), -1).astype(np.int32))
     return table[key.astype(jnp.int32)]
 
@@ -173,9 +154,9 @@ def _variadic_sum(ops, axis):
 
 
 def edc_block_counts(mT, sT, zc):
-    """Counts in key order for one block: mT (6, B), sT (3, B) → (B, 20) int32.
+    """Counts in key order for one block: mT [6, B], sT [3, B] → [B, 20] int32.
 
-    ``zc`` is the sample bank, (c, C, 6) shared by the B triplets, or (c, C, 6, B) with one bank
+    ``zc`` is the sample bank, [c, C, 6] shared by the B triplets, or [c, C, 6, B] with one bank
     per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
     """
     def col(x):
@@ -184,6 +165,13 @@ def edc_block_counts(mT, sT, zc):
     def zz(j):
         return zc[:, :, j, None] if zc.ndim == 3 else zc[:, :, j, :]
 
+    # translate each triplet to A and rescale it (means and sigmas) by a power of two: exact,
+    # so the per-sample arithmetic below is the unscaled one times 2^-k (no over/underflow)
+    md = jnp.stack([mT[2] - mT[0], mT[3] - mT[1], mT[4] - mT[0], mT[5] - mT[1]])
+    big = jnp.maximum(jnp.max(jnp.abs(md), axis=0), jnp.max(sT, axis=0))
+    md, sT = rescale_pow2(big, md, sT)
+    zero = jnp.zeros_like(md[0])
+    mT = jnp.stack([zero, zero, md[0], md[1], md[2], md[3]])
     # d = B − A and e = C − A per sample: mean difference + the two scaled noise terms
     dx = col(mT[2] - mT[0]) + col(sT[1]) * zz(2) - col(sT[0]) * zz(0)
     dy = col(mT[3] - mT[1]) + col(sT[1]) * zz(3) - col(sT[0]) * zz(1)
@@ -202,7 +190,7 @@ def edc_block_counts(mT, sT, zc):
 
 
 def sample_bank(key, num_samples: int, dtype):
-    """Standard-normal bank (c, C, 6), padded with NaN (rejected) up to c·C ≥ num_samples."""
+    """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples."""
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
     z = jax.random.normal(key, (num_samples, 6), dtype)
@@ -212,49 +200,263 @@ def sample_bank(key, num_samples: int, dtype):
     return z.reshape(nchunks, size, 6)
 
 
-def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
-    n = means.shape[0]
-    dtype = means.dtype
-    z = sample_bank(key, num_samples, dtype)
-    mT = means.reshape(n, 6).T  # (6, N): ax, ay, bx, by, cx, cy
-    sT = sigma.T  # (3, N)
-    blk = max(1, min(chunk_triplets, n))
+def _threefry_key_data(key):
+    """(k1, k2) uint32 words of a threefry key, or None for another PRNG implementation."""
+    if not jax.config.jax_threefry_partitionable:
+        return None
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if "threefry" not in str(jax.random.key_impl(key)):
+            return None
+        data = jax.random.key_data(key)
+    else:
+        if jax.config.jax_default_prng_impl != "threefry2x32" or key.shape != (2,):
+            return None
+        data = key
+    data = data.astype(jnp.uint32)
+    return data[0], data[1]
+
+
+def _row_counters(rows: jax.Array):
+    """Threefry counters (hi, lo) of the six elements of each row of an (S, 6) array."""
+    r = rows.astype(jnp.uint32)[:, None]
+    j = jnp.arange(6, dtype=jnp.uint32)[None, :]
+    # 6 r + j < 3 · 2^32 for r < 2^31: split r = h·2^30 + l and form the 64-bit sum in words
+    h = r >> 30
+    x = 3 * (r & jnp.uint32((1 << 30) - 1))  # < 2^32
+    lo0 = x << 1
+    lo1 = lo0 + j
+    hi = (x >> 31) + (lo1 < lo0).astype(jnp.uint32)
+    lo = lo1 + h * jnp.uint32(1 << 31)
+    hi = hi + h + ((h > 0) & (lo < lo1)).astype(jnp.uint32)
+    return hi, lo
+
+
+def normal_bank_rows(key: jax.Array, start, num_rows: int, dtype=jnp.float32) -> jax.Array:
+    """Rows ``[start, start + num_rows)`` of ``jax.random.normal(key, (S, 6), dtype)``.
+
+    The same bits for any S ≥ start + num_rows (partitionable threefry: element (s, j) draws
+    from counter 6·s + j), without forming the other rows — the streamed bank of
+    :func:`state_probabilities`. ``start`` may be traced. Raises ``ValueError`` for a key of
+    another PRNG implementation.
+
+    >>> import jax, jax.numpy as jnp
+    >>> k = jax.random.key(3)
+    >>> bool(jnp.array_equal(normal_bank_rows(k, 5, 4), jax.random.normal(k, (12, 6))[5:9]))
+    True
+    """
+    if _threefry_key_data(key) is None:
+        raise ValueError("normal_bank_rows needs a threefry key with jax_threefry_partitionable")
+    return _bank_rows_jit(key, start, num_rows=int(num_rows), dtype=jnp.dtype(dtype))
+
+
+@partial(jax.jit, static_argnames=("num_rows", "dtype"))
+def _bank_rows_jit(key, start, *, num_rows: int, dtype):
+    return _bank_rows(key, start, num_rows, dtype)
+
+
+def _bank_rows(key, start, num_rows: int, dtype):
+    from jax.extend.random import threefry2x32_p
+
+    words = _threefry_key_data(key)
+    dtype = jnp.dtype(dtype)
+    finfo = jnp.finfo(dtype)
+    rows = jnp.asarray(start, jnp.int32) + jnp.arange(num_rows, dtype=jnp.int32)
+    hi, lo = _row_counters(rows)
+    b1, b2 = threefry2x32_p.bind(words[0], words[1], hi, lo)
+    if finfo.bits == 64:
+        bits = (b1.astype(jnp.uint64) << jnp.uint64(32)) | b2.astype(jnp.uint64)
+        utype = jnp.uint64
+    elif finfo.bits == 32:
+        bits = b1 ^ b2
+        utype = jnp.uint32
+    else:
+        raise ValueError(f"normal_bank_rows supports float32 and float64, not {dtype}")
+    # jax.random.uniform(lo=nextafter(-1, 0), hi=1) then sqrt(2)·erfinv, as jax.random.normal
+    lo_v = np.nextafter(np.array(-1.0, dtype), np.array(0.0, dtype), dtype=dtype)
+    hi_v = np.array(1.0, dtype)
+    fbits = jax.lax.shift_right_logical(bits, jnp.asarray(finfo.bits - finfo.nmant, utype))
+    fbits = fbits | jnp.asarray(np.array(1.0, dtype).view(utype), utype)
+    floats = jax.lax.bitcast_convert_type(fbits, dtype) - jnp.asarray(1.0, dtype)
+    u = jax.lax.max(jnp.asarray(lo_v, dtype), floats * (hi_v - lo_v) + lo_v)
+    return jax.lax.mul(jnp.asarray(np.sqrt(2), dtype), jax.scipy.special.erfinv(u))
+
+
+def sample_block(chunk_triplets: int, num_triplets: int | None = None) -> int:
+    """Samples per streamed block of the EDC kernel (a multiple of 255).
+
+    About 2^24 sample–triplet pairs per block and at most 2^18 samples; a request with
+    S ≤ this block is computed in one piece (no scan).
+
+    >>> sample_block(4096), sample_block(4096, num_triplets=10)
+    (4080, 262140)
+    """
+    blk = max(1, min(int(chunk_triplets), num_triplets or int(chunk_triplets)))
+    groups = max(1, min(_BLOCK_PAIRS // (_CHUNK_SAMPLES * blk),
+                        _BLOCK_SAMPLES_MAX // _CHUNK_SAMPLES))
+    return groups * _CHUNK_SAMPLES
+
+
+def _generic_block(chunk: int, num_triplets: int) -> int:
+    blk = max(1, min(chunk, num_triplets))
+    return max(1, min(_GENERIC_BLOCK_PAIRS // blk, _BLOCK_SAMPLES_MAX))
+
+
+def working_set_bytes(num_triplets: int, num_samples: int, root_states: int = EDC_NUM_STATES,
+                      *, chunk_triplets: int = 4096, generic: bool = False) -> int:
+    """Estimated peak working set (bytes) of one :func:`fine_counts` call.
+
+    The (N, Q) output and inputs (~ N · (36 + 12 Q) B) plus one streamed block:
+    ~400 B per (255-sample chunk × triplet) and ~64 B per sample of the EDC kernel, or
+    ~(40 + Q) B per sample–triplet pair of the generic path. Independent of S once S exceeds
+    one block.
+
+    >>> working_set_bytes(10, 10**8) < 200 * 2**20
+    True
+    """
+    n = max(1, int(num_triplets))
+    fixed = n * (36 + 12 * root_states)
+    if generic:
+        blk = max(1, min(max(1, int(chunk_triplets) // 16), n))
+        sb = min(int(num_samples), _generic_block(blk, n))
+        return fixed + blk * sb * (40 + root_states) + 24 * sb
+    blk = max(1, min(int(chunk_triplets), n))
+    sb = min(int(num_samples), sample_block(chunk_triplets, n))
+    chunks = -(-sb // _CHUNK_SAMPLES)
+    return fixed + 400 * chunks * blk + 64 * sb
+
+
+def _pad_triplets(mT, sT, blk: int, dtype):
+    n = mT.shape[1]
     nblk = -(-n // blk)
     pad = nblk * blk - n
     if pad:
         mT = jnp.concatenate([mT, jnp.full((6, pad), jnp.nan, dtype)], axis=1)
         sT = jnp.concatenate([sT, jnp.zeros((3, pad), dtype)], axis=1)
+    return mT, sT, nblk
+
+
+def _counts_all_blocks(mT, sT, z, nblk: int, blk: int):
+    """Key-order counts (nblk·blk, 20) of every triplet block against one bank ``z``."""
     if nblk == 1:
-        counts = edc_block_counts(mT, sT, z)
+        return edc_block_counts(mT, sT, z)
+    mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
+    sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
+    counts = jax.lax.map(lambda ms: edc_block_counts(ms[0], ms[1], z), (mB, sB))
+    return counts.reshape(nblk * blk, EDC_NUM_STATES)
+
+
+def _streamed_bank(key, num_samples: int, block: int, dtype):
+    """A function b ↦ bank block b, (block/255, 255, 6), NaN past ``num_samples``."""
+    words = _threefry_key_data(key)
+
+    def bank(b):
+        if words is not None:
+            z = _bank_rows(key, b * block, block, dtype)
+        else:  # another PRNG: one folded key per block
+            z = jax.random.normal(jax.random.fold_in(key, b), (block, 6), dtype)
+        idx = b * block + jnp.arange(block)
+        z = jnp.where((idx < num_samples)[:, None], z, jnp.nan)
+        return z
+
+    return bank
+
+
+def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
+    n = means.shape[0]
+    dtype = means.dtype
+    mT = means.reshape(n, 6).T  # (6, N): ax, ay, bx, by, cx, cy
+    sT = sigma.T  # (3, N)
+    blk = max(1, min(chunk_triplets, n))
+    mT, sT, nblk = _pad_triplets(mT, sT, blk, dtype)
+    block = sample_block(chunk_triplets, n)
+    if num_samples <= block:
+        counts = _counts_all_blocks(mT, sT, sample_bank(key, num_samples, dtype), nblk, blk)
     else:
-        mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
-        sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
-        counts = jax.lax.map(lambda ms: edc_block_counts(ms[0], ms[1], z), (mB, sB))
-        counts = counts.reshape(nblk * blk, EDC_NUM_STATES)
+        bank = _streamed_bank(key, num_samples, block, dtype)
+
+        def step(acc, b):
+            z = bank(b).reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6)
+            return acc + _counts_all_blocks(mT, sT, z, nblk, blk), None
+
+        zero = jnp.zeros((nblk * blk, EDC_NUM_STATES), jnp.int32)
+        counts, _ = jax.lax.scan(step, zero, jnp.arange(-(-num_samples // block)))
     counts = counts[:n]
     # key order → EDC state order
     inv = np.argsort(key_to_edc_state())
     return counts[:, inv]
 
 
+@partial(jax.jit, static_argnames=("num_samples", "block", "dtype"))
+def _bank_block(key, b, *, num_samples: int, block: int, dtype):
+    z = _streamed_bank(key, num_samples, block, dtype)(b)
+    return z.reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6)
+
+
+@partial(jax.jit, static_argnames=("chunk_triplets",))
+def _prepare_edc(means, sigma, *, chunk_triplets: int):
+    n = means.shape[0]
+    sigma = _broadcast_sigma(sigma, n, means.dtype)
+    blk = max(1, min(chunk_triplets, n))
+    return _pad_triplets(means.reshape(n, 6).T, sigma.T, blk, means.dtype)[:2]
+
+
+@partial(jax.jit, static_argnames=("nblk", "blk"), donate_argnums=(0,))
+def _accumulate_block(acc, mT, sT, z, *, nblk: int, blk: int):
+    return acc + _counts_all_blocks(mT, sT, z, nblk, blk)
+
+
+def _fine_counts_edc_eager(key, means, sigma, num_samples: int, chunk_triplets: int):
+    """The streamed EDC counts as a host loop over sample blocks (eager calls only).
+
+    Same blocks, bank rows and kernel as the ``lax.scan`` of :func:`_fine_counts_edc`, so the
+    same counts; XLA compiles the kernel ~2-3x faster as its own program than inside a loop
+    body that also generates the bank, so eager calls take this path.
+    """
+    n = means.shape[0]
+    blk = max(1, min(chunk_triplets, n))
+    nblk = -(-n // blk)
+    block = sample_block(chunk_triplets, n)
+    mT, sT = _prepare_edc(means, sigma, chunk_triplets=chunk_triplets)
+    acc = jnp.zeros((nblk * blk, EDC_NUM_STATES), jnp.int32)
+    for b in range(-(-num_samples // block)):
+        z = _bank_block(key, jnp.int32(b), num_samples=num_samples, block=block,
+                        dtype=means.dtype)
+        acc = _accumulate_block(acc, mT, sT, z, nblk=nblk, blk=blk)
+    inv = np.argsort(key_to_edc_state())
+    return acc[:n][:, inv]
+
+
 def _fine_counts_generic(key, root: Calculus, means, sigma, num_samples: int, chunk: int):
-    z = jax.random.normal(key, (num_samples, 3, 2), means.dtype)
     q = root.num_states
-
-    def one_block(args):
-        mb, sb = args  # (B,3,2), (B,3)
-        pts = mb[:, None] + sb[:, None, :, None] * z[None]  # (B,S,3,2)
-        st = root.classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
-        return jnp.sum(st[..., None] == jnp.arange(q), axis=1, dtype=jnp.int32)
-
     n = means.shape[0]
     blk = max(1, min(chunk, n))
     nblk = -(-n // blk)
     pad = nblk * blk - n
     mp = jnp.concatenate([means, jnp.full((pad, 3, 2), jnp.nan, means.dtype)])
     sp = jnp.concatenate([sigma, jnp.zeros((pad, 3), sigma.dtype)])
-    counts = jax.lax.map(one_block, (mp.reshape(nblk, blk, 3, 2), sp.reshape(nblk, blk, 3)))
-    return counts.reshape(nblk * blk, q)[:n]
+    mp, sp = mp.reshape(nblk, blk, 3, 2), sp.reshape(nblk, blk, 3)
+
+    def block_counts(z):
+        def one_block(args):
+            mb, sb = args  # (B,3,2), (B,3)
+            pts = mb[:, None] + sb[:, None, :, None] * z[None]  # (B,S,3,2)
+            st = root.classify(pts[..., 0, :], pts[..., 1, :], pts[..., 2, :])
+            return jnp.sum(st[..., None] == jnp.arange(q), axis=1, dtype=jnp.int32)
+
+        return jax.lax.map(one_block, (mp, sp)).reshape(nblk * blk, q)
+
+    block = _generic_block(blk, n)
+    if num_samples <= block:
+        counts = block_counts(jax.random.normal(key, (num_samples, 3, 2), means.dtype))
+    else:
+        bank = _streamed_bank(key, num_samples, block, means.dtype)
+
+        def step(acc, b):
+            return acc + block_counts(bank(b).reshape(block, 3, 2)), None
+
+        counts, _ = jax.lax.scan(step, jnp.zeros((nblk * blk, q), jnp.int32),
+                                 jnp.arange(-(-num_samples // block)))
+    return counts[:n]
 
 
 def _broadcast_sigma(sigma, n: int, dtype):
@@ -272,8 +474,28 @@ def root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_tr
     return _fine_counts_generic(key, root, means, sigma, num_samples, max(1, chunk_triplets // 16))
 
 
+def _as_real_array(x, name: str):
+    """``x`` as an array (nested lists welcome); complex or non-numeric raises TypeError."""
+    if not isinstance(x, jax.Array | np.ndarray):
+        try:
+            x = np.asarray(x)
+        except (TypeError, ValueError) as err:
+            raise TypeError(f"{name} must be an array of real numbers") from err
+    if jnp.issubdtype(x.dtype, jnp.complexfloating):
+        raise TypeError(f"{name} is complex ({x.dtype}); positions and sigmas must be real")
+    if jnp.issubdtype(x.dtype, jnp.bool_) or not (jnp.issubdtype(x.dtype, jnp.integer)
+                               or jnp.issubdtype(x.dtype, jnp.floating)):
+        raise TypeError(f"{name} has dtype {x.dtype}; expected real numbers")
+    return x
+
+
 def check_measurement_inputs(means, sigma, num_samples: int | None = None) -> None:
-    """Raise ``ValueError`` for a malformed measurement (shapes always, values when concrete)."""
+    """Raise ``ValueError`` for a malformed measurement (shapes always, values when concrete).
+
+    ``TypeError`` for complex or non-numeric ``means``/``sigma``.
+    """
+    means = _as_real_array(means, "means")
+    sigma = _as_real_array(sigma, "sigma")
     shape = np.shape(means)
     if len(shape) != 3 or shape[1:] != (3, 2):
         raise ValueError(f"means must have shape (N, 3, 2) (landmarks A, B, C of N triplets), "
@@ -283,11 +505,26 @@ def check_measurement_inputs(means, sigma, num_samples: int | None = None) -> No
         raise ValueError(f"sigma must be a scalar, (N,) or (N, 3); got shape {sshape} for "
                          f"N = {shape[0]}")
     if num_samples is not None and (not isinstance(num_samples, int | np.integer)
+                                    or isinstance(num_samples, bool | np.bool_)
                                     or num_samples < 1):
         raise ValueError(f"num_samples must be a positive integer, got {num_samples!r}")
+    if num_samples is not None and num_samples > MAX_NUM_SAMPLES:
+        raise ValueError(f"num_samples = {num_samples} exceeds {MAX_NUM_SAMPLES} (2**31 - 1; "
+                         "counts are int32): draw several batches with different keys and "
+                         "add their state_counts")
     if not isinstance(means, jax.core.Tracer):
-        if not np.all(np.isfinite(np.asarray(means))):
+        m = np.asarray(means)
+        if not np.all(np.isfinite(m)):
             raise ValueError("means contain NaN or infinite measurements")
+        if m.size and jnp.issubdtype(m.dtype, jnp.floating):
+            dt = np.result_type(m.dtype, np.float32)
+            mm = m.astype(dt)
+            with np.errstate(over="ignore", invalid="ignore"):
+                diff = mm[:, 1:] - mm[:, :1]
+            if not np.all(np.isfinite(diff)):
+                raise ValueError(f"coordinate differences within a triplet overflow {dt} "
+                                 f"(|means| up to {np.abs(m).max():.3g}); translate or "
+                                 "rescale the positions")
     if not isinstance(sigma, jax.core.Tracer):
         s = np.asarray(sigma, dtype=float)
         if np.any(np.isnan(s)):
@@ -298,19 +535,61 @@ def check_measurement_inputs(means, sigma, num_samples: int | None = None) -> No
             raise ValueError("sigma must be finite")
 
 
+def _check_working_set(calc: Calculus, n: int, num_samples: int, chunk_triplets: int,
+                       max_bytes: int | None) -> None:
+    if not isinstance(chunk_triplets, int | np.integer) or isinstance(chunk_triplets, bool) \
+            or chunk_triplets < 1:
+        raise ValueError(f"chunk_triplets must be a positive integer, got {chunk_triplets!r}")
+    if max_bytes is None:
+        return
+    root = root_of(calc)
+    generic = not is_edc(root)
+    need = working_set_bytes(n, num_samples, root.num_states, chunk_triplets=chunk_triplets,
+                             generic=generic)
+    if need > max_bytes:
+        raise ValueError(
+            f"estimated working set {need / 2**30:.2f} GiB for N = {n} triplets, S = "
+            f"{num_samples} samples, chunk_triplets = {chunk_triplets} exceeds max_bytes = "
+            f"{max_bytes / 2**30:.2f} GiB: lower chunk_triplets, split the triplets into "
+            "several calls, or raise max_bytes")
+
+
 def fine_counts(
     key: jax.Array, calculus: Calculus | str, means: jax.Array, sigma, num_samples: int,
-    *, chunk_triplets: int = 4096,
+    *, chunk_triplets: int = 4096, max_bytes: int | None = DEFAULT_MAX_BYTES,
 ) -> jax.Array:
-    """Sample counts (N, Q_root) of ``root_of(calculus)`` states (eq. 2.9 before normalising).
+    """Sample counts [N, Q_root] of ``root_of(calculus)`` states (eq. 2.9 before normalising).
 
-    Rows sum to the number of defined samples (≤ ``num_samples``; rejected samples — a zero
-    constraint or a non-finite value — are in no state).
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+        max_bytes: bound on the estimated working set (:func:`working_set_bytes`); ``None``
+            disables the check.
+
+    Returns:
+        [N, Q_root] int32 counts; rows sum to the number of defined samples (≤ ``num_samples``;
+        rejected samples — a zero constraint or a non-finite value — are in no state).
+
+    Raises:
+        ValueError: for bad input when called eagerly (see :func:`check_measurement_inputs`).
     """
     calc = calculi.get(calculus)
     check_measurement_inputs(means, sigma, num_samples)
+    means = _as_real_array(means, "means")
+    sigma = _as_real_array(sigma, "sigma")
+    _check_working_set(calc, int(np.shape(means)[0]), int(num_samples), chunk_triplets,
+                       max_bytes)
     means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
-    return root_counts(key, means, sigma, root=root_of(calc), num_samples=int(num_samples),
+    root = root_of(calc)
+    traced = any(isinstance(x, jax.core.Tracer) for x in (key, means, sigma))
+    if (not traced and is_edc(root) and _threefry_key_data(key) is not None
+            and int(num_samples) > sample_block(int(chunk_triplets), means.shape[0])):
+        return _fine_counts_edc_eager(key, means, sigma, int(num_samples), int(chunk_triplets))
+    return root_counts(key, means, sigma, root=root, num_samples=int(num_samples),
                         chunk_triplets=int(chunk_triplets))
 
 
@@ -321,30 +600,36 @@ def counts_to_probabilities(counts: jax.Array) -> jax.Array:
     return counts / jnp.maximum(total, 1.0)
 
 
-def state_counts(key, calculus, means, sigma, num_samples: int, *, chunk_triplets: int = 4096):
-    """Sample counts (N, Q) of ``calculus`` states (aggregated from one EDC pass)."""
+def state_counts(key, calculus, means, sigma, num_samples: int, *, chunk_triplets: int = 4096,
+                 max_bytes: int | None = DEFAULT_MAX_BYTES):
+    """Sample counts [N, Q] of ``calculus`` states (aggregated from one EDC pass; exact int32)."""
     calc = calculi.get(calculus)
-    fine = fine_counts(key, calc, means, sigma, num_samples, chunk_triplets=chunk_triplets)
-    return (fine.astype(jnp.float32) @ aggregation_matrix(calc)).astype(jnp.int32)
+    fine = fine_counts(key, calc, means, sigma, num_samples, chunk_triplets=chunk_triplets,
+                       max_bytes=max_bytes)
+    return jnp.dot(fine, jnp.asarray(aggregation_matrix(calc), jnp.int32),
+                   preferred_element_type=jnp.int32)
 
 
 def state_probabilities(
     key: jax.Array, calculus: Calculus | str, means: jax.Array, sigma, num_samples: int,
-    *, chunk_triplets: int = 4096,
+    *, chunk_triplets: int = 4096, max_bytes: int | None = DEFAULT_MAX_BYTES,
 ) -> jax.Array:
     """``p(AB:C = q | Z)`` for N triplets by sampling the Gaussian inverse sensor model (eq. 2.9).
 
     Args:
         key: PRNG key (one bank of draws shared by the rows; use a fresh key per call).
         calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
-        means: (N, 3, 2) measured positions of landmarks A, B, C of each triplet (robot frame).
-        sigma: noise std, scalar, (N,) or (N, 3) (per landmark), isotropic.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet (robot frame).
+        sigma: noise std, scalar, [N] or [N, 3] (per landmark), isotropic.
         num_samples: S, samples per triplet.
-        chunk_triplets: triplets per block (bounds the working set).
+        chunk_triplets: triplets per block (bounds the working set, with the streamed
+            sample blocks; results do not depend on it).
+        max_bytes: refuse (``ValueError``) a request whose estimated working set
+            (:func:`working_set_bytes`) exceeds this; ``None`` disables the check.
 
     Returns:
-        (N, Q) float32 probabilities; each row sums to 1, or is all zeros when no sample had a
-        defined state (see the module docstring).
+        [N, Q] float32 probabilities; each row sums to 1, or is all zeros when no sample had a
+        defined state (see docs/pqrm.md §measurement).
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])      # C right of AB
@@ -356,14 +641,30 @@ def state_probabilities(
     ((1, 20), 1.0)
     """
     return counts_to_probabilities(
-        state_counts(key, calculus, means, sigma, num_samples, chunk_triplets=chunk_triplets))
+        state_counts(key, calculus, means, sigma, num_samples, chunk_triplets=chunk_triplets,
+                     max_bytes=max_bytes))
 
 
 def multi_state_probabilities(
     key: jax.Array, calculi_: Sequence[Calculus | str], means: jax.Array, sigma,
     num_samples: int, *, chunk_triplets: int = 4096,
+    max_bytes: int | None = DEFAULT_MAX_BYTES,
 ) -> dict[str, jax.Array]:
     """``state_probabilities`` for several merges of one root calculus from one sampling pass.
+
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculi_: the calculi (objects or registered names), all merges of one root calculus.
+        means: [N, 3, 2] measured positions of landmarks A, B, C of each triplet.
+        sigma: noise std, scalar, [N] or [N, 3].
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per block (bounds the working set).
+
+    Returns:
+        A dict from calculus name to its [N, Q] float32 probabilities.
+
+    Raises:
+        ValueError: for calculi without a common root calculus, or bad input when eager.
 
     >>> import jax, jax.numpy as jnp
     >>> means = jnp.array([[[0., 0.], [0., 10.], [5., 4.]]])
@@ -371,10 +672,15 @@ def multi_state_probabilities(
     >>> sorted(ps), ps["lr"].tolist()
     (['edc', 'lr'], [[0.0, 1.0]])
     """
+    if isinstance(calculi_, str | Calculus):
+        calculi_ = [calculi_]
     cals = [calculi.get(c) for c in calculi_]
+    if not cals:
+        raise ValueError("multi_state_probabilities needs at least one calculus")
     roots = {root_identity(c) for c in cals}
     if len(roots) != 1:
         raise ValueError("multi_state_probabilities needs calculi that share one root calculus")
-    fine = fine_counts(key, cals[0], means, sigma, num_samples, chunk_triplets=chunk_triplets)
+    fine = fine_counts(key, cals[0], means, sigma, num_samples, chunk_triplets=chunk_triplets,
+                       max_bytes=max_bytes)
     f = fine.astype(jnp.float32)
     return {c.name: counts_to_probabilities(f @ aggregation_matrix(c)) for c in cals}

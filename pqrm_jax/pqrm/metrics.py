@@ -1,6 +1,6 @@
 """Map-quality metrics of P §2.3.1 and §2.3.2 (pure, jit/vmap-able).
 
-All functions take a (T, Q) map ``probs``, the true states ``truth`` (T,) and a ``mask`` (T,)
+All functions take a [T, Q] map ``probs``, the true states ``truth`` [T] and a ``mask`` [T]
 of the triplets to evaluate (mapped triplets with a defined truth); they return means over the
 masked triplets (NaN-free: an empty mask gives 0 and ``count`` says so). The metrics that
 compare with ``truth`` drop from the mask every triplet whose truth is undefined (a negative
@@ -12,7 +12,7 @@ a correct nor a wrong estimate, so it is never counted (they evaluate ``mask & d
 * top-n error rate (P Fig. 2.16): the truth is not among the n most likely states (stable
   order, so n = 1 is the ML error rate);
 * mean probability of the ML state (P Fig. 2.11b);
-* neighbour distance of the ML state to the truth (P Fig. 2.5/2.6), from a (Q, Q) distance
+* neighbour distance of the ML state to the truth (P Fig. 2.5/2.6), from a [Q, Q] distance
   matrix (``calc.neighbor_distance``);
 * confusion matrix ``[truth, estimate]``;
 * error locations: C in the normalised AB frame (A=(0,0), B=(0,1)), P Fig. 2.8.
@@ -74,7 +74,7 @@ def error_rate(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array
 
 
 def topn_error_rates(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
-    """(Q,) error rates for n = 1..Q: truth not among the n most likely states (Fig. 2.16)."""
+    """[Q] error rates for n = 1..Q: truth not among the n most likely states (Fig. 2.16)."""
     order = jnp.argsort(-probs, axis=-1, stable=True)  # (T, Q) most likely first
     rank = jnp.argmax(order == truth[:, None], axis=-1)  # position of the truth
     q = probs.shape[-1]
@@ -101,7 +101,7 @@ def random_neighbor_distance(distance) -> float:
 
 
 def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
-    """(Q, Q) int32 counts ``[truth, ML estimate]`` over the masked triplets (P Fig. 2.9)."""
+    """[Q, Q] int32 counts ``[truth, ML estimate]`` over the masked triplets (P Fig. 2.9)."""
     q = probs.shape[-1]
     idx = jnp.clip(truth, 0, q - 1) * q + ml_states(probs)
     w = defined_mask(truth, mask, q).astype(jnp.int32)
@@ -109,7 +109,7 @@ def confusion_matrix(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax
 
 
 def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
-    """(T,) true state of ``AB:C`` for each triplet (i, j, k) of world landmarks (M, 2).
+    """[T] true state of ``AB:C`` for each triplet (i, j, k) of world landmarks [M, 2].
 
     The rows layout of :func:`pqrm_jax.triplets.true_states`.
     """
@@ -117,9 +117,9 @@ def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:
-    """C in the canonical AB frame (α, β) (T, 2) and |AB| (T,) for each triplet (P Fig. 2.8).
+    """C in the canonical AB frame (α, β) [T, 2] and |AB| [T] for each triplet (P Fig. 2.8).
 
-    Right of AB is α > 0 (SPEC §2); A = B gives NaN coordinates.
+    Right of AB is α > 0 (docs/decisions.md §2); A = B gives NaN coordinates.
     """
     tri = jnp.asarray(triplets)
     a, b, c = landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]]

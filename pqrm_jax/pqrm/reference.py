@@ -25,7 +25,7 @@ def _eval_poly(poly, alpha, beta, rho):
 
 
 def numpy_counts(calc: Calculus | str, points: np.ndarray) -> np.ndarray:
-    """Counts (N, Q) of the states of ``points`` (N, S, 3, 2) (boundary samples uncounted)."""
+    """Counts [N, Q] of the states of ``points`` [N, S, 3, 2] (boundary samples uncounted)."""
     calc = calculi.get(calc)
     a, b, c = points[..., 0, :], points[..., 1, :], points[..., 2, :]
     d = b - a
@@ -51,10 +51,10 @@ def numpy_state_probabilities(
     rng: np.random.Generator, calc: Calculus | str, means: np.ndarray, sigma, num_samples: int,
     *, shared: bool = False, z: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(N, Q) eq. 2.9 probabilities with NumPy.
+    """[N, Q] eq. 2.9 probabilities with NumPy.
 
-    ``shared=True`` draws one (S, 3, 2) standard-normal bank for all rows (the JAX kernel's
-    scheme); otherwise every row gets its own draws. ``z`` (S, 3, 2) overrides the draws.
+    ``shared=True`` draws one [S, 3, 2] standard-normal bank for all rows (the JAX kernel's
+    scheme); otherwise every row gets its own draws. ``z`` [S, 3, 2] overrides the draws.
     """
     means = np.asarray(means, np.float32)
     nrows = means.shape[0]

@@ -1,4 +1,4 @@
-"""Q-Link — navigation over qualitative relational maps (P ch. 4, SPEC §7).
+"""Q-Link — navigation over qualitative relational maps (P ch. 4, docs/decisions.md §7).
 
 * :mod:`.elements` — map elements (landmark triplets with their PQRM relations for all six
   orderings) from a mapping run, mapping only the co-observed triplets (P §4.2).

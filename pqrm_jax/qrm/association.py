@@ -52,12 +52,27 @@ def association_candidates(
     pool: int = 16,
     depth: int = 12,
 ) -> jax.Array:
-    """(N,) bool: map landmarks that the uncertain observation ``unknown`` may be (M§VI.C).
+    """[N] bool: map landmarks that the uncertain observation ``unknown`` may be (M§VI.C).
 
-    ``unknown`` is the index, in the observation arrays, of the landmark whose identity is
-    uncertain (it must be visible and among the ``n`` nearest); the other visible landmarks'
-    indices are their (trusted) map ids. Raises ``ValueError`` when ``unknown`` is not a
-    visible observation or there are fewer than three visible landmarks.
+    Args:
+        m: the current map.
+        bearings: [N] bearings of the camera observation.
+        range_rank: [N] range ranks of the observation.
+        visible: [N] visibility of the observation.
+        unknown: index, in the observation arrays, of the landmark whose identity is uncertain
+            (it must be visible and among the ``n`` nearest); the other visible landmarks'
+            indices are their (trusted) map ids.
+        n: landmarks used per image.
+        calc: the calculus (object, name or prepared spec).
+        pool: boxes per triple in the camera kernel.
+        depth: refinement rounds of the camera kernel.
+
+    Returns:
+        [N] bool, True for every map landmark consistent with the image.
+
+    Raises:
+        ValueError: when ``unknown`` is not a visible observation or fewer than three landmarks
+            are visible.
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     vis = np.asarray(visible, bool)

@@ -1,59 +1,12 @@
 """Camera measurement of qualitative states (M§IV, Table III; M§V feasibility).
 
-From one image we know the bearings of the visible landmarks and the ordering of their
-ranges, nothing else. For a landmark triple with ranges ``d = (d_near, d_mid, d_far)`` along
-known unit bearing vectors ``w_s``, the positions are ``P_s = d_s w_s`` (camera at the
-origin). Every calculus constraint used here is a line or circle ``c0 + c1 α + c2 β + c3 ρ``
-in the canonical frame of ``XY:Z``; homogenised (M Table III, ``pqrm_jax.tables.problems``)
-it becomes ``c0 n + c1 u + c2 v + c3 m`` with ``n = |Y−X|², m = |Z−X|²,
-u = (Z−X)×(Y−X), v = (Z−X)·(Y−X)`` — a *quadratic form in d*. The measurement is scale free,
-so instead of McClelland's (l, r) ∈ (0, ∞)² with an ad-hoc upper bound we use the exact,
-bounded parametrisation of the range-ordering cone
+Turns one image — the bearings of the visible landmarks and the order of their ranges — into
+the set of feasible EDC states of every visible triple and each of its three cyclic
+relations, batched over triples by one branch-and-bound kernel. A state is removed only when
+it is proven infeasible, so the true state is never dropped (docs/decisions.md §4).
 
-    d = (a·b, b, 1),   (a, b) ∈ [0, 1]²      (d_near ≤ d_mid ≤ d_far),
-
-which covers every configuration with the observed ordering (ties included, on the closed
-box edges) and needs no artificial bound. Each constraint becomes a polynomial with
-monomials ``a^i b^j`` (i, j ≤ 2); at ``b → 0`` the near and middle landmarks collapse onto
-the camera, and constraints that vanish there identically are divided by ``b`` (exact: their
-``d_far²`` coefficient is structurally zero, and b > 0 in the open cone).
-
-**Kernel** (batched over triples, static shapes). Per triple a pool of ``pool`` boxes in
-(a, b) is refined by quadtree splits for ``depth`` rounds (a branch-and-bound in the sense of
-M§V / Alg. 1, but shared by all states and the three cyclic relations of the triple):
-
-* bound every constraint over every box (monomials are monotone on the positive box, so
-  the enclosure is exact at the corners and valid everywhere); a sign is *certain* only with
-  a relative safety margin ``eps`` (float32 rounding can never flip a certain sign);
-* the atoms (sign patterns) compatible with a box are those agreeing with every certain
-  sign; a box whose signs are all certain, or whose centre has a certain sign pattern,
-  *proves* an atom feasible (a witness);
-* a box is kept only if it is compatible with an atom that is wanted (``target``) and not
-  yet proven; kept boxes are split into four while the pool has room;
-* at the checkpoints ``_CHECKPOINTS`` the triples that still have boxes are gathered into a
-  buffer of half the rows when they fit (``lax.cond``), so later rounds cost what the hard
-  triples need (after the first images of a traverse ~¼ of the triples are still busy after
-  three rounds). Rows are independent: the result is bit-identical to the plain loop
-  (tested). Under ``vmap`` both branches run, which is correct but gains nothing.
-
-The measured set is ``proven ∪ (atoms compatible with a surviving box) ∪ ¬target``: a state
-is removed only when every box of the cone is certainly incompatible with it, i.e. when it is
-proven infeasible (soundness, SPEC §4: the true state is never dropped). States that are
-neither proven nor excluded at the depth limit (``undecided``) are kept.
-
-Limitations (measured, see the issue report): (1) states whose closure touches a degenerate
-corner of the cone (e.g. near landmark at the camera *and* a range tie) cannot be excluded
-with a float32 safety margin and stay undecided (kept); (2) the pool is per triple and fixed:
-when a camera sees all landmarks inside a narrow bearing sector (imaging point at the edge of
-the field) the curves to resolve are long and the pool fills up, so coarse boxes remain and
-many states stay open (sound, uninformative; a larger ``pool``/``depth`` helps at a cost).
-
-Why a specialised kernel rather than :func:`pqrm_jax.tables.feasibility.solve` (which is
-used as the oracle in the tests): the generic solver runs one branch-and-bound per
-(relation, state) in float64 with a pool per problem; an image of 30 landmarks has
-4060 × 3 × 20 = 243 600 such problems. Sharing one subdivision between the 20 states and the
-three cyclic relations of a triple and bounding all constraints of a box with one batched
-matrix product makes the image update about two orders of magnitude cheaper.
+How it works (the bounded range-cone parametrisation, the shared subdivision, checkpoints,
+limits, and why not the generic table solver): docs/qrm.md §camera.
 """
 
 from __future__ import annotations
@@ -67,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
+from .exact_camera import corner_rule, range_forms, sweep_witnesses
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
@@ -80,23 +34,28 @@ _EPS = 2e-5  # relative safety margin on certain signs (float32 rounding ~1e-7)
 class TripleMeasurement(NamedTuple):
     """Kernel output for T triples (slot order near, mid, far).
 
-    sets: (T, 3) uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
-    undecided: (T, 3) uint32 states kept without a witness (neither proven nor excluded).
+    Attributes:
+        sets: [T, 3] uint32 state masks of the cyclic relations (0,1:2), (1,2:0), (2,0:1).
+        undecided: [T, 3] uint32 states kept without a witness (neither proven nor excluded);
+            all zero after the exact stage.
+        exact_decisions: number of states the exact stage (z3) decided.
     """
 
     sets: jax.Array
     undecided: jax.Array
+    exact_decisions: int = 0
 
 
 class ImageMeasurement(NamedTuple):
     """One image's measurement (M§IV) of the ``n`` nearest visible landmarks.
 
-    ids: (S,) int32 landmark id of each slot, nearest first; −1 for empty slots.
-    triples: (T, 3) int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
-    sets: (T, 3) uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
-        ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
-    valid: (T,) bool, all three slots hold a visible landmark.
-    undecided: (T, 3) uint32 states kept undecided at the depth limit.
+    Attributes:
+        ids: [S] int32 landmark id of each slot, nearest first; −1 for empty slots.
+        triples: [T, 3] int32 landmark ids (near, mid, far) of every slot triple s0 < s1 < s2.
+        sets: [T, 3] uint32 measured state masks of ``ids[t0] ids[t1] : ids[t2]``,
+            ``ids[t1] ids[t2] : ids[t0]`` and ``ids[t2] ids[t0] : ids[t1]``.
+        valid: [T] bool, all three slots hold a visible landmark.
+        undecided: [T, 3] uint32 states kept undecided at the depth limit.
     """
 
     ids: jax.Array
@@ -110,12 +69,12 @@ class ImageMeasurement(NamedTuple):
 # constraint forms over the ordering cone
 # --------------------------------------------------------------------------------------
 def _quadratic_forms(bearings):
-    """(…, 3) bearings → n, m, u, v forms (…, O=3, 3, 3) over d for the cyclic relations."""
+    """[…, 3] bearings → n, m, u, v forms (…, O=3, 3, 3) over d for the cyclic relations."""
     w = jnp.stack([jnp.cos(bearings), jnp.sin(bearings)], -1)  # (..., 3 slots, 2)
     eye = jnp.eye(3, dtype=w.dtype)
     out = []
     for X, Y, Z in CYCLIC:
-        # linear maps d -> point difference, (..., 2, 3)
+        # linear maps d -> point difference, [..., 2, 3]
         ld = w[..., Y, :, None] * eye[Y] - w[..., X, :, None] * eye[X]
         le = w[..., Z, :, None] * eye[Z] - w[..., X, :, None] * eye[X]
         n = jnp.einsum("...is,...ir->...sr", ld, ld)
@@ -128,7 +87,7 @@ def _quadratic_forms(bearings):
 
 
 def cone_forms(spec: QRMSpec, bearings):
-    """Monomial coefficients (…, O, K, 3, 3) of every constraint over (a, b) ∈ [0, 1]².
+    """Monomial coefficients […, O, K, 3, 3] of every constraint over (a, b) ∈ [0, 1]².
 
     ``coef[..., o, k, i, j]`` multiplies ``a^i b^j``. Constraints whose constant term
     (the ``d_far²`` coefficient) vanishes structurally are divided by ``b``.
@@ -158,12 +117,12 @@ def _powers(x):
 
 
 def _monomials(a, b):
-    """(..., ) → (..., 9) values of a^i b^j, flattened i-major."""
+    """(..., ) → [..., 9] values of a^i b^j, flattened i-major."""
     return (_powers(a)[..., :, None] * _powers(b)[..., None, :]).reshape(*a.shape, 9)
 
 
 def _atom_masks_to_states(atom_mask, atom_state):
-    """(...,) uint32 atom masks → state masks."""
+    """[...] uint32 atom masks → state masks."""
     bits = (atom_mask[..., None] >> jnp.arange(atom_state.shape[0], dtype=jnp.uint32)) & 1
     vals = jnp.where(bits.astype(bool), jnp.uint32(1) << atom_state.astype(jnp.uint32),
                      jnp.uint32(0))
@@ -192,8 +151,9 @@ _CHECKPOINTS = (3, 6)
 _MIN_COMPACT_ROWS = 32  # smaller batches run the plain loop (gathers would cost more)
 
 
-@partial(jax.jit, static_argnames=("spec", "pool", "depth"))
-def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
+@partial(jax.jit, static_argnames=("spec", "pool", "depth", "sweep"))
+def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int,
+            sweep: bool = False):
     T = bearings.shape[0]
     O, K = len(CYCLIC), spec.k
     coef = cone_forms(spec, bearings).reshape(T, O * K, 9)  # (T, OK, 9)
@@ -205,7 +165,7 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     weights = jnp.asarray(3 ** np.arange(K), jnp.int32)
     target = _state_masks_to_atoms(target_states, atom_state)  # (T, O)
 
-    def evaluate(cpn, target, box, alive, proven):
+    def evaluate(cpn, target, sig, hst, box, alive, proven):
         R, QK = cpn.shape[0], cpn.shape[1] // 2
         a0, a1, b0, b1 = (box[..., i] for i in range(4))
         nb = box.shape[1]
@@ -221,7 +181,27 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         tol = _EPS * (hp - hn) + 1e-30  # m_hi · |c|
         val = cp_ + cn_
         tol_c = _EPS * (cp_ - cn_) + 1e-30  # m_centre · |c|
-        cert = jnp.where(lo > tol, 1, jnp.where(hi < -tol, -1, 0)).reshape(R, -1, O, K)
+        # Bernstein enclosure on the box (tighter: its excess shrinks like the box size
+        # squared): f = Σ C_ij a^i b^j has the coefficients La C Lbᵀ in the Bernstein basis
+        # of the box, with La rows (1, a0, a0²), (1, (a0+a1)/2, a0·a1), (1, a1, a1²)
+        C3 = (cpn[:, :QK] + cpn[:, QK:]).reshape(R, QK, 3, 3)
+        La = jnp.stack([_powers(a0), jnp.stack([jnp.ones_like(a0), 0.5 * (a0 + a1), a0 * a1],
+                                               -1), _powers(a1)], -2)  # (R, B, 3, 3)
+        Lb = jnp.stack([_powers(b0), jnp.stack([jnp.ones_like(b0), 0.5 * (b0 + b1), b0 * b1],
+                                               -1), _powers(b1)], -2)
+        # (La ⊗ Lb) vec(C): one batched product per row, like the monomial bound
+        K9 = (La[:, :, :, None, :, None] * Lb[:, :, None, :, None, :]).reshape(R, nb, 9, 9)
+        bern = jnp.einsum("rbmn,rqn->rbmq", K9, C3.reshape(R, QK, 9))  # (R, B, 9, QK)
+        # rounding: |La|·|C|·|Lb|ᵀ ≤ Σ|C_ij| a1^i b1^j (rows of La, Lb are bounded by the
+        # monomials at the high corner), so the monomial tolerance covers it
+        bpos = jnp.min(bern, -2) > tol
+        bneg = jnp.max(bern, -2) < -tol
+        cert = jnp.where((lo > tol) | bpos, 1, jnp.where((hi < -tol) | bneg, -1, 0))
+        # the corner d_near = 0, d_mid = d_far (a = 0, b = 1): a constraint vanishing there
+        # has the sign of its gradient on small boxes at the corner (exact_camera)
+        at = ((a0 == 0) & (b1 == 1))[..., None] & (a1[..., None] <= hst[:, None]) & \
+            ((1 - b0)[..., None] <= hst[:, None]) & (sig[:, None] != 0)
+        cert = jnp.where(at, sig[:, None], cert).reshape(R, -1, O, K)
         cmask = jnp.where(cert == 1, pos, jnp.where(cert == -1, neg, amb))
         compat = _and_reduce(cmask, 3)  # (R, B, O)
         compat = jnp.where(alive[..., None], compat, jnp.uint32(0))
@@ -266,9 +246,11 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
         return jnp.stack([na0, na1, nb0, nb1], -1), alive
 
     def rounds(rows, st, stop):
-        """Refine rows until round ``stop`` or until no row has a useful box. A row without
-        useful boxes has no live box left after the split: it is final."""
-        cpn, target = rows
+        """Refine rows until round ``stop`` or until no row has a useful box.
+
+        A row without useful boxes has no live box left after the split: it is final.
+        """
+        cpn, target, sig, hst = rows
 
         def cond(c):
             it, _, alive, _ = c
@@ -276,22 +258,24 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
 
         def body(c):
             it, box, alive, proven = c
-            _, useful, proven = evaluate(cpn, target, box, alive, proven)
+            _, useful, proven = evaluate(cpn, target, sig, hst, box, alive, proven)
             box, alive = split(box, useful)
             return it + 1, box, alive, proven
 
         return jax.lax.while_loop(cond, body, st)
 
     def finish(rows, st):
-        """Rounds to ``depth``, then the final bound: (proven, remaining) atom masks (R, O)."""
+        """Rounds to ``depth``, then the final bound: (proven, remaining) atom masks [R, O]."""
         _, box, alive, proven = rounds(rows, st, depth)
         compat, useful, proven = evaluate(*rows, box, alive, proven)
         return proven, _or_reduce(jnp.where(useful[..., None], compat, jnp.uint32(0)), 1)
 
     def stage(rows, st, level):
-        """Run to the next checkpoint, then continue on a compacted half-size buffer when the
-        rows still working fit in it (rows are independent: the result is identical; a row
-        without live boxes has nothing remaining)."""
+        """Run to the next checkpoint, then continue on a compacted half-size buffer.
+
+        The buffer is used when the rows still working fit in it (rows are independent: the
+        result is identical; a row without live boxes has nothing remaining).
+        """
         if level == len(_CHECKPOINTS) or _CHECKPOINTS[level] >= depth or \
                 st[1].shape[0] < _MIN_COMPACT_ROWS:
             return finish(rows, st)
@@ -312,14 +296,20 @@ def _kernel(spec: QRMSpec, bearings, target_states, *, pool: int, depth: int):
     dtype = coef.dtype
     box = jnp.zeros((T, pool, 4), dtype).at[:, 0].set(jnp.asarray([0.0, 1.0, 0.0, 1.0], dtype))
     alive = jnp.zeros((T, pool), bool).at[:, 0].set(True)
-    proven = jnp.zeros((T, O), jnp.uint32)
+    if sweep:  # witnesses of the arrangement sweep first: the boxes then only exclude
+        proven = sweep_witnesses(spec, range_forms(spec, bearings.astype(dtype)))  # (T, O)
+    else:
+        proven = jnp.zeros((T, O), jnp.uint32)
     cpn = jnp.concatenate([jnp.maximum(coef, 0.0), jnp.minimum(coef, 0.0)], 1)  # (T, 2QK, 9)
-    proven, remaining = stage((cpn, target), (0, box, alive, proven), 0)
+    sig, hst = corner_rule(spec, coef.reshape(T, O * K, 3, 3))  # (T, OK)
+    proven, remaining = stage((cpn, target, sig, hst), (0, box, alive, proven), 0)
     possible = proven | (remaining & target) | ~target
     all_atoms = jnp.uint32(spec.atom_full)
     sets = _atom_masks_to_states(possible & all_atoms, atom_state)
     und = _atom_masks_to_states(remaining & target & ~proven & all_atoms, atom_state)
-    return sets, und
+    # three equal bearings: collinear for every range assignment, no open state (exact)
+    ray = jnp.all(bearings == bearings[:, :1], -1)[:, None]
+    return jnp.where(ray, jnp.uint32(0), sets), jnp.where(ray, jnp.uint32(0), und)
 
 
 def measure_triples(
@@ -329,25 +319,53 @@ def measure_triples(
     *,
     pool: int = 16,
     depth: int = 12,
+    exact: bool = True,
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV), batched.
 
-    ``bearings`` (T, 3): bearings of each triple's landmarks in *range order* (nearest
-    first; ties allowed). ``target`` (T, 3) uint32 state masks restricts the work to states
-    still open in the map (others are returned as possible, unchecked); default all states.
+    Args:
+        bearings: [T, 3] bearings of each triple's landmarks in *range order* (nearest first;
+            ties allowed).
+        calc: the calculus (object, name or prepared spec).
+        target: [T, 3] uint32 state masks restricting the work to states still open in the
+            map (the others are returned as possible, unchecked); default all states.
+        pool: boxes per triple in the branch-and-bound.
+        depth: refinement rounds.
 
-    Returns state masks of ``01:2, 12:0, 20:1`` (slots 0 = near, 1 = mid, 2 = far).
-    Raises ``ValueError`` for an empty batch (T = 0), a bad shape or NaN/inf bearings.
+    Returns:
+        A :class:`TripleMeasurement`: state masks of ``01:2, 12:0, 20:1`` (slots 0 = near,
+        1 = mid, 2 = far) and the states left undecided; sound (docs/qrm.md §camera).
+
+    Raises:
+        ValueError: for an empty batch (T = 0), bearings of the wrong shape or with NaN/inf,
+            a ``target`` of the wrong shape, ``pool < 4`` or ``depth < 1``.
+
+    ``exact=True`` (concrete input only): the kernel is seeded with the witnesses of the
+    arrangement sweep (:mod:`pqrm_jax.qrm.exact_camera`), and the states it still leaves
+    undecided are settled by z3 on the exact polynomial systems
+    (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets are exactly the
+    feasible sets; ``exact_decisions`` counts them. ``exact=False`` returns the kernel's
+    sound sets (undecided states kept and reported).
+
+    Bearings all equal (three landmarks on one ray): the points are collinear for every
+    range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
+    the row's sets are empty, which the map update reports as inconsistent). Two equal
+    bearings and ties in the ranges are ordinary input (the cone is closed; ties add no
+    state, see :mod:`pqrm_jax.qrm.exact_camera`). A camera on a landmark: that landmark's
+    range is 0 and its bearing arbitrary; ``d_near = 0`` lies in the closed cone, so the sets
+    still contain the true states (they are the sets of the reported bearing).
 
     >>> import numpy as np
     >>> from pqrm_jax.qrm.spec import states_of
     >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far; truth: 1
     >>> m = measure_triples(np.arctan2(P[:, 1], P[:, 0])[None].astype(np.float32))
-    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 4
-    ['1', '5', '11', '12']
+    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 3 (exact)
+    ['1', '5', '11']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     bearings = jnp.asarray(bearings)
+    if jnp.issubdtype(bearings.dtype, jnp.complexfloating):
+        raise TypeError(f"bearings are complex ({bearings.dtype}); bearings must be real")
     if bearings.ndim != 2 or bearings.shape[-1] != 3:
         raise ValueError(f"bearings must have shape (T, 3), got {bearings.shape}")
     if bearings.shape[0] == 0:
@@ -364,7 +382,20 @@ def measure_triples(
         raise ValueError(f"target must have shape {bearings.shape[:1] + (3,)}, got {target.shape}")
     if pool < 4 or depth < 1:
         raise ValueError(f"pool must be >= 4 and depth >= 1, got pool={pool}, depth={depth}")
-    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth)
+    concrete = not any(isinstance(x, jax.core.Tracer) for x in (bearings, target))
+    if concrete:
+        b = np.asarray(bearings, np.float64)
+        same = (np.remainder(b - b[:, :1] + np.pi, 2 * np.pi) - np.pi == 0).all(-1)
+        if same.any():
+            raise ValueError(f"bearings of triple(s) {np.flatnonzero(same).tolist()} are all "
+                             "equal: three landmarks on one ray are collinear, no open EDC "
+                             "state fits")
+    sets, und = _kernel(spec, bearings, target, pool=pool, depth=depth, sweep=exact)
+    if exact and concrete:
+        from .camera_oracle import settle_undecided
+
+        sets, n = settle_undecided(spec, bearings, sets, und)
+        return TripleMeasurement(jnp.asarray(sets), jnp.zeros_like(und), n)
     return TripleMeasurement(sets, und)
 
 
@@ -451,10 +482,25 @@ def measure_image(
 ) -> ImageMeasurement:
     """Measure every triple of the ``n`` nearest visible landmarks of one image (M§IV).
 
-    ``bearings``, ``range_rank``, ``visible``: a :class:`sim.sensors.CameraObservation`'s
-    fields. ``target_map`` (N, N, N) uint32: the current map relations (only their open
-    states are tested). Checks (when concrete, ``check=True``): finite bearings of visible
-    landmarks, distinct ranks, at least three visible landmarks — each raises ``ValueError``.
+    Args:
+        bearings: [N] bearings of a :class:`~pqrm_jax.sim.sensors.CameraObservation`.
+        range_rank: [N] its range ranks.
+        visible: [N] its visibility.
+        n: landmarks used per image (an int ≥ 3).
+        calc: the calculus (object, name or prepared spec).
+        target_map: [N, N, N] uint32, the current map relations (only their open states are
+            tested).
+        pool: boxes per triple in the branch-and-bound.
+        depth: refinement rounds.
+        check: check the observation when it is concrete.
+
+    Returns:
+        The :class:`ImageMeasurement` of the image.
+
+    Raises:
+        ValueError: for ``n < 3``, and (when concrete, ``check=True``) arrays of unequal
+            length, non-finite bearings of visible landmarks, a visible landmark without a
+            rank, repeated ranks or fewer than three visible landmarks.
 
     >>> import jax
     >>> from pqrm_jax import sim

@@ -1,33 +1,12 @@
 """The qualitative map: a 3-uniform hypergraph of state sets, path-consistency update (M§VI).
 
-**Representation** (decision). M§VI.A stores, per unordered triple {A, B, C}, the three cyclic
-relations AB:C, BC:A, CA:B. We store the same information densely as ``rel[i, j, k]``, the
-uint32 state mask of ``ij:k`` for *every ordered* triple of a fixed capacity of ``N``
-landmarks (entries with a repeated index are unused and kept full). The inverse orientations
-are redundant (kept consistent by INVERSE) but make the propagation a handful of transposes
-and one batched composition sweep instead of index gathers; for N = 30 the map is 27 000
-words. :func:`cyclic_relations` gives the per-unordered-triple view of M§VI.A.
+Offers the map (a uint32 state mask per ordered triple of a fixed landmark capacity), its
+update by intersection with measured sets followed by path-consistency propagation to a fixed
+point, the per-unordered-triple view of M§VI.A and the true map of a layout. An empty set
+rejects the update and keeps the previous map (``inconsistent=True``).
 
-**Update** (M§VI.B, path consistency in the sense of van Beek / Renz–Nebel): intersect the
-measured sets, then repeat until nothing changes (a ``lax.while_loop``):
-
-* unary closure — ``rel[j,i,k] ∩= INVERSE(rel[i,j,k])``, ``rel[j,k,i] ∩= LEFT(rel[i,j,k])``,
-  ``rel[k,i,j] ∩= RIGHT(rel[i,j,k])`` (the pseudo-measurements of step 7);
-* composition — ``rel[a,b,d] ∩= ⋂_c COMPOSE(rel[a,b,c], rel[b,c,d])`` over every fourth
-  landmark c (step 8), for all ordered (a, b, d) at once. Because every orientation is stored,
-  each pair of the other three triples of a 4-set constrains every triple: the propagation is
-  complete with respect to the composition table.
-
-Sweeps after the first are semi-naive: the composition through a fourth landmark whose
-relations did not change since the previous sweep is skipped (its constraints already hold);
-the fixed point is the same (tested against the one-relation-at-a-time worklist reference).
-
-All operations only intersect (they are monotone and deflationary), so the result is the
-greatest fixed point below the measurements: it does not depend on the order in which
-measurements arrive (M§VI.C). An empty set proves the measurements inconsistent; the update is
-then rejected and the previous map returned with ``inconsistent=True`` (the map stays
-usable). Path consistency is a sound filter, not a decision procedure (SPEC §11): a
-path-consistent map can still be geometrically unrealisable.
+The dense representation, the unary and composition closure, the semi-naive sweeps and
+order independence: docs/qrm.md §hypergraph.
 """
 
 from __future__ import annotations
@@ -50,17 +29,20 @@ __all__ = ["QRMMap", "UpdateReport", "ClosureResult", "empty_map", "closure",
 
 
 class QRMMap(NamedTuple):
-    """The map pytree: ``rel`` (N, N, N) uint32 masks of ``ij:k``; ``known`` (N,) bool nodes."""
+    """The map pytree: ``rel`` [N, N, N] uint32 masks of ``ij:k``; ``known`` [N] bool nodes."""
 
     rel: jax.Array
     known: jax.Array
 
 
 class UpdateReport(NamedTuple):
-    """Result flags of an update: ``inconsistent`` (an empty set appeared; the update was
-    rejected), ``n_empty`` (number of empty relations it would have produced), ``sweeps``
-    (propagation sweeps to the fixed point), ``converged`` (``False``: stopped at
-    ``max_sweeps`` before the fixed point, see :class:`ClosureResult`)."""
+    """Result flags of an update.
+
+    ``inconsistent`` (an empty set appeared; the update was rejected), ``n_empty`` (number of
+    empty relations it would have produced), ``sweeps`` (propagation sweeps to the fixed point),
+    ``converged`` (``False``: stopped at ``max_sweeps`` before the fixed point, see
+    :class:`ClosureResult`).
+    """
 
     inconsistent: jax.Array
     n_empty: jax.Array
@@ -86,7 +68,7 @@ def empty_map(n: int, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
 
 
 def _lift(table, s):
-    """Lift a (Q,) table of masks to a set: OR of table[i] over the bits i of s."""
+    """Lift a [Q] table of masks to a set: OR of table[i] over the bits i of s."""
     q = table.shape[0]
     bits = ((s[..., None] >> jnp.arange(q, dtype=jnp.uint32)) & 1).astype(bool)
     vals = jnp.where(bits, table, jnp.uint32(0))
@@ -201,10 +183,18 @@ def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
 def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
     n = m.rel.shape[0]
-    meas = jnp.full_like(m.rel, spec.full)
+    q = spec.num_states
     tri = jnp.where(valid[:, None], triples, n)  # out of range → dropped
+    # repeated rows for the same relation are intersected: a state survives only if no row
+    # clears it (scatter-max of the cleared bits is an OR over the rows, in any order)
+    shifts = jnp.arange(q, dtype=jnp.uint32)
+    cleared = jnp.zeros(m.rel.shape + (q,), jnp.uint8)
     for o, (X, Y, Z) in enumerate(CYCLIC):
-        meas = meas.at[tri[:, X], tri[:, Y], tri[:, Z]].set(sets[:, o], mode="drop")
+        off = (((~sets[:, o, None]) >> shifts) & 1).astype(jnp.uint8)  # (T, Q)
+        cleared = cleared.at[tri[:, X], tri[:, Y], tri[:, Z]].max(off, mode="drop")
+    meas = jnp.uint32(spec.full) & ~jax.lax.reduce(
+        jnp.where(cleared.astype(bool), jnp.uint32(1) << shifts, jnp.uint32(0)),
+        np.uint32(0), jax.lax.bitwise_or, (3,))
     nodes = jnp.zeros((n,), bool).at[tri.ravel()].set(True, mode="drop")
     return _merge(spec, m, meas, nodes, max_sweeps)
 
@@ -227,8 +217,15 @@ def apply_relations(
     valid: jax.Array | None = None,
     max_sweeps: int = 64,
 ) -> tuple[QRMMap, UpdateReport]:
-    """Fuse measured cyclic relations into the map (M§VI.B): ``triples`` (T, 3) landmark ids
-    (X, Y, Z) and ``sets`` (T, 3) masks of XY:Z, YZ:X, ZX:Y. New ids become known nodes.
+    """Fuse measured cyclic relations into the map (M§VI.B).
+
+    ``triples`` [T, 3] are landmark ids (X, Y, Z) and ``sets`` [T, 3] the masks of XY:Z, YZ:X,
+    ZX:Y. New ids become known nodes.
+
+    Rows that measure the same relation (the same triple, or the same relation reached through
+    another rotation of the triple) are intersected, so all images of a sequence can be fused
+    in one call and reach the fixed point of fusing them one by one (the result is the
+    greatest fixed point below all measurements, independent of their order).
 
     >>> m, rep = apply_relations(empty_map(3), [[0, 1, 2]], [[1 << 6, (1 << 20) - 1,
     ...                                                     (1 << 20) - 1]])
@@ -253,8 +250,10 @@ def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSp
 
 
 def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
-    """Per unordered triple i < j < k the three cyclic relations (M§VI.A):
-    ``(triples (E, 3), masks (E, 3))`` of ij:k, jk:i, ki:j."""
+    """The three cyclic relations of every unordered triple i < j < k (M§VI.A).
+
+    Returns ``(triples [E, 3], masks [E, 3])`` of ij:k, jk:i, ki:j.
+    """
     n = m.rel.shape[0]
     import itertools
 
@@ -264,7 +263,7 @@ def cyclic_relations(m: QRMMap) -> tuple[np.ndarray, jax.Array]:
 
 
 def true_relations(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc") -> jax.Array:
-    """(N, N, N) int32 true state index of ``ij:k`` (−2 on repeated indices).
+    """[N, N, N] int32 true state index of ``ij:k`` (−2 on repeated indices).
 
     The dense layout of :func:`pqrm_jax.triplets.true_states`.
     """

@@ -28,9 +28,12 @@ __all__ = ["NavResult", "plan_next_hop", "navigate", "navigate_many"]
 
 
 class NavResult(NamedTuple):
-    """``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
-    (metres driven), ``straight`` (|END − START|), ``poses`` (n_steps + 1, 3), ``path``
-    (N,) planned landmark sequence (−1 padded), ``hops``."""
+    """Outcome of one navigation run.
+
+    ``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
+    (metres driven), ``straight`` (|END − START|), ``poses`` [n_steps + 1, 3], ``path``
+    [N] planned landmark sequence (−1 padded), ``hops``.
+    """
 
     success: jax.Array
     reached_cell: jax.Array
@@ -45,7 +48,7 @@ class NavResult(NamedTuple):
 def plan_next_hop(edges: jax.Array, cost: jax.Array, lam: float = 1.0):
     """All-pairs shortest paths on the RNG estimate (Floyd–Warshall, ``lax.fori_loop``).
 
-    Returns ``(dist (N, N), nxt (N, N))``: ``nxt[i, j]`` is the landmark after i on a
+    Returns ``(dist [N, N], nxt [N, N])``: ``nxt[i, j]`` is the landmark after i on a
     cheapest path to j (−1 if unreachable); edge weight = 1 + lam · w_ij.
     """
     n = edges.shape[0]
@@ -130,8 +133,26 @@ def navigate(
 ) -> NavResult:
     """Drive the simulated rover from ``start`` (x, y, θ) to ``goal`` (x, y) (M§VII.B).
 
-    ``landmarks`` are the true positions (the simulator's world; the controller sees them
-    only through :func:`sim.camera` bearings and range ranks).
+    The strategy is described in docs/qrm.md §navigation.
+
+    Args:
+        landmarks: [N, 2] true landmark positions (the simulator's world; the controller sees
+            them only through :func:`pqrm_jax.sim.camera` bearings and range ranks).
+        rng: the RNG estimate to plan on (:func:`pqrm_jax.qrm.rng_estimate`).
+        start: ``[3]`` start pose.
+        goal: ``[2]`` goal position.
+        params: rover parameters.
+        sensor: camera parameters.
+        n_steps: the most simulation steps.
+        lam: weight of the Alg. 2 edge cost against the hop count in the plan.
+        k_turn: heading gain of the bearing controller.
+        tol: distance to ``goal`` that counts as arrived.
+
+    Returns:
+        The :class:`NavResult` of the run.
+
+    Raises:
+        ValueError: for inputs of the wrong shape or with NaN/inf.
 
     >>> import jax, jax.numpy as jnp
     >>> from pqrm_jax.qrm.hypergraph import true_map
@@ -156,7 +177,7 @@ def navigate(
 
 def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, sensor=None, *,
                   n_steps: int = 3000, lam: float = 1.0) -> NavResult:
-    """:func:`navigate` ``vmap``-ed over start/goal pairs (S, 3) / (S, 2)."""
+    """:func:`navigate` ``vmap``-ed over start/goal pairs [S, 3] / [S, 2]."""
     params = RoverParams() if params is None else params
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))

@@ -140,7 +140,7 @@ def run_sequence(
     pool: int = 16,
     depth: int = 12,
 ) -> tuple[QRMMap, Metrics]:
-    """Map a layout from a sequence of imaging poses (T, 3); per-image metrics (T, ...).
+    """Map a layout from a sequence of imaging poses [T, 3]; per-image metrics [T, ...].
 
     >>> import jax
     >>> from pqrm_jax import sim

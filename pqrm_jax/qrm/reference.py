@@ -56,8 +56,10 @@ class ReferenceMap:
         return out
 
     def update(self, triple, mask: int) -> bool:
-        """Intersect one measured relation ``XY:Z`` and propagate; False if inconsistent
-        (then the map is left as it was)."""
+        """Intersect one measured relation ``XY:Z`` and propagate.
+
+        False if inconsistent (then the map is left as it was).
+        """
         backup = self.rel.copy()
         a, b, c = (int(x) for x in triple)
         new = int(self.rel[a, b, c]) & int(mask)

@@ -23,8 +23,10 @@ __all__ = ["RNGEstimate", "rng_estimate", "true_rng"]
 
 
 class RNGEstimate(NamedTuple):
-    """``edges`` (N, N) bool symmetric candidate edges among known nodes; ``cost`` (N, N)
-    float32 Alg. 2 edge costs (0 on non-edges); ``total_cost`` Σ_{i<j} w_ij."""
+    """``edges`` [N, N] bool symmetric candidate edges among known nodes.
+
+    ``cost`` [N, N] float32 Alg. 2 edge costs (0 on non-edges); ``total_cost`` Σ_{i<j} w_ij.
+    """
 
     edges: jax.Array
     cost: jax.Array
@@ -67,7 +69,7 @@ def rng_estimate(m: QRMMap, calc: Calculus | str | QRMSpec = "edc") -> RNGEstima
 
 
 def true_rng(points) -> np.ndarray:
-    """Brute-force RNG (lune test) of (N, 2) points: (N, N) bool."""
+    """Brute-force RNG (lune test) of [N, 2] points: [N, N] bool."""
     p = np.asarray(points, np.float64)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)
     n = len(p)

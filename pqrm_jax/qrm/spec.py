@@ -1,4 +1,4 @@
-"""Static per-calculus arrays used by the QRM pipeline (M§II–III, SPEC §4).
+"""Static per-calculus arrays used by the QRM pipeline (M§II–III, docs/decisions.md §4).
 
 :func:`qrm_spec` turns a :class:`~pqrm_jax.calculi.Calculus` into a :class:`QRMSpec`: the
 constraint coefficients needed by the camera measurement (M§IV, Table III), the atom
@@ -28,16 +28,16 @@ _LUNE = {"edc": ("7", "8", "13", "14"), "edc_lune": ("lune",)}
 class QRMSpec:
     """Arrays describing one calculus for the QRM pipeline.
 
-    lin: (K, 4) float64, coefficients (c_n, c_u, c_v, c_m) of the homogenised constraint
+    lin: [K, 4] float64, coefficients (c_n, c_u, c_v, c_m) of the homogenised constraint
         ``c_n·n + c_u·u + c_v·v + c_m·m`` (each constraint is a line or circle in (α, β)).
-    atom_signs: (A, K) int8, sign pattern of each atom (a realisable pattern).
+    atom_signs: [A, K] int8, sign pattern of each atom (a realisable pattern).
     atom_state: (A,) int32 state of each atom.
-    pos / neg / amb: (K,) uint32 atom masks compatible with a constraint that is certainly
+    pos / neg / amb: [K] uint32 atom masks compatible with a constraint that is certainly
         positive / certainly negative / of undetermined sign over a box.
     pattern_atom: (3**K,) int32, atom of a ±1 sign pattern (index Σ (s+1)·3^k), −1 if none.
-    left / right / inverse: (Q,) uint32, lifted unary operators (M Table I).
-    compose: (Q, Q) uint32, ``compose[i, j]`` = mask of AB:D given AB:C=i, BC:D=j.
-    adjacency: (Q, Q) bool conceptual neighbourhood (for the "not adjacent" metric).
+    left / right / inverse: [Q] uint32, lifted unary operators (M Table I).
+    compose: [Q, Q] uint32, ``compose[i, j]`` = mask of AB:D given AB:C=i, BC:D=j.
+    adjacency: [Q, Q] bool conceptual neighbourhood (for the "not adjacent" metric).
     lune: uint32 mask of the lune states, 0 when the calculus has no lune (no RNG).
     """
 
@@ -79,7 +79,7 @@ class QRMSpec:
 
 
 def _bits(rows: np.ndarray) -> np.ndarray:
-    """(..., Q) bool → (...,) uint32 masks."""
+    """[..., Q] bool → [...] uint32 masks."""
     w = (np.uint64(1) << np.arange(rows.shape[-1], dtype=np.uint64))
     return (rows.astype(np.uint64) * w).sum(-1).astype(np.uint32)
 
@@ -94,9 +94,18 @@ def mask_of(calc: Calculus | str, labels) -> int:
 
 
 def states_of(calc: Calculus | str, mask: int) -> list[str]:
-    """State labels in a bitmask (inverse of :func:`mask_of`)."""
+    """State labels in a bitmask (inverse of :func:`mask_of`).
+
+    Raises ``ValueError`` for a negative mask or one with bits at or above ``num_states``
+    (no state of ``calc`` has them, so the mask is not a set of its states).
+    """
     calc = get_calculus(calc)
+    if isinstance(mask, bool | np.bool_) or not isinstance(mask, int | np.integer):
+        raise TypeError(f"a state mask must be an integer, got {type(mask).__name__}")
     mask = int(mask)
+    if mask < 0 or mask >> calc.num_states:
+        raise ValueError(f"mask {mask:#x} has bits outside the {calc.num_states} states of "
+                         f"{calc.name!r} (valid masks are < 2**{calc.num_states})")
     return [s for i, s in enumerate(calc.states) if mask >> i & 1]
 
 

@@ -1,4 +1,4 @@
-"""SERGE — salient region generation (Padgett ch. 3, SPEC §5).
+"""SERGE — salient region generation (Padgett ch. 3, docs/decisions.md §5).
 
 Beliefs over a 2-D domain → fine grid → initial cells (one contiguous region per belief) →
 merge search maximising ψ = ψ1(|R|; μ, σ) · ψ2(contiguity) · ψ3(saliency) with T random-order

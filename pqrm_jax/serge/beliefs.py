@@ -1,23 +1,10 @@
 """Beliefs ``B_k = p(X_k | Z_k)`` over a 2-D domain (Padgett eq. 3.1, §3.4.1).
 
-Two representations:
+Offers Gaussian beliefs and sample-set beliefs, each giving the ``[K, N]`` cell masses on a
+grid and the ``[K, N]`` score used to pick the highest-saliency belief per cell. Bad input
+raises ``ValueError`` naming the belief.
 
-* :class:`GaussianBeliefs` — ``B_k ~ N(α_k, Σ_k)``, e.g. fitted to measurements
-  (:meth:`GaussianBeliefs.fit`), as for the well-separated and the lab data of P§3.4.1;
-* :class:`SampleBeliefs` — a sample set per belief, as for the hallway triplets (10 000 samples
-  of F̂ in the normalised frame per belief).
-
-Both give the (K, N) matrix of cell masses ``P[k, n] = ∫_{C_n} B_k`` on a :class:`Grid` (the
-saliency of each fine cell for each belief) and a (K, N) score used to pick the highest-
-saliency belief per cell for the initial cells. Cell masses of a Gaussian are computed from a
-fixed set of ``n_mc`` quasi-samples drawn with an explicit key and histogrammed with clipping,
-so border cells hold the tails and every row sums to one (the cells partition ℝ²).
-
-Bad input raises ``ValueError`` naming the belief: NaN/inf samples or means, empty sample
-sets, non-symmetric or non-positive-semidefinite covariances. Singular (degenerate)
-covariances are allowed: they are regularised by a jitter of 1e-12·scale² (a point mass then
-puts all its mass in one cell, which is fine unless two beliefs share that cell; see
-:func:`pqrm_jax.serge.cells.initial_cells`).
+How cell masses are computed and how singular covariances are handled: docs/serge.md §beliefs.
 """
 
 from __future__ import annotations
@@ -32,7 +19,7 @@ from .grid import Grid
 
 
 def _histogram(grid: Grid, samples: jax.Array, weights: jax.Array | None = None) -> jax.Array:
-    """(K, S, 2) samples → (K, N) normalised cell masses (clipped to the border)."""
+    """[K, S, 2] samples → [K, N] normalised cell masses (clipped to the border)."""
     k, s = samples.shape[:2]
     idx = grid.cell_of(samples)                                       # (K, S)
     w = jnp.ones((k, s), jnp.float32) if weights is None else weights
@@ -44,7 +31,7 @@ def _histogram(grid: Grid, samples: jax.Array, weights: jax.Array | None = None)
 
 @dataclass(frozen=True)
 class GaussianBeliefs:
-    """K Gaussian beliefs with means (K, 2) and covariances (K, 2, 2).
+    """K Gaussian beliefs with means [K, 2] and covariances [K, 2, 2].
 
     >>> b = GaussianBeliefs(np.array([[0., 0.], [5., 0.]]), np.tile(np.eye(2) * .1, (2, 1, 1)))
     >>> b.k
@@ -87,7 +74,7 @@ class GaussianBeliefs:
     def fit(cls, points: list[np.ndarray] | np.ndarray, min_var: float = 0.0) -> GaussianBeliefs:
         """Fit ``N(α_k, Σ_k)`` to the measurements of each belief (P§3.4.1).
 
-        ``points``: a list of (S_k, 2) arrays (or one (K, S, 2) array). Needs S_k ≥ 2;
+        ``points``: a list of [S_k, 2] arrays (or one [K, S, 2] array). Needs S_k ≥ 2;
         ``min_var`` is added to the diagonal (e.g. a sensor-noise floor).
         """
         means, covs = [], []
@@ -102,19 +89,19 @@ class GaussianBeliefs:
         return cls(np.array(means), np.array(covs))
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """(K, n, 2) samples."""
+        """[K, n, 2] samples."""
         chol = np.linalg.cholesky(self.covs)
         z = jax.random.normal(key, (self.k, n, 2), jnp.float32)
         return jnp.asarray(self.means, jnp.float32)[:, None, :] + jnp.einsum(
             "kij,knj->kni", jnp.asarray(chol, jnp.float32), z)
 
     def cell_masses(self, grid: Grid, key: jax.Array | None = None, n_mc: int = 20000) -> jax.Array:
-        """(K, N) cell masses ``∫_{C_n} B_k`` from ``n_mc`` samples per belief (key 0 default)."""
+        """[K, N] cell masses ``∫_{C_n} B_k`` from ``n_mc`` samples per belief (key 0 default)."""
         key = jax.random.PRNGKey(0) if key is None else key
         return _histogram(grid, self.sample(key, n_mc))
 
     def cell_scores(self, grid: Grid) -> np.ndarray:
-        """(K, N) log densities at cell centres: the smooth 'highest-saliency' score."""
+        """[K, N] log densities at cell centres: the smooth 'highest-saliency' score."""
         x = grid.centers()[None, :, :] - self.means[:, None, :]
         inv = np.linalg.inv(self.covs)
         maha = np.einsum("kni,kij,knj->kn", x, inv, x)
@@ -124,7 +111,7 @@ class GaussianBeliefs:
 
 @dataclass(frozen=True)
 class SampleBeliefs:
-    """K beliefs as sample sets, (K, S, 2) (all sets the same size S ≥ 1).
+    """K beliefs as sample sets, [K, S, 2] (all sets the same size S ≥ 1).
 
     >>> b = SampleBeliefs(np.zeros((3, 10, 2)) + np.arange(3)[:, None, None])
     >>> b.k, b.samples.shape
@@ -149,12 +136,14 @@ class SampleBeliefs:
         return self.samples.shape[0]
 
     def cell_masses(self, grid: Grid, key: jax.Array | None = None, n_mc: int = 0) -> jax.Array:
-        """(K, N) fraction of each belief's samples in each cell (``key``/``n_mc`` unused)."""
+        """[K, N] fraction of each belief's samples in each cell (``key``/``n_mc`` unused)."""
         return _histogram(grid, jnp.asarray(self.samples))
 
     def cell_scores(self, grid: Grid, blur_cells: float = 1.0) -> np.ndarray:
-        """(K, N) log of the histogram blurred by a Gaussian of ``blur_cells`` cells (−inf
-        where a belief has no mass nearby)."""
+        """[K, N] log of the histogram blurred by a Gaussian of ``blur_cells`` cells.
+
+        The score is −inf where a belief has no mass nearby.
+        """
         h = np.asarray(self.cell_masses(grid), np.float64).reshape(self.k, *grid.shape)
         if blur_cells > 0:
             r = int(np.ceil(3 * blur_cells))

@@ -1,23 +1,10 @@
 """Initial cells ``C_init`` and the SERGE problem (Padgett §3.3, §3.4.1).
 
-P§3.4.1: "a fine grid of cells is generated, and the saliency of each grid cell is computed
-for each belief. Grid cells are then assigned the belief that has the highest saliency. The
-cells in C_init are the union of all grid cells with the same assignment."
+Offers the initial contiguous regions of a belief set on a grid (one per belief, by highest
+saliency) and the SERGE problem built from them or from a given partition. A belief the grid
+cannot separate raises ``ValueError`` by default, or is attached to a neighbouring region.
 
-Decisions where the paper is open (documented handling):
-
-* The highest-saliency score is the log density at the cell centre for Gaussians and the
-  log of a slightly blurred histogram for sample sets (so noise does not speckle the map).
-  Cells where no belief has mass are left unassigned and then filled (below).
-* ``C_init`` must be K *contiguous* regions (ψ2 > 0, P§3.3). Where a belief wins several
-  disconnected patches, the patch holding most of its mass keeps the label; the others are
-  re-filled by growing the neighbouring regions (multi-source dilation, each cell taking the
-  neighbouring label whose belief scores highest there), which keeps every region connected.
-* A belief that wins no cell — or only cells holding less than ``min_saliency`` (1 %) of its
-  mass — cannot get its own region: the grid is too coarse to separate it (or two beliefs
-  coincide). ``unseparated="error"`` (default) raises a ``ValueError``
-  naming those beliefs; ``unseparated="attach"`` assigns each of them to the region holding
-  most of its mass, so the map starts with R0 < K regions.
+The decisions where the paper is open: docs/serge.md §cells.
 """
 
 from __future__ import annotations
@@ -36,11 +23,13 @@ from .grid import Grid, connected_components
 class Problem:
     """A SERGE problem on R0 initial regions (all arrays static-shaped).
 
-    * ``grid`` and ``cell_region`` (N,): initial region of every fine cell;
-    * ``mass`` (K, R0): ``∫_{C_r} B_k`` for belief k and initial region r;
-    * ``adj`` (R0, R0) bool: 4-adjacency of initial regions;
-    * ``belief_region`` (K,): initial region of each belief (``L^B_init``);
-    * ``cell_mass`` (K, N): the fine cell masses (for plotting and diagnostics).
+    Attributes:
+        grid: the fine grid of cells.
+        cell_region: [N] initial region of every fine cell.
+        mass: [K, R0] ``∫_{C_r} B_k`` for belief k and initial region r.
+        adj: [R0, R0] bool, 4-adjacency of initial regions.
+        belief_region: [K] initial region of each belief (``L^B_init``).
+        cell_mass: [K, N] the fine cell masses (for plotting and diagnostics).
     """
 
     grid: Grid
@@ -96,6 +85,24 @@ def initial_cells(
     min_saliency: float = 0.01,
 ) -> Problem:
     """Build ``C_init`` (one contiguous region per belief) and the SERGE problem.
+
+    Args:
+        beliefs: the K beliefs (Gaussian or sample sets).
+        grid: the fine grid of cells.
+        key: PRNG key of the quasi-samples of Gaussian cell masses.
+        n_mc: quasi-samples per Gaussian belief.
+        unseparated: ``"error"`` raises for a belief the grid cannot separate; ``"attach"``
+            assigns it to the region holding most of its mass (the map then starts with fewer
+            than K regions).
+        min_saliency: the share of a belief's mass its own cells must hold for it to count as
+            separated.
+
+    Returns:
+        The :class:`Problem` on the initial regions (decisions: docs/serge.md §cells).
+
+    Raises:
+        ValueError: for an unknown ``unseparated`` mode, or (with ``"error"``) beliefs that win
+            no grid cell holding at least ``min_saliency`` of their mass.
 
     >>> import numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
@@ -169,7 +176,7 @@ def initial_cells(
 
 
 def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarray:
-    """(R0, R0) bool: regions sharing a grid edge (no self-adjacency)."""
+    """[R0, R0] bool: regions sharing a grid edge (no self-adjacency)."""
     e = grid.edges()
     a, b = cell_region[e[:, 0]], cell_region[e[:, 1]]
     adj = np.zeros((r0, r0), dtype=bool)
@@ -180,8 +187,10 @@ def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarra
 
 
 def problem_from_partition(cell_mass, grid: Grid, cell_region, belief_region) -> Problem:
-    """A problem from an explicit contiguous partition of the grid (e.g. a calculus's
-    regions): ``cell_region`` (N,) region ids 0..R0−1, ``belief_region`` (K,)."""
+    """A problem from an explicit contiguous partition of the grid (e.g. a calculus's regions).
+
+    ``cell_region`` [N] holds region ids 0..R0−1 and ``belief_region`` [K] the region of each
+    belief."""
     cell_region = np.asarray(cell_region, dtype=np.int64)
     r0 = int(cell_region.max()) + 1
     onehot = np.zeros((grid.n_cells, r0))

@@ -57,7 +57,7 @@ class Grid:
     @classmethod
     def covering(cls, points, shape: tuple[int, int] = (96, 96), margin: float = 0.05,
                  quantile: float | None = None) -> Grid:
-        """A grid covering ``points`` (..., 2) with a relative ``margin``.
+        """A grid covering ``points`` [..., 2] with a relative ``margin``.
 
         With ``quantile`` (e.g. 0.005) the box covers the [q, 1−q] quantiles instead of the
         extremes (far outliers then fall into border cells, which extend to infinity).
@@ -92,7 +92,7 @@ class Grid:
         return np.stack([gx.ravel(), gy.ravel()], axis=1)
 
     def cell_of(self, points):
-        """Flat cell index of points (..., 2), clipped to the border cells; jit-able.
+        """Flat cell index of points [..., 2], clipped to the border cells; jit-able.
 
         Works on NumPy and JAX arrays (returns the same kind)."""
         xp = jnp if not isinstance(points, np.ndarray) else np
@@ -104,7 +104,7 @@ class Grid:
         return ix * self.shape[1] + iy
 
     def edges(self) -> np.ndarray:
-        """(E, 2) pairs of 4-adjacent flat cell indices (each pair once)."""
+        """[E, 2] pairs of 4-adjacent flat cell indices (each pair once)."""
         idx = np.arange(self.n_cells).reshape(self.shape)
         right = np.stack([idx[:-1, :].ravel(), idx[1:, :].ravel()], axis=1)
         up = np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], axis=1)

@@ -45,7 +45,7 @@ def log_psi1(n_regions, mu, sigma, k_max, k_static: int) -> jax.Array:
 
 
 def log_saliency(region_mass: jax.Array, assign: jax.Array) -> jax.Array:
-    """(K,) log S_k = log ∫_{R_{L_k}} B_k from (K, R) region masses and assignments (K,)."""
+    """[K] log S_k = log ∫_{R_{L_k}} B_k from [K, R] region masses and assignments [K]."""
     s = jnp.take_along_axis(region_mass, assign[:, None], axis=1)[:, 0]
     return jnp.log(jnp.maximum(s, SAL_FLOOR))
 
@@ -62,9 +62,18 @@ def direct_log_potential(cell_mass, cell_labels, belief_labels, mu, sigma, shape
                          k_max: int | None = None) -> float:
     """Reference: log of ψ1·ψ2·ψ3 evaluated directly in float64 from the fine cells.
 
-    ``cell_labels`` (N,) region of every fine cell, ``belief_labels`` (K,) region of every
-    belief. ψ2 is computed by counting connected components (Ω of eq. 3.6); returns −inf when
-    any region is disconnected.
+    Args:
+        cell_mass: [K, N] fine cell masses of the beliefs.
+        cell_labels: [N] region of every fine cell.
+        belief_labels: [K] region of every belief.
+        mu: the count prior's mean.
+        sigma: the count prior's standard deviation.
+        shape: the grid shape (for connectivity).
+        k_max: largest region count of the normalisation (default K).
+
+    Returns:
+        log ψ; −inf when any region is disconnected (ψ2 counts connected components, Ω of
+        eq. 3.6).
     """
     pm = np.asarray(cell_mass, np.float64)
     lab = np.asarray(cell_labels)

@@ -7,22 +7,8 @@ calculus, :class:`SergeCalculus`, implementing :class:`pqrm_jax.calculi.TernaryC
 it works in ``pqrm.state_probabilities`` and ``pqrm.mapper`` (sampled by its own ``classify``,
 as a root calculus: ``parent`` is None). Its compose table is computed by Alg. 3.
 
-Frame: the calculus core's (right of DE is α > 0, see :func:`~pqrm_jax.serge.scenes.to_frame`).
-``classify`` maps C into the frame of (A, B) and reads the SR of the grid cell it lands in;
-points outside the grid domain take the nearest border cell (the SR map partitions ℝ²).
-Sentinels follow the core: ``DEGENERATE`` (−2) when A = B, ``INVALID`` (−3) for NaN/inf.
-
-**Relation to the exact tables of the calculus core.** The core's ``calc.tables.compose`` is
-decided exactly over the continuous plane (feasibility of polynomial sign constraints).
-Alg. 3 instead enumerates grid-cell centres: F at the centre of every cell of ``{DE:F}``, G at
-the centre of every cell of ``{EF:G}`` (in frame EF), mapped back to frame DE and looked up.
-Every entry it sets is therefore *witnessed* by a concrete configuration (D, E, F, G) that
-realises all three relations on the SR map — SERGE compose is sound (an inner approximation
-of the exact composition of the same regions) and converges to it as the grid (``stride``)
-is refined; thin feasible combinations can be missed. When the SRs coincide with a core
-calculus's regions (grid edges on its boundaries, e.g. ``quadrant``), SERGE compose is
-contained in the core's exact table (tested in ``tests/test_serge.py``). ``compose_prob``
-adds what the exact table cannot: the fraction of (F, G) cell pairs landing in each state.
+The frame, the sentinels and how SERGE compose relates to the exact tables:
+docs/serge.md §qsr.
 """
 
 from __future__ import annotations
@@ -42,7 +28,7 @@ from .scenes import to_frame
 
 
 def triplet_beliefs(d, e, f) -> SampleBeliefs:
-    """Eq. (3.11): samples of D, E, F (K, S, 2) each → beliefs over F̂ in frame DE.
+    """Eq. (3.11): samples of D, E, F [K, S, 2] each → beliefs over F̂ in frame DE.
 
     >>> d = np.zeros((1, 4, 2)); e = d + [0., 2.]; f = d + [2., 2.]
     >>> triplet_beliefs(d, e, f).samples[0, 0].tolist()
@@ -119,7 +105,7 @@ class SergeCalculus:
 
     # classification ---------------------------------------------------------------------
     def lookup(self, p) -> jax.Array:
-        """State of frame coordinates p (..., 2)."""
+        """State of frame coordinates p [..., 2]."""
         return self._labels[self.grid.cell_of(jnp.asarray(p))]
 
     def _classify(self, a, b, c):
@@ -132,7 +118,7 @@ class SergeCalculus:
         return jnp.where(finite, state, INVALID).astype(jnp.int32)
 
     def classify(self, a, b, c) -> jax.Array:
-        """State index of ``AB:C`` for points (..., 2) (broadcast); jit-able; sentinels −2/−3."""
+        """State index of ``AB:C`` for points [..., 2] (broadcast); jit-able; sentinels −2/−3."""
         a, b, c = (jnp.asarray(x, jnp.float32) for x in (a, b, c))
         for nm, x in (("a", a), ("b", b), ("c", c)):
             if x.ndim < 1 or x.shape[-1] != 2:
@@ -142,10 +128,12 @@ class SergeCalculus:
 
     # compose (Alg. 3) -----------------------------------------------------------------------
     def compose_counts(self, stride: int = 2, chunk: int = 256) -> np.ndarray:
-        """(Q, Q, Q) counts of Alg. 3: for every cell c (F at its centre, state q1 = {DE:F})
-        and every cell d (G at its centre in frame EF, q2 = {EF:G}), the state q3 of G in
-        frame DE. Every ``stride``-th cell per axis is used (stride 1 = Alg. 3 exactly,
-        O(N²) pairs)."""
+        """[Q, Q, Q] counts of Alg. 3 over pairs of grid cells.
+
+        For every cell c (F at its centre, state q1 = {DE:F}) and every cell d (G at its centre
+        in frame EF, q2 = {EF:G}), the state q3 of G in frame DE is counted. Every
+        ``stride``-th cell per axis is used (stride 1 = Alg. 3 exactly, O(N²) pairs).
+        """
         if self._compose_counts is not None and self._compose_stride == stride:
             return self._compose_counts
         q = self.num_states
@@ -156,7 +144,7 @@ class SergeCalculus:
 
         @jax.jit
         def block(fc, fl, w):
-            # F = fc (chunk, 2) in frame DE; G' = centres (M, 2) in frame EF
+            # F = fc (chunk, 2) in frame DE; G' = centres [M, 2] in frame EF
             v = fc - e                                               # EF direction
             right = jnp.stack([v[:, 1], -v[:, 0]], -1)
             g = (e + centres[None, :, 0:1] * right[:, None, :]
@@ -183,12 +171,12 @@ class SergeCalculus:
 
     @property
     def compose(self) -> np.ndarray:
-        """(Q, Q, Q) bool: ``compose[p, q, r]`` ⇔ DE:F = p and EF:G = q allow DE:G = r."""
+        """[Q, Q, Q] bool: ``compose[p, q, r]`` ⇔ DE:F = p and EF:G = q allow DE:G = r."""
         return self.compose_counts() > 0
 
     @property
     def compose_prob(self) -> np.ndarray:
-        """(Q, Q, Q) P(DE:G = r | DE:F = p, EF:G = q), uniform over the (F, G) cell pairs."""
+        """[Q, Q, Q] P(DE:G = r | DE:F = p, EF:G = q), uniform over the (F, G) cell pairs."""
         c = self.compose_counts().astype(np.float64)
         tot = c.sum(axis=2, keepdims=True)
         return np.divide(c, tot, out=np.zeros_like(c), where=tot > 0)

@@ -1,27 +1,11 @@
 """Plain NumPy reference of the SERGE merge search (Padgett Alg. 2, §3.3).
 
-:func:`serge_reference` runs the trials of :func:`pqrm_jax.serge.serge` one after another in a
-Python loop, in NumPy, with no pair-gain cache: each step evaluates the gains of merging the
-picked region ``C_n`` into every region directly from the current region masses (Alg. 2 lines
-13–19, vectorised over regions and beliefs). It is the *same* algorithm as one trial of
-:mod:`pqrm_jax.serge.search`:
+Runs the trials of :func:`pqrm_jax.serge.serge` one after another in a Python loop, in
+NumPy, without the pair-gain cache, with the same seeds and the same random region order, so
+that tests and benchmarks can compare the batched program with a plain implementation.
 
-* start ``C_init`` (or ``start``), restricted to ``active`` (same masses, adjacency, beliefs);
-* trial i uses the same seed as :func:`serge`'s trial i (``key`` split the same way, seed =
-  ``jax.random.bits(key_i)`` — the only JAX calls, once per run) and the same integer hash
-  :func:`_hash_uniform_np` (bit-identical to ``_hashrng.hash_uniform``) with the step counter,
-  so the random region order (line 10, without replacement among untried regions) is the
-  same;
-* gain ``Σ_{k ∈ n ∪ m} [log(M_kn + M_km) − log S_k] + log ψ1(|R|−1) − log ψ1(|R|)``, best
-  neighbour by first argmax, merge accepted when the gain is > 0 (lines 20–26);
-* converged when every alive region was tried since the last merge (same step cap);
-* best trial by log ψ = log ψ1 + log ψ3 kept (lines 28–32).
-
-Arithmetic is float32 like the JAX program (the problem's masses are float32), so that exact
-ties (e.g. gains that round to 0 for well-separated beliefs) break the same way. Sums are
-ordered differently from XLA's (and the JAX search reads cached gains), so values agree to
-float32 rounding, not bit for bit; a decision can only differ on a near tie (a gain within
-~1e-6 of 0 or of the best other neighbour's).
+What is shared with the batched search and how closely the results agree:
+docs/serge.md §reference.
 """
 
 from __future__ import annotations
@@ -48,8 +32,10 @@ def _hash_uniform_np(seed: np.uint32, counter: int, mix: np.ndarray) -> np.ndarr
 
 
 def _trial_np(lab0, mt0, adj0, lb0, bmask, alive0, lp1, seed, mix):
-    """One trial (Alg. 2 lines 5–28) in NumPy; returns (labels, |R|, log ψ, log ψ1, log ψ3,
-    steps)."""
+    """One trial (Alg. 2 lines 5–28) in NumPy.
+
+    Returns (labels, |R|, log ψ, log ψ1, log ψ3, steps).
+    """
     r0, k = mt0.shape
     ar = np.arange(r0)
     kk = np.arange(k)
@@ -114,10 +100,28 @@ def serge_reference(
     chunk: int = 1024,
     return_trials: bool = False,
 ) -> SergeResult | tuple[SergeResult, np.ndarray]:
-    """Plain NumPy SERGE (Alg. 2, P§3.3): the trials of :func:`serge` (same arguments, same
-    seeds for trial i) run one at a time; the best map by log ψ is kept.
+    """Plain NumPy SERGE (Alg. 2, P§3.3), one trial at a time.
 
-    With ``return_trials`` also returns the (T, R0) final labels of every trial.
+    The trials of :func:`serge` (same arguments, same seeds for trial i) run one after another;
+    the best map by log ψ is kept (docs/serge.md §reference).
+
+    Args:
+        problem: the SERGE problem.
+        mu: the count prior's mean number of regions.
+        sigma: the count prior's standard deviation.
+        key: PRNG key, split as :func:`serge` splits it.
+        trials: number of trials; defaults to 100·K + 1 as in :func:`serge`.
+        active: [R0] bool, restrict the search to some initial regions.
+        start: [R0] a coarser contiguous partition to start from.
+        chunk: trials per key split, as in :func:`serge`.
+        return_trials: also return the final labels of every trial.
+
+    Returns:
+        The best trial as a :class:`~pqrm_jax.serge.search.SergeResult`; with ``return_trials``
+        also the [T, R0] final labels of every trial.
+
+    Raises:
+        ValueError: for ``trials < 1`` or bad prior parameters.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells

@@ -1,18 +1,10 @@
 """A relaxed SERGE optimiser: soft assignments by gradient (optax), then merge-search polish.
 
-Not in Padgett; an alternative to the random-order merge search of Alg. 2. Each initial
-region r gets a soft assignment ``p_r = softmax(W_r / τ)`` over μ region slots. Beliefs follow
-their initial region, so the soft saliency of belief k is
-``S_k = Σ_j p_{r_k j} Σ_r p_{rj} ∫_{C_r} B_k``. The loss is
+Not in Padgett; an alternative to the random-order merge search of Alg. 2: soft assignments
+of the initial regions to μ region slots are optimised with Adam under an annealed
+temperature, projected onto contiguous regions and polished by the merge search.
 
-    −Σ_k log S_k  +  (E|R| − μ)² / 2σ²  +  λ Σ_{r~s adjacent} ‖p_r − p_s‖²
-
-(E|R| = Σ_j [1 − ∏_r (1 − p_rj)] the expected number of used slots; the last term is a
-contiguity surrogate). It is minimised with Adam while the temperature τ is annealed
-geometrically from ``tau0`` to ``tau1``; ``restarts`` random initialisations run as one vmap.
-The hard assignment ``argmax p`` is then *projected* onto contiguous regions (every connected
-component of a slot becomes its own region, so ψ2 = 1) and *polished* by the merge search of
-Alg. 2 started from that partition (:func:`pqrm_jax.serge.serge` with ``start=``).
+The loss, the annealing and the projection: docs/serge.md §relaxed.
 """
 
 from __future__ import annotations
@@ -70,7 +62,7 @@ def _optimise(mass, adj, belief_region, mu, sigma, key, n_slots, steps, restarts
 def project_contiguous(slots: np.ndarray, adj: np.ndarray) -> np.ndarray:
     """Split every slot into its connected components on the initial-region graph.
 
-    Returns ``start`` (R0,): the representative (smallest initial region) of each region."""
+    Returns ``start`` [R0]: the representative (smallest initial region) of each region."""
     slots = np.asarray(slots)
     adj = np.asarray(adj, bool)
     rep = np.arange(len(slots))
@@ -94,7 +86,28 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
                   steps: int = 300, restarts: int = 8, polish_trials: int = 32,
                   tau0: float = 1.0, tau1: float = 0.05, lr: float = 0.1,
                   smooth: float = 0.05) -> RelaxedResult:
-    """Relaxed optimiser + projection + merge-search polish (see the module docstring).
+    """Relaxed optimiser, projection onto contiguous regions and merge-search polish.
+
+    The method (not in Padgett) is described in docs/serge.md §relaxed.
+
+    Args:
+        problem: the SERGE problem.
+        mu: the count prior's mean number of regions (the number of region slots).
+        sigma: the count prior's standard deviation.
+        key: PRNG key of the restarts and of the polish.
+        steps: Adam steps per restart.
+        restarts: random initialisations, run as one vmap.
+        polish_trials: merge-search trials of the polish.
+        tau0: initial softmax temperature.
+        tau1: final temperature (annealed geometrically from ``tau0``).
+        lr: Adam learning rate.
+        smooth: weight λ of the contiguity surrogate.
+
+    Returns:
+        A :class:`RelaxedResult` whose ``result`` is the polished SERGE map.
+
+    Raises:
+        ValueError: for bad prior parameters.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells

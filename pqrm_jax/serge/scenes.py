@@ -1,4 +1,4 @@
-"""The three data sets of Padgett §3.4.1, simulated (SPEC §5).
+"""The three data sets of Padgett §3.4.1, simulated (docs/decisions.md §5).
 
 * :func:`well_separated` — 49 landmarks whose Gaussian beliefs do not overlap (P Fig. 3.4);
 * :func:`hallway` — a robot drives down a hallway observing wall landmarks; K landmark
@@ -24,11 +24,19 @@ from .beliefs import GaussianBeliefs, SampleBeliefs
 
 
 def to_frame(d, e, f):
-    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11), NumPy or JAX arrays (..., 2).
+    """Coordinates of F in the frame D=(0,0), E=(0,1) (P eq. 3.11).
 
     Uses the calculus core's orientation (right of DE is α > 0): with v = E − D, w = F − D,
-    α = (w × v)/|v|², β = (w · v)/|v|². (P's Γ_k as printed is a reflection; the core's
-    frame is the orientation-preserving one, so SERGE QSRs and core calculi agree on sides.)
+    α = (w × v)/|v|², β = (w · v)/|v|². (P's Γ_k as printed is a reflection; the core's frame
+    is the orientation-preserving one, so SERGE QSRs and core calculi agree on sides.)
+
+    Args:
+        d: [..., 2] positions of D (NumPy or JAX).
+        e: [..., 2] positions of E.
+        f: [..., 2] positions of F.
+
+    Returns:
+        [..., 2] coordinates (α, β) of F.
 
     >>> to_frame(np.array([1., 1.]), np.array([1., 3.]), np.array([3., 1.])).tolist()
     [1.0, 0.0]
@@ -43,7 +51,7 @@ def to_frame(d, e, f):
 
 
 def from_frame(d, e, p):
-    """Inverse of :func:`to_frame`: world position of frame coordinates ``p`` (..., 2)."""
+    """Inverse of :func:`to_frame`: world position of frame coordinates ``p`` [..., 2]."""
     v = e - d
     xp = jax.numpy if isinstance(v, jax.Array) else np
     right = xp.stack([v[..., 1], -v[..., 0]], axis=-1)
@@ -54,9 +62,9 @@ def from_frame(d, e, p):
 class Scene:
     """Raw data of K beliefs and how to turn a subset of it into beliefs.
 
-    ``points[k]`` (S_k, 2) are the data points Z_k used for the error rate; ``kind`` is
+    ``points[k]`` [S_k, 2] are the data points Z_k used for the error rate; ``kind`` is
     ``"gaussian"`` (beliefs fitted to the points) or ``"triplets"`` (beliefs sampled from the
-    triplet measurements ``raw[k]`` (S_k, 3, 2) with noise ``noise_var``).
+    triplet measurements ``raw[k]`` [S_k, 3, 2] with noise ``noise_var``).
     """
 
     name: str
@@ -109,11 +117,26 @@ def hallway(seed: int = 0, n_triplets: int = 22, length: float = 40.0, width: fl
             n_samples: int = 10_000, max_obs: int = 40) -> Scene:
     """The simulated hallway of P§3.4.1 (Fig. 3.5).
 
-    Landmarks every ``spacing`` m on both walls (jittered); the robot drives down the centre
-    line; at each pose it measures every landmark within ``sensor_range`` in its own frame
-    with noise N(0, ``noise_var``·I). ``n_triplets`` co-visible ordered triplets (D, E, F) are
-    drawn at random; their measurements (one per pose at which all three are visible, at
-    most ``max_obs``) are the raw data and their normalised F̂ the data points.
+    Landmarks stand every ``spacing`` m on both walls (jittered); the robot drives down the
+    centre line and at each pose measures every landmark within ``sensor_range`` in its own
+    frame. Randomly drawn co-visible ordered triplets (D, E, F) give the raw data (one
+    measurement per pose at which all three are visible) and their normalised F̂ the data
+    points.
+
+    Args:
+        seed: seed of the layout, the triplets and the noise.
+        n_triplets: number of co-visible ordered triplets drawn.
+        length: hallway length (m).
+        width: hallway width (m).
+        spacing: landmark spacing along each wall (m).
+        sensor_range: measurement range (m).
+        noise_var: variance of the isotropic measurement noise N(0, ``noise_var``·I) (m²).
+        n_samples: samples of F̂ per belief.
+        max_obs: the most measurements kept per triplet.
+
+    Returns:
+        A :class:`Scene` of kind ``"triplets"``: the raw triplet measurements of each belief
+        and its normalised data points.
     """
     rng = np.random.default_rng(seed)
     xs = np.arange(0.0, length + 1e-9, spacing)
@@ -157,13 +180,25 @@ def lab(seed: int = 0, n_objects: int = 55, size: tuple[float, float] = (9.0, 7.
         min_sep: float = 0.3) -> Scene:
     """A lab-like room with ``n_objects`` tracked objects (stand-in for P Fig. 3.6).
 
-    Objects sit on benches along the walls, on two central tables and a few on the floor
-    (some pairs only 0.3–0.5 m apart). A depth camera at the middle of the near wall tracks
-    each object for a few seconds; centroid noise is anisotropic: ``noise_scale`` × (1.5 cm +
-    0.4 %·r² along the viewing ray, 1 cm + 0.2 %·r across it; r the range), plus a per-object
-    bounding-box bias of sd ``noise_scale`` × 1.5 cm. The default ``noise_scale = 2`` was
-    chosen so that close objects overlap (|R| < μ at σ = 2 for large μ, as in P Fig. 3.7)
-    without exceeding the published lab error level; it is a simulation choice, not data.
+    Objects sit on benches along the walls, on two central tables and a few on the floor (some
+    pairs only 0.3–0.5 m apart). A depth camera at the middle of the near wall tracks each object
+    for a few seconds; centroid noise is anisotropic: ``noise_scale`` × (1.5 cm + 0.4 %·r² along
+    the viewing ray, 1 cm + 0.2 %·r across it; r the range), plus a per-object bounding-box bias
+    of sd ``noise_scale`` × 1.5 cm.
+
+    Args:
+        seed: seed of the layout and the noise.
+        n_objects: number of objects.
+        size: room size (m).
+        n_points: ``[low, high)`` range of the number of tracked points per object.
+        noise_scale: scale of the camera noise. The default 2 was chosen so that close objects
+            overlap (|R| < μ at σ = 2 for large μ, as in P Fig. 3.7) without exceeding the
+            published lab error level; it is a simulation choice, not data.
+        min_sep: smallest distance between objects (m).
+
+    Returns:
+        A :class:`Scene` of kind ``"gaussian"``: the tracked points of each object, to which
+        the beliefs are fitted.
     """
     rng = np.random.default_rng(seed)
     w, h = size

@@ -1,38 +1,11 @@
 """The SERGE merge search (Padgett Alg. 2, §3.3) as one batched, jit-compiled program.
 
-One *trial* starts from ``C_init`` (one contiguous region per belief) and repeatedly picks a
-random current region ``C_n``, evaluates merging it into each neighbouring region ``C_m``
-(beliefs assigned to ``C_n`` follow it, Alg. 2 lines 13–19) and applies the best merge when it
-raises ψ (lines 20–26). A trial has converged when every current region has been tried since
-the last merge without an improving merge (the random choice of line 10 is made without
-replacement among the untried regions). Merging two adjacent connected regions gives a
-connected region, so ψ2 = 1 throughout — contiguity is guaranteed by construction.
+Offers the batched search over T random-order trials (the best trial by log ψ is kept), the
+same trial run one at a time for comparison, and the direct pair-gain evaluation that the
+incremental cache is tested against. Regions stay contiguous by construction (ψ2 = 1).
 
-All T trials are independent and run in blocks of ``WIDTH`` trials (so that a block's state
-stays in cache). A block is one ``lax.while_loop`` whose body is the ``vmap`` of one trial step,
-masked by whether that trial is still running (a finished trial's step changes nothing), until
-every trial of the block has converged; the same step under a per-trial while loop is
-:func:`serge_sequential`'s trial. (A ``vmap`` of the per-trial while loop would select every
-trial's whole state at every step — most of the time.) The key-independent start (region
-masses, adjacency, the pair-gain cache below) is computed once and shared by all trials. The
-best trial by log ψ is kept (Alg. 2 lines 28–32). On CPU the blocks are dealt to one queue per
-usable core, run side by side (:mod:`pqrm_jax._parallel`); a trial depends only on its key, so
-the result does not depend on the number of queues.
-
-Incremental potential. Only the beliefs assigned to ``C_n`` or ``C_m`` change saliency under
-a merge, so the gain of merging n into m is ``G[n, m] = Σ_{k: L_k ∈ {n, m}} [log(M_kn + M_km)
-− log M_{k L_k}]`` plus the change of log ψ1. ``G`` (R0, R0) is symmetric and is cached: a
-merge of n into t changes only row and column t (the beliefs and masses of every other pair
-are untouched), so a step costs one row read (pick n, best t) and, on an accepted merge, the
-new row t — from the beliefs of t in blocks of ``BLOCK`` (a loop over the blocks actually used
-by the accepting trials) plus one segment sum over the beliefs of the other regions — instead
-of the full (R0 × K) evaluation. Adjacency is ``G > −inf``. :func:`pair_gains` is the direct
-evaluation (tests compare).
-
-Cheap under vmap on CPU: the beliefs of each region are kept as a bit set (a merge ORs two
-rows) and the beliefs of t are taken in increasing index order with popcount / count-trailing-
-zeros, and argmax is a max plus a first-index min — small elementwise programs instead of the
-cumsum, scatter and variadic argmax reductions that dominate a vmapped step otherwise.
+Trial convergence, blocks of trials, the incremental potential and the bit-set bookkeeping:
+docs/serge.md §search.
 """
 
 from __future__ import annotations
@@ -70,9 +43,11 @@ def _setup(mass, adj, belief_region, lab0, active):
 
 
 def pair_gains(mt, a, lb, alive, bmask):
-    """Direct (R0, R0) saliency gain of merging every adjacent alive pair (n, m):
+    """Direct [R0, R0] saliency gain of merging every adjacent alive pair (n, m).
+
     ``G[n, m] = Σ_{k ∈ n ∪ m} log(M_kn + M_km) − log M_{k L_k}`` (−inf where not adjacent).
-    Symmetric; the initial value of the merge search's incremental cache."""
+    Symmetric; the initial value of the merge search's incremental cache.
+    """
     r0, k = mt.shape
     ar = jnp.arange(r0)
     sal = mt.T[jnp.arange(k), lb]                                     # (K,) S_k
@@ -91,9 +66,11 @@ def _ctz(x):
 
 
 def _pop_lowest(words, n):
-    """Indices of the n lowest set bits of the bit set ``words`` (uint32, 32 per word), in
-    increasing order, whether each was found, and the remaining set (elementwise integer ops:
-    cheap under vmap, unlike a cumsum, sort or scatter)."""
+    """Indices of the n lowest set bits of the bit set ``words`` (uint32, 32 per word).
+
+    Returns them in increasing order, whether each was found, and the remaining set
+    (elementwise integer ops: cheap under vmap, unlike a cumsum, sort or scatter).
+    """
     idx, found = [], []
     for _ in range(n):
         i_s, f_s = jnp.int32(0), jnp.bool_(False)
@@ -111,14 +88,17 @@ def _pop_lowest(words, n):
 
 
 def _argmax(x):
-    """(first index of the maximum, maximum) of a NaN-free vector: ``jnp.argmax`` as two plain
-    reductions (a variadic argmax reduction is slow on CPU under vmap)."""
+    """(first index of the maximum, maximum) of a NaN-free vector.
+
+    ``jnp.argmax`` as two plain reductions (a variadic argmax reduction is slow on CPU under
+    vmap).
+    """
     m = jnp.max(x)
     return jnp.min(jnp.where(x == m, jnp.arange(x.shape[0], dtype=jnp.int32), x.shape[0])), m
 
 
 def _bitset(mask):
-    """(R, ceil(K/32)) uint32 bit sets of a (R, K) bool mask (bit k%32 of word k//32)."""
+    """(R, ceil(K/32)) uint32 bit sets of a [R, K] bool mask (bit k%32 of word k//32)."""
     r, k = mask.shape
     nw = -(-k // 32)
     bits = jnp.pad(mask, ((0, 0), (0, 32 * nw - k))).reshape(r, nw, 32).astype(jnp.uint32)
@@ -126,8 +106,10 @@ def _bitset(mask):
 
 
 def _row_gain(mt, row_t, t, lb, logs, sal, bmask, words):
-    """(R0,) gain of merging the (just merged) region t with every region m, from the beliefs
-    of t (in blocks of ``BLOCK`` in increasing index order, a while loop over the blocks
+    """[R0] gain of merging the (just merged) region t with every region m.
+
+    Computed from the beliefs of t (in blocks of ``BLOCK`` in increasing index order, a while
+    loop over the blocks
     actually used) and the beliefs of each m (a segment sum over all beliefs). ``words``: the
     bit set of the beliefs of t (empty for a rejected merge, whose row is discarded: no
     blocks)."""
@@ -163,9 +145,11 @@ def _init_state(mass, adj, belief_region, lab0, active):
 
 
 def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
-    """(start, cond, body) of one merge-search trial (Alg. 2 lines 5–28) from the shared start
-    ``init``. ``body(s, active)`` is one step; with ``active`` False it leaves ``s`` unchanged
-    (the batched program steps every trial of a block until all have converged)."""
+    """(start, cond, body) of one merge-search trial (Alg. 2 lines 5–28) from ``init``.
+
+    ``init`` is the shared start; ``body(s, active)`` is one step; with ``active`` False it leaves
+    ``s`` unchanged (the batched program steps every trial of a block until all have converged).
+    """
     lab, mt, g, lb, logs, sal, alive, bmask, bs = init
     k_static, r0 = mt.shape[1], mt.shape[0]
     ar = jnp.arange(r0)
@@ -179,7 +163,7 @@ def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
     def merge(s, n, t, accept):
         # merge C_n into C_t; with ``accept`` False every update is a no-op (the branch-free
         # form used when batched: only rows t and n of the state are touched, never the
-        # whole (R0, K) / (R0, R0) arrays)
+        # whole [R0, K] / [R0, R0] arrays)
         lab, mt, g, lb, logs, sal, alive, bs = s
         row_t = mt[t] + jnp.where(accept, mt[n], 0.0)
         words = jnp.where(accept, bs[t] | bs[n], 0)                  # beliefs of t ∪ n
@@ -230,20 +214,23 @@ def _trial_fns(init, mu, sigma, max_steps=None, branch=False):
 
 
 def _run_trial(init, mu, sigma, key, max_steps=None, branch=False):
-    """One merge-search trial (Alg. 2 lines 5–28) from the shared start ``init``; returns the
-    final state (jit-able). ``max_steps`` stops early (tests of the incremental cache).
+    """One merge-search trial (Alg. 2 lines 5–28) from the shared start ``init``.
+
+    Returns the final state (jit-able). ``max_steps`` stops early (tests of the incremental cache).
     ``branch`` applies the merge under ``lax.cond`` (skips work for a single trial; under vmap a
-    cond becomes a select over the whole state, so the batched program uses the branch-free
-    form). Both give the same result. The batched program runs the same step
-    (:func:`_run_block`)."""
+    cond becomes a select over the whole state, so the batched program uses the branch-free form).
+    Both give the same result. The batched program runs the same step (:func:`_run_block`).
+    """
     start, cond, body = _trial_fns(init, mu, sigma, max_steps, branch)
     return jax.lax.while_loop(cond, body, start(key))
 
 
 def _run_block(init, mu, sigma, keys):
-    """The trials of ``keys`` stepped together: one while loop over the block, each step a
-    vmapped trial step masked by whether that trial is still running (a vmapped while loop
-    would instead select the whole state of every trial at every step)."""
+    """The trials of ``keys`` stepped together in one while loop over the block.
+
+    Each step is a vmapped trial step masked by whether that trial is still running (a vmapped
+    while loop would instead select the whole state of every trial at every step).
+    """
     start, cond, body = _trial_fns(init, mu, sigma)
     vcond, vbody = jax.vmap(cond), jax.vmap(body)
 
@@ -297,10 +284,19 @@ def _one_trial(init, mu, sigma, key, branch=True):
 class SergeResult:
     """Best SR map of a SERGE run.
 
-    * ``region_of_init`` (R0,): compact region 0..|R|−1 of every initial region (−1 inactive);
-    * ``cell_labels`` (N,): region of every fine cell (−1 outside the active part);
-    * ``belief_labels`` (K,): ``L^B`` (−1 for beliefs outside the active part);
-    * ``log_psi = log_psi1 + log_psi3`` (ψ2 = 1); ``trial_log_psi`` (T,) of every trial.
+    Attributes:
+        problem: the problem that was solved.
+        mu: the count prior's mean used.
+        sigma: the count prior's standard deviation used.
+        region_of_init: [R0] compact region 0..|R|−1 of every initial region (−1 inactive).
+        cell_labels: [N] region of every fine cell (−1 outside the active part).
+        belief_labels: [K] ``L^B`` (−1 for beliefs outside the active part).
+        n_regions: |R|, the number of regions of the best map.
+        log_psi: ``log_psi1 + log_psi3`` (ψ2 = 1) of the best trial.
+        log_psi1: log of the count prior ψ1 of the best map.
+        log_psi3: log of the saliency term ψ3 of the best map.
+        trial_log_psi: [T] log ψ of every trial.
+        iterations: [T] merge-search steps of every trial.
     """
 
     problem: Problem
@@ -317,11 +313,11 @@ class SergeResult:
     iterations: np.ndarray
 
     def label_points(self, points) -> np.ndarray:
-        """Region of each point (..., 2) (outside the grid → nearest border cell)."""
+        """Region of each point [..., 2] (outside the grid → nearest border cell)."""
         return self.cell_labels[np.asarray(self.problem.grid.cell_of(np.asarray(points)))]
 
     def saliency(self) -> np.ndarray:
-        """(K,) saliency S_k of each belief in its region (training beliefs)."""
+        """[K] saliency S_k of each belief in its region (training beliefs)."""
         pm = np.asarray(self.problem.cell_mass, np.float64)
         own = self.cell_labels[None, :] == np.asarray(self.belief_labels)[:, None]  # (K, N)
         return (pm * own).sum(1)
@@ -373,10 +369,24 @@ def serge(
 ) -> SergeResult:
     """Run SERGE (Alg. 2) with ``trials`` random-order trials batched; keep the best map.
 
-    ``trials`` defaults to 100·K + 1 (P§3.3 suggests T > 100·K). ``active`` (R0,) bool
-    restricts the search to some initial regions and their beliefs (a branch of the resolution
-    tree, P§3.3.1); ``start`` (R0,) starts from a coarser contiguous partition instead of
-    ``C_init`` (used by the relaxed optimiser).
+    Args:
+        problem: the SERGE problem (initial regions, masses, adjacency; :func:`initial_cells`).
+        mu: the count prior's mean number of regions, an integer in 1..min(K, N).
+        sigma: the count prior's standard deviation (finite, ≥ 0).
+        key: PRNG key; trial i depends only on its own key, so results do not depend on
+            ``chunk`` or on the number of queues.
+        trials: number of trials T; defaults to 100·K + 1 (P§3.3 suggests T > 100·K).
+        active: [R0] bool, restricts the search to some initial regions and their beliefs (a
+            branch of the resolution tree, P§3.3.1).
+        start: [R0] a coarser contiguous partition to start from instead of ``C_init`` (used by
+            the relaxed optimiser).
+        chunk: trials per key split (keeps the key derivation independent of T).
+
+    Returns:
+        The best trial by log ψ as a :class:`SergeResult` (with every trial's log ψ).
+
+    Raises:
+        ValueError: for ``trials < 1``, ``mu`` outside 1..min(K, N) or a bad ``sigma``.
 
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells, serge
@@ -412,8 +422,10 @@ def serge(
 
 def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Array,
                      trials: int, active=None, start=None, branch: bool = False) -> SergeResult:
-    """Reference: the same trials (same keys as :func:`serge` with ``chunk ≥ trials``) run
-    one at a time in a Python loop of jitted single trials (the shared start computed once).
+    """Reference: the trials of :func:`serge`, one at a time in a Python loop of jitted trials.
+
+    The keys are those of :func:`serge` with ``chunk ≥ trials``; the shared start is computed
+    once.
     ``branch`` applies each merge under ``lax.cond`` (skips the merge work on rejected
     steps); the default is the branch-free step that the batched program vmaps. On one core
     of a 2-core CPU the two take 13–28 µs per step (noisy; the cond form is the faster),

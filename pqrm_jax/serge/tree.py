@@ -85,8 +85,10 @@ class ResolutionTree:
     def build(cls, problem: Problem, *, key: jax.Array, mu: int | Sequence[int] = 2,
               sigma: float = 1.0, depth: int | None = None,
               trials: int | None = None) -> ResolutionTree:
-        """Split depth-first (P Fig. 3.3) until every leaf is one initial cell or ``depth``
-        levels exist; ``mu`` may be one value or one per level."""
+        """Split depth-first (P Fig. 3.3) until every leaf is one initial cell or ``depth`` is hit.
+
+        ``mu`` may be one value or one per level.
+        """
         tree = cls(problem)
         stack = [0]
         while stack:
@@ -118,7 +120,7 @@ class ResolutionTree:
                 if n.level == level or (n.level < level and not n.children)]
 
     def map_of(self, frontier: Iterable[int]) -> np.ndarray:
-        """(N,) cell labels of a frontier (label i = i-th node of the frontier).
+        """[N] cell labels of a frontier (label i = i-th node of the frontier).
 
         ``ValueError`` unless the frontier's initial regions partition the map."""
         frontier = list(frontier)

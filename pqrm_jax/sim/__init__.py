@@ -1,4 +1,6 @@
-"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies (SPEC §9).
+"""``pqrm_jax.sim``: a JAX 2D kinematic rover simulator for Monte Carlo studies.
+
+Decisions: docs/decisions.md §9; how it works: docs/sim.md.
 
 Pure functions over explicit state pytrees and explicit PRNG keys, jitted at the public
 boundary, ``vmap``-able over runs:
@@ -81,3 +83,16 @@ from pqrm_jax.sim.occlusion import (  # noqa: E402
 
 __all__ += ["coverage", "occlusion", "lawnmower", "disc_visibility", "target_visibility",
             "segment_distance", "segment_visibility"]
+
+# HSSH additions (B ch. 6): corridor-network occupancy worlds.
+from pqrm_jax.sim import corridors  # noqa: E402
+from pqrm_jax.sim.corridors import (  # noqa: E402
+    INTERSECTIONS,
+    intersection_rectangles,
+    plus_image,
+    render_free_rectangles,
+    room_doorway_rectangles,
+)
+
+__all__ += ["corridors", "INTERSECTIONS", "intersection_rectangles", "plus_image",
+            "render_free_rectangles", "room_doorway_rectangles"]

@@ -1,4 +1,4 @@
-"""Input checks shared by the simulator modules (SPEC §9).
+"""Input checks shared by the simulator modules (docs/decisions.md §9).
 
 Shape checks always run (shapes are static, also under ``jit``/``vmap``). Value checks
 (NaN/inf, negative parameters) run only when the inputs are concrete arrays, i.e. when a

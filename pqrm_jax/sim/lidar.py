@@ -1,4 +1,4 @@
-"""Lidar ray casting into an occupancy grid (SPEC §9).
+"""Lidar ray casting into an occupancy grid (docs/decisions.md §9).
 
 A 2D occupancy grid is a boolean array ``grid[i, j]`` (row ``i`` along y, column ``j`` along
 x); cell ``(i, j)`` covers ``[x0 + j r, x0 + (j + 1) r) x [y0 + i r, y0 + (i + 1) r)`` for
@@ -36,11 +36,12 @@ __all__ = ["LidarParams", "LidarScan", "lidar_scan", "rasterize_discs"]
 class LidarParams(NamedTuple):
     """Lidar parameters. ``n_beams`` is static; the others may be traced.
 
-    n_beams: number of beams, spread evenly over ``fov`` (centred on the heading; for
-        ``fov >= 2 pi`` they cover the full circle without repeating the first beam).
-    max_range: beams that hit nothing report ``max_range``.
-    fov: field of view in radians.
-    sigma: std of Gaussian noise added to the ranges of beams that hit (then clipped at 0).
+    Attributes:
+        n_beams: number of beams, spread evenly over ``fov`` (centred on the heading; for
+            ``fov >= 2 pi`` they cover the full circle without repeating the first beam).
+        max_range: beams that hit nothing report ``max_range``.
+        fov: field of view in radians.
+        sigma: std of Gaussian noise added to the ranges of beams that hit (then clipped at 0).
     """
 
     n_beams: int = 180
@@ -50,9 +51,11 @@ class LidarParams(NamedTuple):
 
 
 class LidarScan(NamedTuple):
-    """Result of :func:`lidar_scan`: ``angles`` (B,) beam angles in the robot frame,
-    ``ranges`` (B,) measured ranges, ``hit`` (B,) bool, True where the beam hit an occupied
-    cell within ``max_range``."""
+    """Result of :func:`lidar_scan`.
+
+    ``angles`` [B] beam angles in the robot frame, ``ranges`` [B] measured ranges, ``hit`` [B]
+    bool, True where the beam hit an occupied cell within ``max_range``.
+    """
 
     angles: jax.Array
     ranges: jax.Array
@@ -95,8 +98,21 @@ def lidar_scan(
 ) -> LidarScan:
     """Cast ``params.n_beams`` beams from ``pose`` into the occupancy ``grid``.
 
-    ``params.max_range`` must be concrete (it fixes the number of march samples,
-    ``ceil(oversample * max_range / resolution)``).
+    Args:
+        key: PRNG key of the range noise.
+        pose: ``[3]`` sensor pose ``(x, y, theta)``.
+        grid: [rows, cols] bool occupancy grid (rows along y, columns along x).
+        resolution: cell size (positive).
+        origin: world position of the grid's corner ``(x, y)``.
+        params: lidar parameters; ``params.max_range`` must be concrete (it fixes the number of
+            march samples, ``ceil(oversample * max_range / resolution)``).
+        oversample: march samples per cell (at least 1).
+
+    Returns:
+        A :class:`LidarScan` (beam angles, ranges, hits).
+
+    Raises:
+        ValueError: for a bad pose, grid, origin, resolution or parameters.
 
     >>> grid = jnp.zeros((10, 10), bool).at[:, 7].set(True)     # a wall at x in [7, 8)
     >>> scan = lidar_scan(jax.random.key(0), jnp.array([2.0, 5.0, 0.0]), grid, 1.0,
@@ -145,8 +161,22 @@ def rasterize_discs(
     resolution: float,
     origin: Sequence[float] = (0.0, 0.0),
 ) -> jax.Array:
-    """Occupancy grid ``shape`` (rows along y, columns along x): a cell is occupied when its
-    centre lies within ``radius`` of a landmark centre.
+    """Occupancy grid of ``shape`` (rows along y, columns along x) from disc landmarks.
+
+    A cell is occupied when its centre lies within ``radius`` of a landmark centre.
+
+    Args:
+        landmarks: [N, 2] disc centres.
+        radius: disc radius (non-negative).
+        shape: ``(rows, cols)`` of the grid.
+        resolution: cell size (positive).
+        origin: world position of the grid's corner ``(x, y)``.
+
+    Returns:
+        [rows, cols] bool occupancy grid.
+
+    Raises:
+        ValueError: for bad landmarks, radius, resolution or shape.
 
     >>> g = rasterize_discs(jnp.array([[2.5, 1.5]]), 0.6, (3, 4), 1.0)
     >>> g.astype(int).tolist()

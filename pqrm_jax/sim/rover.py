@@ -1,20 +1,11 @@
-"""Unicycle rover with explicit state and parameters, gymnax style (SPEC §9).
+"""Unicycle rover with explicit state and parameters, gymnax style (docs/decisions.md §9).
 
 ``state = reset(key, params)``; ``state = step(state, control, params)``;
 ``final, poses = rollout(state, controls, params)`` (a ``lax.scan``). Everything is a pure
 function of pytrees (:class:`RoverParams`, :class:`RoverState`) and can be ``vmap``-ed over
 Monte Carlo runs.
 
-Dynamics: pose ``(x, y, theta)``, control ``(v, omega)`` held constant over ``params.dt``.
-The update is the exact solution of ``x' = v cos(theta), y' = v sin(theta), theta' = omega``
-for constant controls, written in chord form
-
-    d = v * dt * sinc(omega * dt / 2),   (x, y) += d * (cos, sin)(theta + omega * dt / 2)
-
-which equals the arc formula ``x += v/omega (sin(theta + omega dt) - sin(theta))`` and has
-the straight-line limit ``x += v dt cos(theta)`` at ``omega = 0`` without division by zero.
-Controls are clipped to ``|v| <= max_speed``, ``|omega| <= max_turn_rate``; headings are
-wrapped to ``[-pi, pi)``.
+The exact chord-form dynamics and the control limits: docs/sim.md §rover.
 """
 
 from __future__ import annotations
@@ -124,8 +115,20 @@ def reset(
     pose: jax.Array | None = None,
     size: tuple[float, float] = (100.0, 100.0),
 ) -> RoverState:
-    """Initial state at ``pose``, or (``pose=None``) at a pose drawn from ``key``: position
-    uniform over ``[0, size[0]] x [0, size[1]]``, heading uniform in ``[-pi, pi)``. ``t = 0``.
+    """Initial state at ``pose``, or (``pose=None``) at a pose drawn from ``key``; ``t = 0``.
+
+    Args:
+        key: PRNG key (used only when ``pose`` is None).
+        params: rover parameters (checked; defaults to ``RoverParams()``).
+        pose: ``[3]`` initial pose ``(x, y, theta)``.
+        size: box of a drawn pose: position uniform over ``[0, size[0]] x [0, size[1]]``,
+            heading uniform in ``[-pi, pi)``.
+
+    Returns:
+        The initial :class:`RoverState`.
+
+    Raises:
+        ValueError: for bad parameters or a ``pose`` of the wrong shape or with NaN/inf.
 
     >>> s = reset(jax.random.key(0), RoverParams(), pose=jnp.array([1.0, 2.0, 0.0]))
     >>> s.pose.tolist(), float(s.t)
@@ -158,6 +161,17 @@ def step(
 ) -> RoverState:
     """Advance one ``params.dt`` under the (clipped) constant control ``(v, omega)``.
 
+    Args:
+        state: current :class:`RoverState`.
+        control: ``[2]`` control ``(v, omega)``, clipped to the parameters' limits.
+        params: rover parameters (defaults to ``RoverParams()``).
+
+    Returns:
+        The next :class:`RoverState` (exact unicycle motion, docs/sim.md §rover).
+
+    Raises:
+        ValueError: for bad parameters or a ``control`` of the wrong shape or with NaN/inf.
+
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> step(s, jnp.array([1.0, 0.0]), RoverParams(dt=2.0)).pose.tolist()
     [2.0, 0.0, 0.0]
@@ -173,8 +187,18 @@ def step(
 def rollout(
     state: RoverState, controls: jax.Array, params: RoverParams | None = None
 ) -> tuple[RoverState, jax.Array]:
-    """Apply ``controls`` (T, 2) in sequence; returns ``(final_state, poses (T + 1, 3))`` with
-    ``poses[0] = state.pose``.
+    """Apply ``controls`` [T, 2] in sequence (a ``lax.scan`` over :func:`step`).
+
+    Args:
+        state: initial :class:`RoverState`.
+        controls: [T, 2] controls ``(v, omega)``.
+        params: rover parameters (defaults to ``RoverParams()``).
+
+    Returns:
+        ``(final_state, poses)`` with ``poses`` [T + 1, 3] and ``poses[0] = state.pose``.
+
+    Raises:
+        ValueError: for bad parameters or ``controls`` of the wrong shape or with NaN/inf.
 
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))
     >>> final, poses = rollout(s, jnp.tile(jnp.array([1.0, 0.0]), (20, 1)), RoverParams(dt=0.25))

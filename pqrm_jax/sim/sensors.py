@@ -1,23 +1,11 @@
-"""Landmark sensors for the rover simulator (SPEC §9).
+"""Landmark sensors for the rover simulator (docs/decisions.md §9).
 
-Two measurement models, both over a fixed-size landmark array with boolean masks (static
-shapes, no Python loops over landmarks, ``jit``/``vmap``-friendly):
+Offers two measurement models over a fixed-size landmark array with boolean masks: noisy
+relative landmark positions (the range sensor of P §2.3.1) and the camera measurement of
+M §IV (bearings plus range ordering). Shapes are always checked; values are checked when
+concrete.
 
-* :func:`observe` -- noisy relative landmark positions in the robot frame (x forward, y left),
-  the range/position sensor of Padgett's PQRM Monte Carlo study (P §2.3.1: 60 m range,
-  Gaussian noise of std ``sigma`` on each observed position).
-* :func:`camera` -- bearings of the visible landmarks plus their range *ordering*, the camera
-  measurement of McClelland (M §IV): angles to landmark centroids in the local camera frame and
-  a scale-free ordering of distances. Restricting to the nearest ``n`` landmarks (M §VIII.B) is
-  ``obs.visible & (obs.range_rank < n)``.
-
-Visibility = within ``max_range`` and inside the field of view and not occluded. A landmark is
-occluded when the segment from the robot to its centre passes strictly within
-``landmark_radius`` of the centre of a strictly nearer landmark.
-
-Inputs are checked (shapes always; NaN/inf and negative parameters when called eagerly with
-concrete values). Inside ``jit``/``vmap`` values are not inspected: NaN inputs give NaN outputs
-and ``visible`` is False for NaN landmarks.
+Visibility, occlusion and the handling of bad input: docs/sim.md §sensors.
 """
 
 from __future__ import annotations
@@ -85,10 +73,11 @@ def _check_param(name: str, v) -> None:
 class Observation(NamedTuple):
     """Result of :func:`observe`.
 
-    rel: (N, 2) noisy landmark positions in the robot frame (noise is drawn for every landmark;
-        entries of invisible landmarks are meaningless, use ``visible``).
-    true_rel: (N, 2) noise-free positions in the robot frame.
-    visible: (N,) bool, in range and field of view and not occluded.
+    Attributes:
+        rel: [N, 2] noisy landmark positions in the robot frame (noise is drawn for every landmark;
+            entries of invisible landmarks are meaningless, use ``visible``).
+        true_rel: [N, 2] noise-free positions in the robot frame.
+        visible: [N] bool, in range and field of view and not occluded.
     """
 
     rel: jax.Array
@@ -99,12 +88,13 @@ class Observation(NamedTuple):
 class CameraObservation(NamedTuple):
     """Result of :func:`camera`.
 
-    bearings: (N,) angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
-        counter-clockwise from the heading (computed for every landmark; meaningful where
-        ``visible``).
-    range_rank: (N,) int32, 0 for the nearest visible landmark, 1 for the next, ...;
-        -1 where not visible. Ties are broken by landmark index.
-    visible: (N,) bool, as in :class:`Observation`.
+    Attributes:
+        bearings: [N] angle of each landmark centre in the robot frame, in ``(-pi, pi]``,
+            counter-clockwise from the heading (computed for every landmark; meaningful where
+            ``visible``).
+        range_rank: [N] int32, 0 for the nearest visible landmark, 1 for the next, ...;
+            -1 where not visible. Ties are broken by landmark index.
+        visible: [N] bool, as in :class:`Observation`.
     """
 
     bearings: jax.Array
@@ -189,7 +179,7 @@ def _prepare(pose, landmarks, params):
 
 
 def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
-    """Landmark positions ``(N, 2)`` in the robot frame (x forward, y left), noise-free.
+    """Landmark positions ``[N, 2]`` in the robot frame (x forward, y left), noise-free.
 
     >>> relative_positions(jnp.array([1.0, 0.0, jnp.pi / 2]), jnp.array([[1.0, 2.0]])).round(4)
     Array([[ 2., -0.]], dtype=float32)
@@ -199,7 +189,7 @@ def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
 
 
 def visibility(pose: jax.Array, landmarks: jax.Array, params: SensorParams) -> jax.Array:
-    """Boolean ``(N,)`` visibility mask: range & field of view & occlusion."""
+    """Boolean ``[N]`` visibility mask: range & field of view & occlusion."""
     pose, landmarks, params = _prepare(pose, landmarks, params)
     return _visibility_jit(pose, landmarks, params)
 
@@ -209,12 +199,26 @@ def observe(
 ) -> Observation:
     """Noisy relative-position measurement of all landmarks from ``pose`` = (x, y, theta).
 
+    ``vmap`` over runs: ``jax.vmap(observe, (0, 0, None, None))(keys, poses, lm, params)``.
+
+    Args:
+        key: PRNG key of the position noise.
+        pose: ``[3]`` robot pose ``(x, y, theta)``.
+        landmarks: [N, 2] landmark positions.
+        params: sensor parameters (defaults to ``SensorParams()``).
+
+    Returns:
+        An :class:`Observation`: noisy and true positions in the robot frame and visibility
+        (range, field of view, occlusion; docs/sim.md §sensors).
+
+    Raises:
+        ValueError: for inputs of the wrong shape, and (when concrete) NaN/inf values or
+            negative parameters.
+
     >>> lm = jnp.array([[10.0, 0.0], [0.0, 100.0]])
     >>> obs = observe(jax.random.key(0), jnp.zeros(3), lm, SensorParams(max_range=60.0))
     >>> obs.visible.tolist(), obs.true_rel[0].tolist()
     ([True, False], [10.0, 0.0])
-
-    ``vmap`` over runs: ``jax.vmap(observe, (0, 0, None, None))(keys, poses, lm, params)``.
     """
     pose, landmarks, params = _prepare(pose, landmarks, params)
     return _observe(key, pose, landmarks, params)
@@ -225,7 +229,20 @@ def camera(
 ) -> CameraObservation:
     """Camera measurement (M §IV): bearings of landmarks and range ordering of the visible ones.
 
-    ``params.sigma`` is not used (bearings and ordering are exact, as assumed in M §IV).
+    Bearings and ordering are exact, as assumed in M §IV, so ``params.sigma`` is not used.
+
+    Args:
+        pose: ``[3]`` camera pose ``(x, y, theta)``.
+        landmarks: [N, 2] landmark positions.
+        params: sensor parameters (range, field of view, occlusion radius).
+
+    Returns:
+        A :class:`CameraObservation` (bearings in the camera frame, range rank of each visible
+        landmark, ``-1`` for the others).
+
+    Raises:
+        ValueError: for inputs of the wrong shape, and (when concrete) NaN/inf values or
+            negative parameters.
 
     >>> lm = jnp.array([[0.0, 5.0], [2.0, 0.0], [90.0, 0.0]])
     >>> cam = camera(jnp.zeros(3), lm, SensorParams(max_range=60.0))

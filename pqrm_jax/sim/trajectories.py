@@ -1,4 +1,4 @@
-"""Trajectories, imaging points and a closed-loop waypoint controller (SPEC §9).
+"""Trajectories, imaging points and a closed-loop waypoint controller (docs/decisions.md §9).
 
 * :func:`perimeter_loop` -- Padgett's PQRM Monte Carlo trajectory (P §2.3.1): one loop of a
   circle around the perimeter of the 100 m x 100 m environment, one measurement pose every
@@ -9,7 +9,7 @@
 * :func:`waypoint_controller` / :func:`follow_waypoints` -- a proportional unicycle controller
   and a ``lax.scan`` that drives a :mod:`sim.rover` through a list of waypoints.
 
-All functions return poses as ``(T, 3)`` arrays of ``(x, y, theta)``; sizes are static Python
+All functions return poses as ``[T, 3]`` arrays of ``(x, y, theta)``; sizes are static Python
 ints, everything else may be traced, and the keyed functions ``vmap`` over keys.
 """
 
@@ -64,15 +64,29 @@ def perimeter_loop(
     clockwise: bool = False,
     max_poses: int = 1_000_000,
 ) -> jax.Array:
-    """Poses ``(T, 3)`` on one loop of a circle, one every ``dtheta`` radians.
+    """Poses ``[T, 3]`` on one loop of a circle, one every ``dtheta`` radians.
 
-    A ``dtheta`` that would give more than ``max_poses`` poses (a million by default: e.g.
-    ``dtheta=1e-9`` asks for 6.3·10⁹) raises ``ValueError`` instead of returning a huge lazy
-    array that can only fail later; raise ``max_poses`` deliberately if you need more.
+    Pose ``i`` sits at polar angle ``start_angle +- i * dtheta`` around ``center`` and faces
+    along the direction of travel (tangent to the circle). A ``dtheta`` that would give more
+    than ``max_poses`` poses (a million by default: e.g. ``dtheta=1e-9`` asks for 6.3·10⁹)
+    raises ``ValueError`` instead of returning a huge lazy array that can only fail later;
+    raise ``max_poses`` deliberately if you need more.
 
-    ``T = ceil(2 pi / dtheta)`` (23 for the default 16 degrees); pose ``i`` sits at polar angle
-    ``start_angle +- i * dtheta`` around ``center`` and faces along the direction of travel
-    (tangent to the circle). ``dtheta`` must be a concrete number (it fixes the shape).
+    Args:
+        center: centre of the circle, ``(x, y)``.
+        radius: radius of the circle (positive).
+        dtheta: angle between poses in radians; must be a concrete number (it fixes the shape).
+        start_angle: polar angle of the first pose.
+        clockwise: direction of travel.
+        max_poses: the most poses allowed.
+
+    Returns:
+        [T, 3] poses ``(x, y, theta)`` with ``T = ceil(2 pi / dtheta)`` (23 for the default
+        16 degrees).
+
+    Raises:
+        ValueError: for a non-positive or non-finite ``dtheta``, more than ``max_poses``
+            poses, a bad ``center`` or a non-positive ``radius``.
 
     >>> poses = perimeter_loop()            # Padgett: 100 m square, a pose every 16 degrees
     >>> poses.shape, [round(float(v), 3) for v in poses[0]]
@@ -109,8 +123,19 @@ def random_imaging_points(
 ) -> jax.Array:
     """``n`` imaging poses uniform over the box ``[0, size[0]] x [0, size[1]]``.
 
-    ``heading="random"`` draws headings uniform in ``[-pi, pi)``; a number gives every pose
-    that heading.
+    Args:
+        key: PRNG key.
+        n: number of poses.
+        size: box side lengths (positive).
+        heading: ``"random"`` draws headings uniform in ``[-pi, pi)``; a number gives every
+            pose that heading.
+
+    Returns:
+        [n, 3] poses ``(x, y, theta)``.
+
+    Raises:
+        ValueError: for a bad ``n`` or ``size``, or a ``heading`` that is neither ``"random"``
+            nor a number.
 
     >>> random_imaging_points(jax.random.key(0), 50).shape
     (50, 3)
@@ -174,11 +199,26 @@ def traverse(
 ) -> jax.Array:
     """A random path of ``n`` imaging poses with steps uniform in ``[step_min, step_max]``.
 
-    The path starts at ``start`` (default: uniform in the box) with a random heading; each step
-    turns by a Gaussian angle of std ``turn_sigma`` and is mirrored at the walls of the box
-    ``[0, size[0]] x [0, size[1]]`` (step lengths are exact while the box is wider than
-    ``2 * step_max``). Each pose's heading is the direction of the step that
-    reached it (like M §VIII.C: panoramic images every 1-2 m of travel).
+    The path starts at ``start`` with a random heading; each step turns by a Gaussian angle of
+    std ``turn_sigma`` and is mirrored at the walls of the box ``[0, size[0]] x [0, size[1]]``
+    (step lengths are exact while the box is wider than ``2 * step_max``). Each pose's heading
+    is the direction of the step that reached it (like M §VIII.C: panoramic images every 1-2 m
+    of travel).
+
+    Args:
+        key: PRNG key.
+        n: number of poses (at least 1).
+        step_min: shortest step (positive).
+        step_max: longest step (at least ``step_min``).
+        start: first position ``(x, y)``; default uniform in the box.
+        size: box side lengths (positive).
+        turn_sigma: std of the turn between steps (radians, non-negative).
+
+    Returns:
+        [n, 3] poses ``(x, y, theta)``.
+
+    Raises:
+        ValueError: for a bad count, size, step range, ``turn_sigma`` or ``start``.
 
     >>> path = traverse(jax.random.key(0), 200, start=(10.0, 10.0))
     >>> d = jnp.linalg.norm(jnp.diff(path[:, :2], axis=0), axis=1)
@@ -289,7 +329,7 @@ def follow_waypoints(
     tol: float = 0.5,
     gains: ControllerGains | None = None,
 ) -> FollowResult:
-    """Drive the rover through ``waypoints`` (W, 2) in order for ``n_steps`` steps.
+    """Drive the rover through ``waypoints`` [W, 2] in order for ``n_steps`` steps.
 
     A waypoint counts as reached when the rover is within ``tol`` of it; the controller then
     moves on to the next one, and the rover stops (zero control) after the last.

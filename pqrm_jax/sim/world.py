@@ -1,7 +1,7 @@
-"""Landmark worlds for the rover simulator (SPEC §9).
+"""Landmark worlds for the rover simulator (docs/decisions.md §9).
 
 Every generator is a pure function of an explicit PRNG key and static sizes, returns an
-``(n, 2)`` float array of landmark centres (metres, world frame) and can be ``vmap``-ed over
+``[n, 2]`` float array of landmark centres (metres, world frame) and can be ``vmap``-ed over
 keys to draw a batch of worlds::
 
     keys = jax.random.split(jax.random.key(0), 1000)
@@ -51,6 +51,17 @@ def _uniform(key, n, size):
 def uniform_landmarks(key: jax.Array, n: int, size: Size = (100.0, 100.0)) -> jax.Array:
     """``n`` landmarks uniform over the box ``[0, size[0]] x [0, size[1]]``.
 
+    Args:
+        key: PRNG key.
+        n: number of landmarks.
+        size: box side lengths (metres).
+
+    Returns:
+        [n, 2] landmark positions.
+
+    Raises:
+        ValueError: for a negative or non-integer ``n`` or a bad ``size``.
+
     >>> lm = uniform_landmarks(jax.random.key(0), 30)
     >>> lm.shape, bool((lm >= 0).all() & (lm <= 100).all())
     ((30, 2), True)
@@ -81,6 +92,19 @@ def clustered_landmarks(
 
     Cluster centres are uniform over the box, each landmark picks a cluster uniformly at
     random, and positions are clipped to the box.
+
+    Args:
+        key: PRNG key.
+        n: number of landmarks.
+        n_clusters: number of clusters (at least 1).
+        size: box side lengths (metres).
+        spread: standard deviation of each cluster (metres, non-negative).
+
+    Returns:
+        [n, 2] landmark positions.
+
+    Raises:
+        ValueError: for bad counts, a bad ``size`` or a negative ``spread``.
 
     >>> lm = clustered_landmarks(jax.random.key(0), 40, n_clusters=4, spread=3.0)
     >>> lm.shape

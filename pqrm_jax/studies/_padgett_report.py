@@ -1,7 +1,7 @@
-"""Figures and ``report.md`` of the Padgett Monte Carlo study (P §2.3.1, SPEC §3).
+"""Figures and ``report.md`` of the Padgett Monte Carlo study (P §2.3.1, docs/decisions.md §3).
 
-Each published number or claim of SPEC §3 is put beside the measured value with a stated
-criterion and a match / mismatch verdict (with the likely reason for a mismatch).
+Each published number or claim of docs/decisions.md §3 is put beside the measured value with
+a stated criterion and a match / mismatch verdict (with the likely reason for a mismatch).
 """
 
 from __future__ import annotations

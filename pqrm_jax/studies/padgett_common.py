@@ -22,7 +22,10 @@ BD_BINS = np.array([0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, np.inf])
 
 
 def boundary_distance(xy: np.ndarray) -> np.ndarray:
-    """Distance (in |AB| units) of C = (α, β) to the nearest EDC boundary (SPEC §2.1)."""
+    """Distance (in |AB| units) of C = (α, β) to the nearest EDC boundary.
+
+    The boundaries are those of docs/decisions.md §2.1.
+    """
     a, b = xy[:, 0], xy[:, 1]
     da = np.hypot(a, b)  # to A
     db = np.hypot(a, b - 1.0)  # to B

@@ -1,31 +1,12 @@
 """Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11; Fig. 2.16 in simulation).
 
-Per run: landmarks uniform in 100 m × 100 m; the robot drives one loop of a circle around the
-perimeter (``sim.trajectories.perimeter_loop``: centre (50, 50), radius 50 m), measuring every
-16° with a 60 m omnidirectional range sensor whose relative positions carry isotropic Gaussian
-noise σ_R; the PQRM (eq. 2.9/2.10) maps all ordered triplets for the six representations of
-SPEC §2.2 from one sampling pass per update. Noise levels: 21 values σ_R = 0…100 m
-(σ_N = σ_R/σ_E, σ_E = 100/√12 m), plus σ_R = 1 m (Figs 2.8a/2.9a) and σ_N = 0.05, 0.7, 1.5
-(the Fig. 2.16 regimes). Metrics per run and representation: mean map entropy, ML error rate,
-top-n error rates, P(ML state), neighbour distance; confusion matrices and error locations for
-the EDC.
+Maps all ordered triplets of random landmark worlds along a perimeter loop for the six
+representations of docs/decisions.md §2.2, at 21 noise levels plus the figure levels, and
+reports entropy, error rates, P(ML state), neighbour distance, confusion matrices and error
+locations against the published numbers. The open choices (number of landmarks, samples per
+update) are recorded in ``config.json``; a killed study resumes at the first unfinished level.
 
-Open choices of the seed, recorded in ``config.json``: the number of landmarks (default 10, so
-"no more than 10 are seen at once" holds) and samples per update (default 256).
-
-Engineering: the run axis is sharded over ``jax.devices()`` (a 1-D ``NamedSharding`` mesh);
-runs are processed in chunks (progress bar, bounded memory); each finished noise level is
-stored in ``levels.jsonl`` (+ ``level_XX.npz``) through the study store
-(:mod:`pqrm_jax.studies.store`: lock, atomic writes, verified records), so a killed study
-resumes at the unfinished levels; run keys are ``fold_in(fold_in(seed, level), run)``, so the
-draws and the discrete metrics do not depend on chunking, device count or resumption. Float
-metrics (entropy, P(ML), error locations) can differ in the last bits between per-device batch
-sizes (reduction order), so the effective layout (chunk, devices) is part of the stored config
-and a resume with another layout is refused (``layout``). Each step samples eq. 2.9 only for
-the triplets seen (``Mapper.update_batch``, compacted across the runs of a chunk), with
-results identical to the dense per-run reference (``run_level(..., dense=True)``).
-``report.md``, the figures and the tidy ``results.csv`` are written at the end
-(``--report-only`` rewrites the report and figures from the stored results).
+Setup, recorded choices and engineering: docs/studies.md §padgett-mc.
 """
 
 from __future__ import annotations
@@ -60,6 +41,7 @@ HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
+NUMERICS_VERSION = 2  # bump when the map's floating-point results change (see Config notes)
 
 
 @dataclasses.dataclass
@@ -92,6 +74,7 @@ class Config:
         d.pop("chunk_runs")  # the effective layout is stored by run_study (see ``layout``)
         d["sigma_e"] = SIGMA_E
         d["levels_sigma_r"] = [lv["sigma_r"] for lv in self.sigma_levels()]
+        d["numerics"] = NUMERICS_VERSION
         d["notes"] = {
             "num_landmarks": "not stated in P §2.3.1 ('no more than 10 landmarks are observed "
                              "at a single time'); chosen so that bound always holds",
@@ -100,6 +83,9 @@ class Config:
                     "dtheta_deg (23 poses), omnidirectional sensor, no occlusion",
             "sampling": "one standard-normal bank per update shared by the triplets "
                         "(common random numbers); fresh bank every update",
+            "numerics": "2 = power-of-two rescaled EDC kernel and a fixed-order Bayes "
+                        "normaliser (entropy and p_ml differ from version 1 in the last bits); "
+                        "a directory written by another version is refused, not mixed",
         }
         return d
 
@@ -222,7 +208,7 @@ def _make_dense_run_fn(cfg: Config, dists: dict):
 
 
 def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
-    """``run_batch(keys (R,), sigma_r) -> dict`` of per-run results (leading axis R).
+    """``run_batch(keys [R], sigma_r) -> dict`` of per-run results (leading axis R).
 
     Same results as ``jax.vmap(_make_dense_run_fn(...))`` bit for bit (same keys, same draws):
     the R maps are stepped together with ``Mapper.update_batch``, which samples eq. 2.9 only

@@ -1,4 +1,4 @@
-"""``pqrm-jax study serge``: the SERGE evaluation of Padgett §3.4 (SPEC §5).
+"""``pqrm-jax study serge``: the SERGE evaluation of Padgett §3.4 (docs/decisions.md §5).
 
 5-fold cross validation on (a) 49 well-separated Gaussian beliefs, (b) the simulated hallway
 (triplets, variance 0.1 m², 10 000 samples per belief) and (c) a simulated 55-object lab;
@@ -225,7 +225,7 @@ def _report(summary, rows, out: Path, meta) -> None:
              f"of {meta['folds']}; grid {meta['grid']}²; trials "
              f"{meta['trials'] or ('4·K' if meta['reduced'] else '20·K')}; "
              f"devices {meta['devices']}; {len(rows)} evaluations.", "",
-             "Scenes are simulated (SPEC §5: the Kinect lab data is not available).", "",
+             "Scenes are simulated (docs/decisions.md §5: no Kinect lab data is available).", "",
              "## Measured vs published", "",
              "| claim (published) | measured | holds |", "|---|---|---|"]
     checks = []

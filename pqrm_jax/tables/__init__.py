@@ -1,4 +1,6 @@
-"""Exact operator tables of a calculus: unary operators, composition, adjacency (SPEC §2.3).
+"""Exact operator tables of a calculus: unary operators, composition, adjacency.
+
+Decisions: docs/decisions.md §2.3; the build pipeline: docs/tables.md §method.
 
 >>> from pqrm_jax import calculi
 >>> t = calculi.get("edc").tables

@@ -1,23 +1,11 @@
-"""Build exact operator tables for a calculus (SPEC §2.3, M§III, M§V).
+"""Build exact operator tables for a calculus (docs/decisions.md §2.3, M§III, M§V).
 
-Pipeline for a calculus defined by constraints (atoms = realisable sign patterns):
+Offers the table build of a constraint-defined calculus (unary operators, composition,
+adjacency, each present entry with a witness and every undecided problem listed with its
+verdict), the exact unions for merged calculi, and the neighbour distances.
 
-1. **witness pre-pass** — realised relations of random configurations (open calculi) or of
-   integer-grid configurations (boundary-inclusive calculi, where collinear, perpendicular and
-   coincident cases occur); every hit is re-verified in rational arithmetic;
-2. **branch-and-bound** — all remaining problems in one batched JAX program
-   (:mod:`.feasibility`) over the box |x| ≤ ``box`` with |BC| ≥ |AB|/``box`` (M§III.B bounds
-   the search the same way); witnesses re-verified exactly;
-3. **path consistency** (open calculi, compose problems) — a B&B-undecided problem whose
-   four-point network the closure under the candidate tables (feasible + undecided entries)
-   empties is infeasible (:mod:`.symmetry`; repeated while it removes entries);
-4. **certification** — problems still undecided go to z3 (:mod:`.certify`), an exact
-   decision procedure over the whole plane; each is listed in ``undecided`` with its verdict.
-
-Mirror-symmetric calculi (reflection in AB permutes the atoms; :mod:`.symmetry`) solve one
-problem of each mirror pair; the other takes its verdict and the reflected witness.
-
-Merged calculi take exact unions of their parent's tables.
+The four-stage pipeline (witness pre-pass, branch-and-bound, path consistency, z3) and mirror
+symmetry: docs/tables.md §build.
 """
 
 from __future__ import annotations
@@ -73,10 +61,11 @@ class _Decider:
             self.presolved[pr.tag] = (int(st), x)
 
     def presolve(self, problems: list[pb.Problem]) -> None:
-        """Branch-and-bound, in one batch, the problems that several later :meth:`run` calls
-        will need (one compiled program instead of one per batch shape); ``run`` then takes
-        their verdicts from here. Verdicts do not depend on the batching (probe points are
-        drawn per problem)."""
+        """Branch-and-bound, in one batch, the problems that later :meth:`run` calls will need.
+
+        One compiled program instead of one per batch shape; ``run`` then takes their verdicts
+        from here. Verdicts do not depend on the batching (probe points are drawn per problem).
+        """
         self._bnb([pr for pr in problems if not pr.trivially_infeasible], "branch-and-bound")
 
     def run(self, name: str, problems: list[pb.Problem], known: dict[int, list],
@@ -156,8 +145,11 @@ class _Decider:
 
 
 def _mirror_plan(keys: list[tuple], known: dict[int, list], sigma, unordered: bool) -> tuple:
-    """(representative of each key, the representatives, their positions, known witnesses of
-    the representatives) for :func:`_run_mirrored`."""
+    """The mirror-pair plan of :func:`_run_mirrored`.
+
+    Returns (representative of each key, the representatives, their positions, known witnesses
+    of the representatives).
+    """
     rep = symmetry.representatives(keys, sigma, unordered)
     reps = [n for n in range(len(keys)) if rep[n] == n]
     pos = {n: r for r, n in enumerate(reps)}
@@ -170,9 +162,11 @@ def _mirror_plan(keys: list[tuple], known: dict[int, list], sigma, unordered: bo
 def _run_mirrored(dec: _Decider, name: str, keys: list[tuple], make, tag,
                   known: dict[int, list], sigma: list[int] | None, *, unordered: bool = False,
                   refine=None) -> tuple:
-    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`); the other
-    takes the verdict and the reflected witness (and a copy of any certification record).
-    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag."""
+    """:meth:`_Decider.run` on one problem of each mirror pair (:mod:`.symmetry`).
+
+    The other takes the verdict and the reflected witness (and a copy of any certification record).
+    ``make(n)`` builds problem n (only representatives are built), ``tag(n)`` its tag.
+    """
     rep, reps, pos, known_r = _mirror_plan(keys, known, sigma, unordered)
     full_of = np.array([pos[rep[n]] for n in range(len(keys))], np.int64)
     refine_r = None
@@ -204,8 +198,11 @@ def _tag(tag) -> list:
 
 
 def _first_rows(key: np.ndarray, base: int) -> np.ndarray:
-    """Index of the first occurrence of every distinct row of an int array (N, c) with values
-    in [0, base), in increasing order of the rows (as base-``base`` numbers)."""
+    """Index of the first occurrence of every distinct row of an int array [N, c].
+
+    Values lie in [0, base); the result is in increasing order of the rows (as base-``base``
+    numbers).
+    """
     code = np.zeros(len(key), np.int64)
     for col in key.T:
         code = code * base + col
@@ -256,8 +253,28 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                solver=solve) -> dict:
     """Exact tables of a calculus defined by constraints (not a merge).
 
-    ``solver`` decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
-    benchmark passes a recording wrapper to time the build's own batches)."""
+    The four-stage pipeline is described in docs/tables.md §build.
+
+    Args:
+        calc: the constraint-defined calculus.
+        box: the branch-and-bound domain |x| ≤ ``box``, with pairwise distances at least
+            |AB|/``box``.
+        progress: show progress bars.
+        seed: seed of the witness pre-pass and the probe points.
+        n_samples: random configurations of the witness pre-pass (open calculi).
+        pool: the most boxes one problem may hold.
+        max_iters: the most branch-and-bound rounds per problem.
+        adjacency_radius: radius of the probe disks of the adjacency test.
+        certify_all: confirm every refutation with z3 on the whole plane (as for the shipped
+            tables), not only the undecided problems.
+        solver: decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
+            benchmark passes a recording wrapper to time the build's own batches).
+
+    Returns:
+        A dict with the ``left``, ``right``, ``inverse``, ``compose`` and ``adjacency`` tables,
+        the witnesses of every present entry, the ``undecided`` problems with their verdicts,
+        build statistics and the settings used.
+    """
     t_start = time.perf_counter()
     atoms, astate = pb.atoms(calc)
     na, Q = len(atoms), calc.num_states
@@ -389,9 +406,12 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
 
 
 def _face_adjacency(calc, atoms, astate, live) -> np.ndarray:
-    """Boundary-inclusive calculi: relations are neighbours iff one lies in the closure of the
-    other (the face order). For an arrangement of lines (convex cells) face j lies in the
-    closure of cell i iff j's sign vector is i's with some signs set to zero."""
+    """Adjacency of a boundary-inclusive calculus: the face order.
+
+    Relations are neighbours iff one lies in the closure of the other. For an arrangement of lines
+    (convex cells) face j lies in the closure of cell i iff j's sign vector is i's with some signs
+    set to zero.
+    """
     if any(p.terms.get((0, 0, 1)) or p.weighted_degree() > 1 for p in calc.constraints):
         raise NotImplementedError("face adjacency needs line constraints")
     Q = calc.num_states

@@ -93,8 +93,10 @@ MIN_POOL_BATCH = 256
 
 def decide_many(problems: list, workers: int | None = None, progress: bool = False,
                 desc: str = "z3") -> list:
-    """``decide`` for many constraint lists, on the usable cores (spawned workers: JAX-safe;
-    they get the SMT-LIB text, not the polynomials)."""
+    """``decide`` for many constraint lists, on the usable cores.
+
+    The workers are spawned (JAX-safe) and get the SMT-LIB text, not the polynomials.
+    """
     workers = workers or min(usable_cpus(), 8)
     jobs = [(smtlib(c), c[0][0].nvars if c else 0) for c in problems]
     if workers <= 1 or len(jobs) < MIN_POOL_BATCH:

@@ -22,8 +22,11 @@ from ..calculi.calculus import Calculus, pattern_index
 
 @lru_cache(maxsize=64)
 def _integer_forms(calc: Calculus) -> tuple:
-    """Each constraint f as integer terms (c, i, j, k, l) of L·n^D f(u/n, v/n, m/n) =
-    Σ c·u^i v^j m^k n^l (D its degree, L > 0 the lcm of its coefficients' denominators)."""
+    """Each constraint f as integer terms (c, i, j, k, l).
+
+    The terms are those of L·n^D f(u/n, v/n, m/n) = Σ c·u^i v^j m^k n^l (D its degree, L > 0
+    the lcm of its coefficients' denominators).
+    """
     out = []
     for poly in calc.constraints:
         top = poly.weighted_degree()
@@ -87,7 +90,7 @@ def _atoms_of(calc: Calculus, lut, dou, tri, X, Y, Z):
 
 
 def realised(calc: Calculus, atoms: list, configs: np.ndarray) -> dict[str, np.ndarray]:
-    """Atom indices of the relations of configurations (M, 4, 2) = (A, B, C, D).
+    """Atom indices of the relations of configurations [M, 4, 2] = (A, B, C, D).
 
     Returns arrays for AB:C, BC:A, CA:B, BA:C, BC:D and AB:D (−1 = not an atom). One jitted
     float64 program for the six relations (eagerly, each of its ~50 operations would compile

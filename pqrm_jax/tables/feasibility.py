@@ -1,42 +1,12 @@
-"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V, SPEC §2.3).
+"""Batched branch-and-bound feasibility for quadratic sign constraints (M§V).
 
-Each problem asks for an x in a box [lo, hi] ⊂ R^nv with ``sign(q_k(x)) == s_k`` for every
-active constraint k, where ``q_k(x) = c_k + b_kᵀx + xᵀA_k x`` and s_k ∈ {−1, 0, +1}
-(strict inequalities and equalities). All problems of a batch run in one jit-compiled
-program (static shapes, masks); each problem keeps at most ``pool`` boxes.
+Decides, for a batch of problems, whether some x in a box satisfies every sign constraint
+``sign(c_k + b_kᵀx + xᵀA_k x) == s_k`` (s_k ∈ {−1, 0, +1}), in one jit-compiled program,
+and returns each problem's status (FEASIBLE with a witness, INFEASIBLE or UNDECIDED — never
+guessed; docs/decisions.md §2.3).
 
-Per round and box (the per-problem algorithm is exactly that of :mod:`.reference`):
-
-* **bound**: a valid enclosure of q_k over the box, exact for the separable part (each
-  ``A_ii x_i² + b_i x_i`` is minimised/maximised exactly, vertex included) plus interval
-  products for the cross terms (M§V's cases 1–3 are exact under this bound);
-* **prune** the box if some constraint cannot take its sign there (``> 0`` needs hi > 0,
-  ``< 0`` needs lo < 0, ``= 0`` needs lo ≤ 0 ≤ hi). The solver puts every constraint in
-  one-sided form first (``s·q > 0``, an equality as ``q ≥ 0`` and ``−q ≥ 0``), where only
-  upper bounds are needed: negation is exact, so the test is the same to the bit;
-* **witness**: if the box centre or one of ``probes`` random points of a surviving box
-  satisfies every constraint, the problem is feasible and the point is kept as its witness
-  (re-verified exactly by the caller). Probe points are drawn by a counter hash at (problem
-  id, round, box, coordinate), so they do not depend on the batching and the reference
-  draws the very same ones;
-* **branch**: surviving boxes are split in half along their longest edge while the pool has
-  room; boxes narrower than ``min_width`` are no longer split.
-
-**Frontier.** The boxes of all problems in flight share one array of ``frontier`` rows, grouped
-by problem in each problem's box order, so a round costs what the live boxes need (most
-problems hold 1–8 boxes; a per-problem pool of fixed capacity was ~17 % occupied). A problem's
-rows start on a multiple of ``GROUP``, and its constraint table is gathered once per group of
-rows. Decided problems free their rows for the next ones of the queue; a problem whose
-children would not fit waits a round unchanged (rows are reserved so that the oldest problem
-can always grow to a full pool, so the queue never deadlocks). On CPU the problems are dealt
-to one queue per core, run side by side in threads (one compiled program): XLA spreads these small
-per-round kernels badly over threads.
-``benchmarks/bench_tables.py`` compares this program with the plain-NumPy per-problem
-reference :mod:`.reference` and with itself run one problem per call.
-
-A problem is FEASIBLE (witness found), INFEASIBLE (no box left: no solution inside the box,
-up to the floating-point evaluation of dyadic boxes), or UNDECIDED (boxes left at the limit;
-typically solutions on a lower-dimensional set or closures that touch — never guessed).
+Bound, prune, witness and branch steps, the shared frontier of box rows and the per-core
+work queues: docs/tables.md §feasibility.
 """
 
 from __future__ import annotations
@@ -87,11 +57,13 @@ class Solution:
 
 
 def _tables(A, b, c, sign, active):
-    """Per-problem coefficient table (P, 4·nv + npairs + 2, K), constraint axis minor: rows
-    ``A_ii`` (nv), ``b_i`` (nv), the vertex ``v_i = −b_i / 2A_ii`` of each univariate part
-    (nv; +inf where A_ii = 0) and its value ``A_ii v_i² + b_i v_i`` there (nv), ``2 A_ij`` for
-    i < j (npairs), ``c``, sign. What a row group of the frontier gathers (one packed gather;
-    inactive constraints become ``0 ≥ 0``)."""
+    """Per-problem coefficient table [P, 4·nv + npairs + 2, K], constraint axis minor.
+
+    Rows ``A_ii`` (nv), ``b_i`` (nv), the vertex ``v_i = −b_i / 2A_ii`` of each univariate part (nv;
+    +inf where A_ii = 0) and its value ``A_ii v_i² + b_i v_i`` there (nv), ``2 A_ij`` for i < j
+    (npairs), ``c``, sign. What a row group of the frontier gathers (one packed gather; inactive
+    constraints become ``0 ≥ 0``).
+    """
     nv = b.shape[-1]
     A = jnp.where(active[..., None, None], A, 0.0)
     b = jnp.where(active[..., None], b, 0.0)
@@ -105,7 +77,7 @@ def _tables(A, b, c, sign, active):
 
 
 def _unpack(T, nv):
-    """(G, F, K) group tables → dict of (G, 1, K) rows (broadcast over a group's boxes)."""
+    """[G, F, K] group tables → dict of [G, 1, K] rows (broadcast over a group's boxes)."""
     npairs = nv * (nv - 1) // 2
     row = [T[:, f, None, :] for f in range(T.shape[1])]
     return dict(a=row[:nv], b=row[nv:2 * nv], v=row[2 * nv:3 * nv], gv=row[3 * nv:4 * nv],
@@ -113,10 +85,9 @@ def _unpack(T, nv):
 
 
 def _upper(T, l, u, cls):
-    """Upper bounds of the (one-sided) constraints of one support class over every box:
-    (G, R, k).
+    """Upper bounds of the (one-sided) constraints of one support class over every box: [G, R, k].
 
-    ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: (G, R, nv) boxes;
+    ``T``: the unpacked tables of each row group's problem; ``l``, ``u``: [G, R, nv] boxes;
     ``cls`` = (offset, k, variables, pairs): the class's constraint columns and the variables
     and variable pairs they use (other terms are zero and skipped). Exact for the separable
     part (each ``A_ii x_i² + b_i x_i`` at both ends and the interior vertex), interval
@@ -147,8 +118,10 @@ def _upper(T, l, u, cls):
 
 
 def _values(T, x, cls):
-    """The constraints of one support class at points x (M, G, R, nv) of each row group's
-    problem → (M, G, R, k)."""
+    """The constraints of one support class at points x of each row group's problem.
+
+    x is [M, G, R, nv]; the result is [M, G, R, k].
+    """
     off, k, variables, pairs = cls
     col = slice(off, off + k)
     val = T["c"][..., col]
@@ -161,8 +134,10 @@ def _values(T, x, cls):
 
 
 def one_sided(batch: ProblemBatch) -> ProblemBatch:
-    """The same problems with every constraint one-sided: ``sign(q) = s ≠ 0`` becomes
-    ``s·q > 0`` (sign 1: strict) and an equality ``q = 0`` the pair ``q ≥ 0``, ``−q ≥ 0``
+    """The same problems with every constraint in one-sided form.
+
+    ``sign(q) = s ≠ 0`` becomes ``s·q > 0`` (sign 1: strict) and an equality ``q = 0`` the
+    pair ``q ≥ 0``, ``−q ≥ 0``
     (sign 0: non-strict; the negated copies are appended). In this form a constraint holds at
     x iff ``sign(q(x)) ≥ sign`` and can hold in a box iff ``sign(upper bound) ≥ sign``."""
     P, K, nv = batch.b.shape
@@ -186,8 +161,10 @@ def one_sided(batch: ProblemBatch) -> ProblemBatch:
 
 
 def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
-    """Put the constraints in one-sided form (:func:`one_sided`) and reorder every problem's
-    constraints by the set of variables they use.
+    """One-sided constraints (:func:`one_sided`), reordered by the variables they use.
+
+    Every problem's constraints are put in one-sided form and grouped by the set of variables
+    they use.
 
     Returns the reordered one-sided batch (inactive ``0 ≥ 0`` constraints pad each class to
     its largest count over the batch) and the static class list ``(offset, k, variables,
@@ -238,9 +215,11 @@ def support_classes(batch: ProblemBatch) -> tuple[ProblemBatch, tuple]:
 
 
 def _all_hold(classes, ok_of):
-    """Where every constraint of every support class holds: ``ok_of(cls, cols)`` gives one
-    class's (..., k) booleans (``cols`` its constraint columns). Reduced as float mins (XLA's
-    CPU code for boolean reductions is slow)."""
+    """Where every constraint of every support class holds.
+
+    ``ok_of(cls, cols)`` gives one class's [..., k] booleans (``cols`` its constraint columns).
+    Reduced as float mins (XLA's CPU code for boolean reductions is slow).
+    """
     m = [jnp.min(jnp.where(ok_of(cls, slice(cls[0], cls[0] + cls[1])), 1.0, 0.0), -1)
          for cls in classes]
     return functools.reduce(jnp.minimum, m) > 0
@@ -251,8 +230,9 @@ def _align(x, group):
 
 
 def _admit(st, lo0, hi0, n, pool, group):
-    """Queue the next problems (one root box each, a fresh row group) into the free rows,
-    keeping Σ_{in flight, not oldest} rows(min(pool, 2·boxes)) ≤ rows − pool: the oldest
+    """Queue the next problems (one root box each, a fresh row group) into the free rows.
+
+    Admission keeps Σ_{in flight, not oldest} rows(min(pool, 2·boxes)) ≤ rows − pool: the oldest
     problem can always grow to a full pool, and the others rarely wait for rows."""
     P = st["nbox"].shape[0]
     N = st["own"].shape[0]
@@ -278,9 +258,11 @@ def _admit(st, lo0, hi0, n, pool, group):
 
 
 def _evaluate(T, l, u, own, xs, *, classes: tuple, group: int):
-    """Prune and probe every row of the frontier: ``keep`` (N,) where every constraint can
-    hold in the box, ``good`` (M, N) where probe point m of a kept box satisfies every
-    constraint. Each row group's problem table is gathered once."""
+    """Prune and probe every row of the frontier.
+
+    ``keep`` [N] where every constraint can hold in the box, ``good`` [M, N] where probe point m of
+    a kept box satisfies every constraint. Each row group's problem table is gathered once.
+    """
     N, nv = l.shape
     M = xs.shape[0]
     G = N // group
@@ -415,17 +397,32 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
           ids: np.ndarray | None = None) -> Solution:
     """Solve every problem of ``batch`` in jit-compiled work-queue programs (float64).
 
-    The boxes of all problems in flight share one frontier of ``frontier`` rows; each problem
-    keeps at most ``pool`` boxes and runs at most ``max_iters`` rounds. A decided problem
-    frees its rows for the next ones of the queue, so easy problems never wait for hard ones
-    and the work per round follows the live boxes. The problems are dealt to ``parts`` queues
-    (default: one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`) run side
-    by side in threads by one compiled program; ``chunk`` problems go to the device per call
-    (progress). Probe points are drawn at (problem id, round, box, coordinate), with ``ids``
-    the problems' ids (default: their positions), so verdicts and witnesses do not depend on
-    ``parts``, ``chunk`` or which problems share a batch. ``classes``: a batch already put in
-    the form of :func:`support_classes` and its class list (so that its problems can be solved
-    one at a time by one compiled program); by default every chunk is reordered here.
+    The boxes of all problems in flight share one frontier; a decided problem frees its rows for
+    the next ones of the queue, so easy problems never wait for hard ones and the work per round
+    follows the live boxes (docs/tables.md §feasibility).
+
+    Args:
+        batch: the problems (box, quadratic constraints, signs, active masks).
+        pool: the most boxes one problem may hold.
+        max_iters: the most rounds one problem may run.
+        min_width: boxes narrower than this are no longer split.
+        frontier: rows of the shared frontier of boxes.
+        probes: random probe points per surviving box and round.
+        seed: seed of the probe-point hash.
+        chunk: problems sent to the device per call (progress is reported per chunk).
+        progress: show a progress bar.
+        desc: the progress bar's label.
+        classes: a batch already in the form of :func:`support_classes` and its class list (so
+            that its problems can be solved one at a time by one compiled program); by default
+            every chunk is reordered here.
+        parts: number of queues run side by side in threads by one compiled program (default:
+            one per usable core on CPU, :func:`pqrm_jax._parallel.default_queues`).
+        ids: the problems' ids (default: their positions). Probe points are drawn at (problem
+            id, round, box, coordinate), so verdicts and witnesses do not depend on ``parts``,
+            ``chunk`` or which problems share a batch.
+
+    Returns:
+        A :class:`Solution`: per problem FEASIBLE (with a witness), INFEASIBLE or UNDECIDED.
 
     >>> from pqrm_jax import calculi
     >>> from pqrm_jax.tables import problems as pb

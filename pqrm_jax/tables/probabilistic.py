@@ -61,7 +61,23 @@ def _tensor(calc: Calculus, key, pool: int, per_pair: int, window: float):
 
 def prob_compose(calc: Calculus, *, seed: int = 0, pool: int = 1 << 21,
                  per_pair: int = 4000, window: float = 3.0) -> dict:
-    """Sampled tensor P[s1, s2, s3] with its sampling error (open calculi only)."""
+    """Sampled tensor P[s1, s2, s3] with its sampling error (open calculi only).
+
+    Args:
+        calc: an open calculus.
+        seed: seed of the point pool and the configurations.
+        pool: uniform points drawn in the window and grouped by state.
+        per_pair: configurations per (s1, s2) pair.
+        window: half-width W of the bounded domain, in |AB| units (docs/decisions.md §2.3).
+
+    Returns:
+        A dict with ``P`` [Q, Q, Q] (rows sum to 1 where the pair was sampled, else 0), the
+        per-pair counts ``n`` [Q, Q], ``stderr_max`` (0.5/√per_pair), the pool counts per state
+        and the settings used.
+
+    Raises:
+        ValueError: for a boundary-inclusive calculus.
+    """
     if calc.boundary_inclusive:
         raise ValueError("uniform-within-state priors are undefined for boundary relations "
                          f"(measure zero) of {calc.name!r}; use an open calculus")

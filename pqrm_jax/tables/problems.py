@@ -1,4 +1,4 @@
-"""Feasibility problems behind the operator tables (M§III.B Table II, SPEC §2.3).
+"""Feasibility problems behind the operator tables (M§III.B Table II, docs/decisions.md §2.3).
 
 An *atom* of a calculus is one realisable sign pattern of its constraints (a tuple in
 {−1,0,1}^k) or, for boundary-inclusive calculi, ``"dou"`` (A=B≠C) / ``"tri"`` (A=B=C).
@@ -58,8 +58,10 @@ def frame(atom_abc) -> dict[str, Point]:
 
 @lru_cache(maxsize=4)
 def _frame(kind: str) -> dict[str, Point]:
-    """One set of point polynomials per frame kind: problems share them, so the relation
-    caches below hit by identity."""
+    """One set of point polynomials per frame kind.
+
+    Problems share them, so the relation caches below hit by identity.
+    """
     z, one = _const(0), _const(1)
     D = (_var(2), _var(3))
     if kind == "dou":
@@ -177,8 +179,11 @@ def _simplified(calc: Calculus, atom, X: Point, Y: Point, Z: Point) -> tuple | N
 
 
 def _merge(parts) -> list[tuple[Poly, int]] | None:
-    """``simplify`` of concatenated simplified parts (no constants left, boundaries already
-    normalized): the same list, first occurrences in order; None on a sign conflict."""
+    """``simplify`` of concatenated simplified parts; None on a sign conflict.
+
+    The parts have no constants left and their boundaries already normalized: the result is
+    the same list, first occurrences in order.
+    """
     kept: dict[Poly, int] = {}
     for part in parts:
         for poly, s in part:
@@ -189,9 +194,11 @@ def _merge(parts) -> list[tuple[Poly, int]] | None:
 
 
 def random_compose_problems(calc: Calculus, n: int, seed: int = 0) -> list[Problem]:
-    """``n`` compose problems on random atom triples that are not trivially infeasible
-    (``numpy.random.default_rng(seed)``): the random workload of ``benchmarks/bench_tables.py``
-    and of the reference tests."""
+    """``n`` compose problems on random atom triples that are not trivially infeasible.
+
+    Drawn with ``numpy.random.default_rng(seed)``: the random workload of
+    ``benchmarks/bench_tables.py`` and of the reference tests.
+    """
     found, _ = atoms(calc)
     rng = np.random.default_rng(seed)
     probs: list[Problem] = []

@@ -1,4 +1,4 @@
-"""Plain-NumPy per-problem reference of the batched branch-and-bound (M§V, SPEC §2.3).
+"""Plain-NumPy per-problem reference of the batched branch-and-bound (M§V, docs/decisions.md §2.3).
 
 The same algorithm as :mod:`pqrm_jax.tables.feasibility` — interval bound (exact separable
 quadratic part, vertex included, interval products for the cross terms), prune by sign,
@@ -38,17 +38,32 @@ def solve_one(A: np.ndarray, b: np.ndarray, c: np.ndarray, sign: np.ndarray,
               pid: int = 0) -> tuple[int, np.ndarray, int]:
     """Branch-and-bound for one problem with K *active* constraints over nv variables.
 
-    ``A`` (K, nv, nv) symmetric, ``b`` (K, nv), ``c`` (K,), ``sign`` (K,), box ``lo0``/``hi0``
-    (nv,). Returns (status, witness (nv,), rounds). Each round is this problem's round of
-    ``feasibility._round`` (same bound, prune, probes, split and termination); ``pid`` is the
-    problem's id in the probe stream.
+    Each round is this problem's round of the batched solver (same bound, prune, probes, split
+    and termination).
+
+    Args:
+        A: [K, nv, nv] symmetric quadratic parts.
+        b: [K, nv] linear parts.
+        c: [K] constants.
+        sign: [K] the required signs in {−1, 0, +1}.
+        lo0: [nv] lower corner of the box.
+        hi0: [nv] upper corner of the box.
+        pool: the most boxes the problem may hold.
+        max_iters: the most rounds.
+        min_width: boxes narrower than this are no longer split.
+        probes: random probe points per surviving box and round.
+        seed: seed of the probe-point hash.
+        pid: the problem's id in the probe stream.
+
+    Returns:
+        ``(status, witness [nv], rounds)``.
     """
     A = np.asarray(A, np.float64)
     b = np.asarray(b, np.float64)
     c = np.asarray(c, np.float64)
     sign = np.asarray(sign)
     nv = b.shape[-1]
-    # separable part in (nv, B, K) layout: the reduction over nv adds contiguous blocks
+    # separable part in [nv, B, K] layout: the reduction over nv adds contiguous blocks
     a = np.diagonal(A, axis1=-2, axis2=-1).T[:, None, :]  # (nv, 1, K)
     bs = b.T[:, None, :]
     has_a = a != 0
@@ -120,8 +135,20 @@ def solve_reference(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120
                     min_width: float = 2.0**-24, probes: int = 2, seed: int = 0) -> Solution:
     """Solve the problems of ``batch`` one at a time (see :func:`solve_one`).
 
-    Problem ``i`` draws its probes with id ``i`` (as :func:`.feasibility.solve` does).
-    ``Solution.iterations`` is the total number of rounds over all problems.
+    Problem ``i`` draws its probes with id ``i``, as :func:`.feasibility.solve` does, so the
+    statuses agree exactly.
+
+    Args:
+        batch: the problems.
+        pool: the most boxes one problem may hold.
+        max_iters: the most rounds per problem.
+        min_width: boxes narrower than this are no longer split.
+        probes: random probe points per surviving box and round.
+        seed: seed of the probe-point hash.
+
+    Returns:
+        A :class:`~pqrm_jax.tables.feasibility.Solution`; its ``iterations`` is the total number
+        of rounds over all problems.
     """
     P = batch.size
     status = np.full(P, UNDECIDED, np.int8)

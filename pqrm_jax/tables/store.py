@@ -72,7 +72,7 @@ class OperatorTables:
 
     @property
     def prob_compose(self) -> np.ndarray:
-        """(Q, Q, Q) P(AB:D | AB:C, BC:D) under uniform-within-state priors (Z eq. 2.4)."""
+        """[Q, Q, Q] P(AB:D | AB:C, BC:D) under uniform-within-state priors (Z eq. 2.4)."""
         if self.prob is None:
             raise ValueError(f"no probabilistic composition for {self.calculus!r}")
         return self.prob["P"]

@@ -1,22 +1,11 @@
 """Exact shortcuts for table building: mirror symmetry and path-consistency refutation.
 
-**Mirror symmetry.** Reflecting a configuration in the line AB maps every relation ``XY:Z``
-with canonical coordinates (α, β) to (−α, β). When every constraint of a calculus satisfies
-``p(−α, β, ρ) = ε·p'(α, β, ρ)`` for a constraint p' of the calculus (ε = ±1), reflection
-permutes the atoms, and a unary / compose / adjacency problem is feasible iff its mirror image
-is (the reflected witness realises it). Only one problem of each mirror pair is solved.
+Offers the mirror permutation of a calculus's atoms and witnesses (one problem of each
+mirror pair is solved) and a batched path-consistency test that refutes compose problems
+whose four-point network empties under candidate tables. Sound, not complete: z3 settles the
+rest.
 
-**Path consistency** (M§VI.B applied to the four points of one compose problem). A compose
-problem ``(AB:C, BC:D, AB:D) = (i, j, k)`` of an open calculus that is feasible has a witness
-in general position (the feasible set is open; the configurations with some triple on a
-boundary are a proper algebraic subset), and then the relations of all 24 ordered triples
-of A, B, C, D satisfy every unary and composition constraint of the *exact* tables. Given
-supersets of those tables (the feasible entries plus the undecided ones), if the
-path-consistency closure of the four-point network empties a relation, the problem is
-infeasible. Sound, cheap, batched; it does not decide everything (SPEC §11), and z3 settles
-the rest. The propagation is the one of :mod:`pqrm_jax.qrm.hypergraph`, written here over
-boolean atom sets and *candidate* tables that change while the build runs (the map's closure
-bakes a calculus's final state tables into uint32 masks of ≤ 32 states), batched over problems.
+Why both shortcuts are exact: docs/tables.md §symmetry.
 """
 
 from __future__ import annotations
@@ -34,8 +23,10 @@ def _mirror_poly(p: Poly) -> Poly:
 
 
 def mirror_atoms(calc: Calculus, atoms: list) -> list[int] | None:
-    """The atom permutation induced by reflection in AB, or None if the calculus is not
-    mirror symmetric constraint by constraint. Degenerate atoms map to themselves.
+    """The atom permutation induced by reflection in AB, or None.
+
+    None when the calculus is not mirror symmetric constraint by constraint. Degenerate atoms
+    map to themselves.
 
     >>> from pqrm_jax import calculi
     >>> from pqrm_jax.tables import problems as pb
@@ -98,10 +89,12 @@ _TID = {t: n for n, t in enumerate(_TRIPLES)}
 def path_consistency_refutes(left: np.ndarray, right: np.ndarray, inverse: np.ndarray,
                              compose: np.ndarray, problems: np.ndarray,
                              max_rounds: int = 50) -> np.ndarray:
-    """Which compose problems (P, 3) of atom indices (AB:C, BC:D, AB:D) the four-point
-    path-consistency closure under the given (superset) atom tables refutes → (P,) bool.
+    """[P] bool: which compose problems the four-point path-consistency closure refutes.
 
-    ``left/right/inverse`` (Q, Q) and ``compose`` (Q, Q, Q) boolean, indexed by atoms.
+    The problems are [P, 3] atom indices (AB:C, BC:D, AB:D); the closure runs under the given
+    (superset) atom tables.
+
+    ``left/right/inverse`` [Q, Q] and ``compose`` [Q, Q, Q] boolean, indexed by atoms.
     """
     P, Q = len(problems), left.shape[0]
     if P == 0:

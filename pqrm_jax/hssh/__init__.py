@@ -1,0 +1,75 @@
+"""``pqrm_jax.hssh``: the HSSH local levels -- gateways, local topology, places (B ch. 5--6).
+
+* :mod:`~pqrm_jax.hssh.cellular` -- batched JAX cellular stages: island removal, distance
+  transform, Zhang--Suen thinning, the extended Voronoi graph (B §6.1.1, §6.3.1).
+* :mod:`~pqrm_jax.hssh.skeleton` -- frontier-based pruning to the spanning tree of exits
+  (B §6.1.1), on the host with networkx.
+* :mod:`~pqrm_jax.hssh.gateways` -- base points and core (B Alg. 6.1), search spaces (Alg.
+  6.2), anchor-based gateways (Alg. 6.4--6.5) and the constriction baseline (Alg. 6.2--6.3).
+* :mod:`~pqrm_jax.hssh.star` -- the small-scale star, path continuity, isomorphisms,
+  left/right (B §5.1--5.2).
+* :mod:`~pqrm_jax.hssh.topology` -- :func:`local_topology` (one grid) and
+  :func:`local_topology_batch` (a stack), place detection (B §5.3).
+* :mod:`~pqrm_jax.hssh.lpm` -- the scrolling local perceptual map: log-odds occupancy,
+  whole-cell scrolling, per-scan lidar updates, ``vmap``-able over runs (B §3.3, §4.1).
+* :mod:`~pqrm_jax.hssh.motion` -- the 21-parameter turn--travel--turn action model with the
+  Table 4.1 presets (B §4.3.1).
+* :mod:`~pqrm_jax.hssh.localization` -- raw odometry, PF, shrink, grow and shrink-and-grow
+  proposals as fixed particle blocks with masks, likelihood-field scan likelihood (B §4.3.2).
+"""
+
+from pqrm_jax.hssh import (
+    cellular,
+    gateways,
+    localization,
+    lpm,
+    motion,
+    skeleton,
+    star,
+    topology,
+)
+from pqrm_jax.hssh.cellular import (
+    CellularMaps,
+    cellular_stages,
+    evg_skeleton,
+    remove_islands,
+    squared_distance_transform,
+    zhang_suen_thin,
+)
+from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
+from pqrm_jax.hssh.localization import METHODS, LocalizeParams, localize, scan_likelihood
+from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
+from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
+from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
+from pqrm_jax.hssh.star import (
+    StarEntry,
+    build_star,
+    left_of,
+    path_continuity,
+    right_of,
+    star_isomorphisms,
+)
+from pqrm_jax.hssh.topology import (
+    MIN_SIDE,
+    LocalTopology,
+    local_topology,
+    local_topology_batch,
+    occupancy_from_grid,
+    place_kind,
+    resolution_bound,
+    topology_from_maps,
+)
+
+__all__ = [
+    "cellular", "skeleton", "gateways", "star", "topology", "lpm", "motion",
+    "ACTION_MODELS", "decompose", "sample_motion", "localization",
+    "METHODS", "LocalizeParams", "localize", "scan_likelihood",
+    "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
+    "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",
+    "zhang_suen_thin", "evg_skeleton",
+    "PrunedSkeleton", "prune_skeleton", "skeleton_graph",
+    "Core", "Gateway", "core", "search_spaces", "find_gateways",
+    "StarEntry", "build_star", "path_continuity", "star_isomorphisms", "right_of", "left_of",
+    "LocalTopology", "MIN_SIDE", "local_topology", "local_topology_batch",
+    "topology_from_maps", "place_kind", "occupancy_from_grid", "resolution_bound",
+]

@@ -1,0 +1,238 @@
+"""``pqrm-jax study hssh-localization``: adaptive proposals vs action models (B §4.3.2, Table 4.2).
+
+B's log (3961 odometry and laser readings of a 9-minute run) is not available, so this runs
+in simulation: a robot drives a fixed route through the corridor network of
+:func:`pqrm_jax.sim.corridors.network_rectangles` (80 m x 80 m at 0.1 m cells); its odometry
+is the true motion corrupted by the "fitted" action model of Table 4.1 (the robot's real
+noise); a 180° lidar (180 beams, 8 m, 1 cm noise) scans the world at every true pose. Every
+step restarts at the ground-truth previous pose (as in B), and each of the five algorithms
+(:data:`pqrm_jax.hssh.localization.METHODS`) proposes particles from each of the three action
+models ("large" overestimates, "small" underestimates the noise); the metric is the best
+scan likelihood found (likelihood field against the true map, in (0, 1]). Two runs with
+different particle draws over the same log (odometry and scans); Table 4.2's layout: run-1
+rows minus run-2 columns, mean over steps, ``*`` when a paired t-test gives p < 0.01.
+
+Compared with B: orderings, not values (published: shrink beats PF on every model; shrink
+beats grow with "large"; grow beats shrink with "small"; shrink-and-grow is best on all).
+Work unit = one (run, model): its five algorithms over all steps, written atomically to
+``units/`` of a :class:`~pqrm_jax.studies.store.Store`; a rerun resumes; a different
+configuration in the same ``--out`` is refused; ``results.csv`` is the tidy table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .store import Store, atomic_write_text
+
+NAME = "hssh-localization"
+HELP = "HSSH adaptive particle proposals x action models in simulation (B §4.3.2, Table 4.2)"
+
+MODELS = ("large", "small", "fitted")
+ROUTE = [(0.1, 0.65), (0.35, 0.65), (0.35, 0.25), (0.75, 0.25), (0.75, 0.65), (0.4, 0.65)]
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pqrm-jax study hssh-localization", description=HELP)
+    p.add_argument("--out", default="results/hssh-localization")
+    p.add_argument("--reduced", action="store_true", help="40 steps per run (default 400)")
+    p.add_argument("--steps", type=int, default=None, help="steps per run")
+    p.add_argument("--seed", type=int, default=0)
+    return p
+
+
+def _route(n_steps: int, side: float) -> np.ndarray:
+    pts = np.array(ROUTE) * side
+    seg = np.diff(pts, axis=0)
+    lengths = np.hypot(*seg.T)
+    s = np.linspace(0, lengths.sum(), n_steps + 1)
+    cum = np.concatenate([[0], np.cumsum(lengths)])
+    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    xy = pts[k] + (s - cum[k])[:, None] * (seg[k] / lengths[k, None])
+    th = np.arctan2(seg[k, 1], seg[k, 0])
+    return np.concatenate([xy, th[:, None]], axis=1).astype(np.float32)
+
+
+def run_unit(run: int, model: str, cfg: dict) -> dict:
+    """Best likelihoods ``[5, J]`` of the five methods for one run and one action model."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..hssh import squared_distance_transform
+    from ..hssh.localization import METHODS, LocalizeParams, localize
+    from ..hssh.motion import ACTION_MODELS, sample_motion
+    from ..sim import corridors
+    from ..sim.lidar import LidarParams, lidar_scan
+
+    side_cells, res = cfg["world_cells"], cfg["resolution"]
+    img = np.asarray(corridors.render_free_rectangles(side_cells, corridors.network_rectangles(),
+                                                      supersample=2))
+    world = jnp.asarray((img < 128)[::-1].copy())
+    d2 = squared_distance_transform(world[None], cap=cfg["field_cap_cells"])[0]
+    true = jnp.asarray(_route(cfg["steps"], side_cells * res))
+    base = jax.random.key(cfg["seed"])
+    # the robot's odometry: true motion corrupted by the "fitted" model (same for all models)
+    truth_c = jnp.asarray(ACTION_MODELS[cfg["truth_model"]])
+
+    def odo_step(prev, j):
+        k = jax.random.fold_in(jax.random.fold_in(base, 17), j)   # one log for both runs
+        nxt = sample_motion(k, prev[None], true[j - 1], true[j], truth_c)[0]
+        return nxt, nxt
+
+    _, odom = jax.lax.scan(odo_step, true[0], jnp.arange(1, cfg["steps"] + 1))
+    odom = jnp.concatenate([true[:1], odom])
+    lp = LidarParams(n_beams=cfg["beams"], max_range=cfg["max_range"],
+                     fov=math.radians(cfg["fov_deg"]), sigma=cfg["range_sigma"])
+    keys = jax.vmap(lambda j: jax.random.fold_in(jax.random.fold_in(base, 1000), j))(
+        jnp.arange(cfg["steps"] + 1))
+    scans = jax.vmap(lambda k, p: lidar_scan(k, p, world, res, params=lp))(keys, true)
+    params = LocalizeParams(blocks=cfg["blocks"], block=cfg["block"], sigma=cfg["field_sigma"],
+                            threshold=cfg["threshold"], anneal=cfg["anneal"])
+    c = jnp.asarray(ACTION_MODELS[model])
+    out = {}
+    steps = jnp.arange(1, cfg["steps"] + 1)
+    pkeys = jax.vmap(lambda j: jax.random.fold_in(jax.random.fold_in(base, 5000 + run), j))(steps)
+    step_scans = jax.tree.map(lambda x: x[1:], scans)
+    for meth in METHODS:
+        f = jax.vmap(lambda k, pr, po, o, z, meth=meth: localize(
+            k, pr, po, o, z, d2, jnp.zeros(2), res, c, method=meth, params=params)[1])
+        out[meth] = np.asarray(f(pkeys, true[:-1], odom[:-1], odom[1:], step_scans)).tolist()
+    return out
+
+
+def _unit_name(run: int, model: str) -> str:
+    return f"units/run{run}_{model}.json"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tqdm import tqdm
+
+    from ..hssh.localization import METHODS
+
+    args = _parser().parse_args(argv or [])
+    out = Path(args.out)
+    steps = args.steps or (40 if args.reduced else 400)
+    cfg = {"steps": steps, "runs": 2, "seed": args.seed, "world_cells": 801, "resolution": 0.1,
+           "route": ROUTE, "truth_model": "fitted", "beams": 180, "fov_deg": 180.0,
+           "max_range": 8.0, "range_sigma": 0.01, "blocks": 5, "block": 100,
+           "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
+           "models": list(MODELS)}
+    with Store.open(out, NAME, cfg) as st:
+        todo = [(r, m) for r in range(2) for m in MODELS
+                if st.read_json(_unit_name(r, m), required=METHODS) is None]
+        for run, model in tqdm(todo, desc="hssh-localization", unit="unit"):
+            st.write_json(_unit_name(run, model), run_unit(run, model, cfg))  # atomic
+        data = {(r, m): st.read_json(_unit_name(r, m), required=METHODS)
+                for r in range(2) for m in MODELS}
+        _report(data, cfg, out)
+        st.write_results_csv([(f"run{r}_{m}_{meth}", "mean_best_likelihood",
+                               float(np.mean(data[(r, m)][meth])))
+                              for r in range(2) for m in MODELS for meth in METHODS])
+    print(f"wrote {out / 'report.md'}")
+    return 0
+
+
+def table(data: dict, model: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Table 4.2 layout: mean (run-1 row method − run-2 column method) and paired-t p-values."""
+    from scipy import stats
+
+    from ..hssh.localization import METHODS
+
+    a = np.array([data[(0, model)][m] for m in METHODS])
+    b = np.array([data[(1, model)][m] for m in METHODS])
+    k = len(METHODS)
+    mean = np.zeros((k, k))
+    p = np.ones((k, k))
+    for i in range(k):
+        for j in range(k):
+            d = a[i] - b[j]
+            mean[i, j] = d.mean()
+            if np.any(d != d[0]):
+                p[i, j] = stats.ttest_rel(a[i], b[j]).pvalue
+    return mean, p, list(METHODS)
+
+
+def _verdict(pairs) -> str:
+    """'yes' if every difference is > 0 with p < 0.01, 'no' if one is < 0 with p < 0.01,
+    else 'tie (n.s.)'."""
+    if all(d > 0 and p < 0.01 for d, p in pairs):
+        return "yes"
+    if any(d < 0 and p < 0.01 for d, p in pairs):
+        return "no"
+    return "tie (n.s.)"
+
+
+def orderings(data: dict) -> list[tuple[str, str, str]]:
+    """B's published orderings: (ordering, verdict here, the numbers)."""
+    checks = []
+    idx = {m: i for i, m in enumerate(table(data, "large")[2])}
+
+    def diff(model, x, y):
+        mean, p, _ = table(data, model)
+        return mean[idx[x], idx[y]], p[idx[x], idx[y]]
+
+    for model in MODELS:
+        d, p = diff(model, "shrink", "pf")
+        checks.append((f"shrink beats PF ({model})", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
+    d, p = diff("large", "shrink", "grow")
+    checks.append(("shrink beats grow (large)", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
+    d, p = diff("small", "grow", "shrink")
+    checks.append(("grow beats shrink (small)", _verdict([(d, p)]), f"{d:+.4f} (p={p:.2g})"))
+    for model in MODELS:
+        ds = [diff(model, "shrink_and_grow", o) for o in ("raw", "pf", "shrink", "grow")]
+        checks.append((f"shrink-and-grow best ({model})", _verdict(ds),
+                       ", ".join(f"{x:+.4f} (p={q:.2g})" for x, q in ds)
+                       + " vs raw/pf/shrink/grow"))
+    return checks
+
+
+def _report(data, cfg, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines = ["# hssh-localization: adaptive proposals x action models (B §4.3.2, Table 4.2)", "",
+             "B's robot log is not available: this is a simulation (see the module docstring "
+             "and `config.json`), so orderings are compared, not values.", "",
+             f"{cfg['steps']} steps per run, 2 runs, {cfg['blocks']} x {cfg['block']} particles.",
+             ""]
+    for model in MODELS:
+        mean, p, names = table(data, model)
+        lines += [f"## {model}", "", "| run 1 \\ run 2 | " + " | ".join(names) + " |",
+                  "|---" * (len(names) + 1) + "|"]
+        for i, n in enumerate(names):
+            cells = [f"{mean[i, j]:+.3f}{'*' if p[i, j] < 0.01 else ''}"
+                     for j in range(len(names))]
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["## Published orderings", "", "| ordering (B) | holds here | numbers |",
+              "|---|---|---|"]
+    for text, verdict, nums in orderings(data):
+        lines.append(f"| {text} | {verdict} | {nums} |")
+    lines += ["", "Mechanisms: grow and shrink-and-grow stop at the first stage with a particle "
+              f"above the threshold ({cfg['threshold']}, x{cfg['anneal']} per stage), so grow "
+              "often spends 100 of the 500 particles; shrink-and-grow then spends the rest on "
+              "the fitted Gaussian. With an overestimating model the proposal already covers "
+              "the truth and the extra spread of grow wastes particles; with an "
+              "underestimating one only growing reaches the truth. Shrink vs PF: the "
+              "likelihood field saturates near the best pose (1-cell sigma), so 500 proposal "
+              "particles already find it and the Gaussian refit adds nothing measurable; B's "
+              "Konolige likelihood on 5 cm cells is far more peaked than its proposals.", "",
+              "Figure: `best_likelihood.png`."]
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    names = table(data, "large")[2]
+    for i, model in enumerate(MODELS):
+        vals = [np.mean(data[(0, model)][m] + data[(1, model)][m]) for m in names]
+        ax.bar(np.arange(len(names)) + 0.27 * (i - 1), vals, 0.27, label=model)
+    ax.set_xticks(range(len(names)), names)
+    ax.set_ylabel("mean best likelihood")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "best_likelihood.png", dpi=110)
+    plt.close(fig)

@@ -1,0 +1,390 @@
+"""``pqrm-jax study hssh-plus``: the +-intersection robustness corpus of B §6.3.3.
+
+10 rotations (0–45° in 5° steps) × 60 sizes (9…599 cells in steps of 10) × 20 free-cell noise
+levels (0–95 % in 5 % steps) = 12 000 images; grey threshold 127, robot radius 0, the robot
+at the image centre; success = the correct + local topology (4 gateways whose star is
+isomorphic to ``[<a+,1>, <b+,1>, <a-,1>, <b-,1>]``, B §5.1).
+
+How the corpus is generated (the thesis rotates and rescales one high-resolution drawing):
+the + is drawn once, analytically, with arms of width 1/3 of the side (13 cells of the 39-cell
+image, B §6.3.3) long enough to leave the image at every rotation
+(:func:`pqrm_jax.sim.corridors.plus_image`); each image area-samples that drawing (4 × 4
+points per cell, the knob ``supersample``) after rotating it about the centre, which is one
+resampling instead of a rotation followed by a rescaling, so no interpolation blur is
+stacked. Cells are free iff grey >= 128; then each free cell turns occupied with the noise
+probability (one NumPy generator per image, seeded from ``seed``, size, rotation and noise).
+
+Work unit = one (size, rotation) pair: its 20 noise levels go through the batched JAX cellular
+stages in one call, then the host graph stages image by image. Results live in a
+:class:`~pqrm_jax.studies.store.Store` (lock, study marker, config guard): each unit is written
+to ``units/`` atomically; a rerun skips finished units (a corrupt one is set aside and
+recomputed) and a different configuration in the same ``--out`` is refused; ``results.csv``
+is the tidy table. ``--sizes`` / ``--rotations``
+choose a subset of units (merged into ``config.json``); ``--reduced`` is a small corpus for the
+tests. The run ends with ``report.md`` (measured vs published) and figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .store import Store, atomic_write_json, atomic_write_text, tidy_rows
+
+NAME = "hssh-plus"
+HELP = "HSSH anchor gateways on the +-intersection corpus: rotation x size x noise (B §6.3.3)"
+
+ROTATIONS = [5.0 * k for k in range(10)]
+SIZES = list(range(9, 600, 10))
+NOISE = [round(0.05 * k, 2) for k in range(20)]
+REDUCED = {"rotations": [0.0, 30.0], "sizes": [29, 49], "noise": [0.0, 0.3]}
+
+PLUS_STAR = [(0, 1, True), (1, 1, True), (0, -1, True), (1, -1, True)]
+
+PUBLISHED = {
+    "big_low_noise": (3200, 3200, "side >= 200 and noise <= 35 %: 100 % (3200/3200)"),
+    "mid": (5751, 6270, "side >= 39 and noise <= 50 %: 91.72 % (5751/6270)"),
+    "mid_4gw": (6195, 6270, "of those, 98.8 % (6195) with 4 gateways"),
+    "noise_free": "noise-free: all 10 rotations correct from side 39; 29x29 fails at 30°",
+    "big_noise": "599x599: all images with noise <= 50 % correct",
+    "orientation": "gateway orientation mod 90°: sd 3.5295°, mean 3.9407°, median 4.3115° off",
+}
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pqrm-jax study hssh-plus", description=HELP)
+    p.add_argument("--out", default="results/hssh-plus", help="output directory")
+    p.add_argument("--reduced", action="store_true",
+                   help="small corpus (2 rotations x 2 sizes x 2 noise levels)")
+    p.add_argument("--sizes", default=None,
+                   help="comma list of sizes to run (default: all of the corpus)")
+    p.add_argument("--rotations", default=None,
+                   help="comma list of rotations (degrees) to run (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed")
+    p.add_argument("--supersample", type=int, default=4,
+                   help="area samples per cell and axis when drawing the +")
+    p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    return p
+
+
+def _config(args) -> dict:
+    from ..hssh.gateways import SIDE_SLACK
+
+    grid = REDUCED if args.reduced else {"rotations": ROTATIONS, "sizes": SIZES, "noise": NOISE}
+    return {
+        "corpus": "reduced" if args.reduced else "full",
+        "corpus_rotations": grid["rotations"], "corpus_sizes": grid["sizes"],
+        "noise_levels": grid["noise"],
+        "threshold": 127, "free_if_grey_at_least": 128,
+        "robot_radius": 0.0, "robot_cell": "image centre (side // 2, side // 2)",
+        "arm_width_fraction": 1 / 3, "supersample": args.supersample,
+        "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK, "method": args.method,
+        "seed": args.seed,
+        "success": "4 gateways, star isomorphic to the + star (B §5.1)",
+    }
+
+
+def _pick(text, allowed, cast):
+    if text is None:
+        return list(allowed)
+    vals = [cast(v) for v in text.split(",") if v.strip()]
+    bad = [v for v in vals if v not in allowed]
+    if bad:
+        raise SystemExit(f"not in the corpus: {bad}; choose from {list(allowed)}")
+    return vals
+
+
+def _image(side: int, rot: float, noise: float, cfg: dict):
+    from ..sim.corridors import plus_image
+
+    grey = np.asarray(plus_image(side, rot, cfg["supersample"]))
+    occ = grey < cfg["free_if_grey_at_least"]
+    ri = cfg["corpus_rotations"].index(rot)
+    ni = cfg["noise_levels"].index(noise)
+    rng = np.random.default_rng([cfg["seed"], side, ri, ni])
+    flip = rng.random(occ.shape) < noise
+    return occ | (flip & ~occ)
+
+
+def _orientation_errors(lt, rot: float) -> list[float]:
+    """Signed deviation (degrees, in (-45, 45]) of each gateway normal from the + axes,
+    after rotating back by ``rot`` (B Fig. 6.33)."""
+    out = []
+    for o in lt.outward:
+        ang = math.degrees(math.atan2(-o[0], o[1])) - rot
+        dev = (ang + 45.0) % 90.0 - 45.0
+        out.append(float(dev))
+    return out
+
+
+def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
+    """All noise levels of one (size, rotation) pair: records with success and reasons."""
+    import jax.numpy as jnp
+
+    from ..hssh import cellular_stages, star_isomorphisms, topology_from_maps
+
+    occ = np.stack([_image(side, rot, p, cfg) for p in cfg["noise_levels"]])
+    t0 = time.perf_counter()
+    maps = cellular_stages(jnp.asarray(occ), jnp.zeros(occ.shape, bool),
+                           robot_radius=cfg["robot_radius"],
+                           m_cap=cfg["evg_cap_fraction"] * side)
+    maps = type(maps)(*(np.asarray(x) for x in maps))
+    t_cell = (time.perf_counter() - t0) / len(occ)
+    rc = (side // 2, side // 2)
+    recs = []
+    for i, p in enumerate(cfg["noise_levels"]):
+        t1 = time.perf_counter()
+        rec = {"side": side, "rotation": rot, "noise": p}
+        try:
+            lt = topology_from_maps(maps.occupied[i], maps.unknown[i], maps.free_space[i],
+                                    maps.dist2[i], maps.skeleton[i], rc, method=cfg["method"],
+                                    side_slack=cfg["side_slack"])
+        except ValueError as e:
+            rec.update(success=False, gateways=0, paths=0, kind="error", reason=str(e))
+        else:
+            iso = bool(star_isomorphisms(lt.star, PLUS_STAR))
+            ok = iso and len(lt.gateways) == 4
+            if ok:
+                reason = ""
+            elif len(lt.gateways) != 4:
+                reason = f"{len(lt.gateways)} gateways"
+            else:
+                reason = f"4 gateways, {lt.num_paths} paths (misaligned pair)"
+            rec.update(success=ok, gateways=len(lt.gateways), paths=lt.num_paths, kind=lt.kind,
+                       star=[list(e) for e in lt.star], reason=reason,
+                       orientation_errors=_orientation_errors(lt, rot) if ok else [])
+        rec["seconds"] = t_cell + time.perf_counter() - t1
+        recs.append(rec)
+    return recs
+
+
+def _unit_name(side: int, rot: float) -> str:
+    return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tqdm import tqdm
+
+    args = _parser().parse_args(argv or [])
+    out = Path(args.out)
+    cfg = _config(args)
+    sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
+    rots = _pick(args.rotations, cfg["corpus_rotations"], float)
+    cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
+    with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
+                    legacy=("units", "units/*", "config.json", "report.md", "summary.json",
+                            "*.png")) as st:
+        todo = [(s, r) for s in sizes for r in rots
+                if st.read_json(_unit_name(s, r), required=("records",)) is None]
+        t_start = time.perf_counter()
+        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        wall = time.perf_counter() - t_start
+        rows = []
+        for path in sorted((out / "units").glob("s*_r*.json")):
+            unit = st.read_json(f"units/{path.name}", required=("records",))
+            if unit is not None:
+                rows.extend(unit["records"])
+        summary = summarise(rows, cfg)
+        _figures(rows, cfg, out)
+        _report(summary, rows, cfg, out, wall, len(todo))
+        st.write_results_csv(tidy_rows(
+            [dict(r, success=float(r["success"])) for r in rows],
+            unit=lambda r: f"s{r['side']}_r{r['rotation']:g}_n{r['noise']:g}",
+            skip=("side", "rotation", "noise", "kind", "star", "reason",
+                  "orientation_errors")))
+    print(f"wrote {out / 'report.md'}")
+    return 0
+
+
+def _frac(rows, pred):
+    sel = [r for r in rows if pred(r)]
+    return sum(r["success"] for r in sel), len(sel), sel
+
+
+def summarise(rows: list[dict], cfg: dict) -> dict:
+    """Corpus figures comparable with B §6.3.3 (over whatever part of the corpus was run)."""
+    s = {}
+    k, n, _ = _frac(rows, lambda r: r["side"] >= 200 and r["noise"] <= 0.35 + 1e-9)
+    s["big_low_noise"] = (k, n)
+    k, n, sel = _frac(rows, lambda r: r["side"] >= 39 and r["noise"] <= 0.50 + 1e-9)
+    s["mid"] = (k, n)
+    s["mid_4gw"] = (sum(r["gateways"] == 4 for r in sel), n)
+    free = [r for r in rows if r["noise"] == 0.0]
+    by_side: dict = {}
+    for r in free:
+        by_side.setdefault(r["side"], []).append(r)
+    all_ok = sorted(sd for sd, rs in by_side.items() if all(r["success"] for r in rs))
+    failing = sorted(sd for sd, rs in by_side.items() if not all(r["success"] for r in rs))
+    s["noise_free_complete"] = len(free) == len(SIZES) * len(ROTATIONS)
+    s["noise_free_first_all_ok"] = next(
+        (sd for sd in sorted(by_side) if all(x in all_ok for x in by_side if x >= sd)), None)
+    s["noise_free_failing_sides"] = failing
+    s["noise_free_29"] = [(r["rotation"], r["success"], r["reason"])
+                          for r in sorted(by_side.get(29, []), key=lambda r: r["rotation"])]
+    big = [r for r in rows if r["side"] == 599 and r["noise"] <= 0.50 + 1e-9]
+    s["big_noise"] = (sum(r["success"] for r in big), len(big))
+    errs = np.array([e for r in rows for e in r.get("orientation_errors", [])])
+    if len(errs):
+        s["orientation"] = {"n": int(len(errs)), "mean": float(errs.mean()),
+                            "median": float(np.median(errs)), "sd": float(errs.std()),
+                            "mean_abs": float(np.abs(errs).mean()),
+                            "median_abs": float(np.median(np.abs(errs)))}
+    reasons: dict = {}
+    for r in rows:
+        if not r["success"]:
+            key = r["reason"].split(" (after")[0] if r["kind"] == "error" else r["reason"]
+            key = "robot cell not in free space" if "not in free space" in key else key
+            reasons[key] = reasons.get(key, 0) + 1
+    s["reasons"] = dict(sorted(reasons.items(), key=lambda kv: -kv[1]))
+    s["n_images"] = len(rows)
+    s["seconds"] = float(sum(r["seconds"] for r in rows))
+    return s
+
+
+def _grid_acc(rows, cfg):
+    sizes = sorted({r["side"] for r in rows})
+    noise = sorted({r["noise"] for r in rows})
+    acc = np.full((len(sizes), len(noise)), np.nan)
+    for i, sd in enumerate(sizes):
+        for j, p in enumerate(noise):
+            sel = [r["success"] for r in rows if r["side"] == sd and r["noise"] == p]
+            if sel:
+                acc[i, j] = np.mean(sel)
+    return sizes, noise, acc
+
+
+def _figures(rows, cfg, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not rows:
+        return
+    sizes, noise, acc = _grid_acc(rows, cfg)
+    fig, ax = plt.subplots(figsize=(7, 6))
+    im = ax.imshow(acc, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis",
+                   extent=(-0.5, len(noise) - 0.5, -0.5, len(sizes) - 0.5))
+    ax.set_xticks(range(len(noise)), [f"{int(round(100 * p))}" for p in noise], rotation=90)
+    step = max(1, len(sizes) // 15)
+    ax.set_yticks(range(0, len(sizes), step), [str(s) for s in sizes[::step]])
+    ax.set_xlabel("free-cell noise (%)")
+    ax.set_ylabel("LPM side (cells)")
+    ax.set_title("correct + local topology, mean over rotations (cf. B Fig. 6.36)")
+    fig.colorbar(im, ax=ax, label="accuracy")
+    fig.tight_layout()
+    fig.savefig(out / "accuracy_size_noise.png", dpi=110)
+    plt.close(fig)
+
+    rots = sorted({r["rotation"] for r in rows})
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    acc_r = [np.mean([r["success"] for r in rows if r["rotation"] == a]) for a in rots]
+    axes[0].plot(rots, acc_r, "o-")
+    axes[0].set(xlabel="rotation (deg)", ylabel="accuracy", ylim=(0, 1.02),
+                title="per rotation, all sizes and noise (cf. Fig. 6.30)")
+    free = [r for r in rows if r["noise"] == 0.0]
+    for a in rots:
+        sel = sorted((r["side"], r["success"]) for r in free if r["rotation"] == a)
+        if sel:
+            axes[1].plot([s for s, _ in sel], [int(v) + 0.02 * rots.index(a) for _, v in sel],
+                         ".-", label=f"{a:g}°", alpha=0.7)
+    axes[1].set(xlabel="LPM side (cells)", ylabel="correct (offset per rotation)",
+                title="noise-free, per rotation (cf. Fig. 6.34a)")
+    axes[1].legend(fontsize=6, ncol=2)
+    big = max(r["side"] for r in rows)
+    sel = [r for r in rows if r["side"] == big]
+    ns = sorted({r["noise"] for r in sel})
+    axes[2].plot([100 * p for p in ns],
+                 [np.mean([r["success"] for r in sel if r["noise"] == p]) for p in ns], "o-")
+    axes[2].set(xlabel="noise (%)", ylabel="accuracy", ylim=(0, 1.02),
+                title=f"side {big}, over rotations (cf. Fig. 6.35a)")
+    fig.tight_layout()
+    fig.savefig(out / "accuracy_rotation_size_noise.png", dpi=110)
+    plt.close(fig)
+
+    errs = [e for r in rows for e in r.get("orientation_errors", [])]
+    if errs:
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        ax.hist(errs, bins=np.arange(-45, 46, 1.0))
+        ax.set(xlabel="gateway orientation error mod 90° (deg)", ylabel="gateways",
+               title="correct cases, rotated back (cf. Fig. 6.33c)")
+        fig.tight_layout()
+        fig.savefig(out / "gateway_orientation.png", dpi=110)
+        plt.close(fig)
+
+
+def _verdict(k, n, pk, pn, tol=0.03):
+    if n == 0:
+        return "not run"
+    if n != pn:
+        return f"partial corpus ({n} of {pn} images)"
+    return "match" if abs(k / n - pk / pn) <= tol else "mismatch"
+
+
+def _free_verdict(s, ok: bool) -> str:
+    if not s["noise_free_complete"]:
+        return "partial corpus" + (" (consistent so far)" if ok else " (differs so far)")
+    return "match" if ok else "mismatch"
+
+
+def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
+    lines = ["# hssh-plus: anchor-based gateways on the + corpus (B §6.3.3)", ""]
+    total = len(cfg["corpus_sizes"]) * len(cfg["corpus_rotations"]) * len(cfg["noise_levels"])
+    lines.append(f"Corpus: {cfg['corpus']}; images evaluated: {s['n_images']} "
+                 f"(of {total} in this corpus definition). Method: {cfg['method']}. "
+                 "Configuration: `config.json` (every knob).")
+    lines.append(f"Compute time summed over images: {s['seconds']:.1f} s; this invocation ran "
+                 f"{n_units_run} (size, rotation) units in {wall:.1f} s wall.")
+    lines += ["", "| figure | published | measured | verdict |", "|---|---|---|---|"]
+    for key in ("big_low_noise", "mid", "mid_4gw"):
+        pk, pn, text = PUBLISHED[key]
+        k, n = s[key]
+        pct = f"{100 * k / n:.2f} % ({k}/{n})" if n else "—"
+        lines.append(f"| {text} | {100 * pk / pn:.2f} % | {pct} | {_verdict(k, n, pk, pn)} |")
+    bk, bn = s["big_noise"]
+    lines.append(f"| {PUBLISHED['big_noise']} (side 599) | 100 % | "
+                 f"{(f'{100 * bk / bn:.1f} % ({bk}/{bn})') if bn else '—'} | "
+                 f"{'match' if bn and bk == bn else ('not run' if not bn else 'mismatch')} |")
+    first = s["noise_free_first_all_ok"]
+    lines.append(f"| {PUBLISHED['noise_free']} | 39 | all rotations correct from side "
+                 f"{first}; failing noise-free sides: {s['noise_free_failing_sides']} | "
+                 f"{_free_verdict(s, first == 39)} |")
+    if s["noise_free_29"]:
+        fails = [f"{a:g}°" for a, ok, _ in s["noise_free_29"] if not ok]
+        lines.append(f"| 29x29 noise-free fails only at 30° | 30° | fails at {fails or 'none'} "
+                     f"| {_free_verdict(s, fails == ['30°'])} |")
+    o = s.get("orientation")
+    if o:
+        lines.append(f"| {PUBLISHED['orientation']} | sd 3.53, mean 3.94, median 4.31 | "
+                     f"signed: mean {o['mean']:.2f}, median {o['median']:.2f}, sd {o['sd']:.2f}; "
+                     f"|err|: mean {o['mean_abs']:.2f}, median {o['median_abs']:.2f} (n={o['n']})"
+                     " | reference only (skeleton-dependent) |")
+    lines += ["", "## Failures by reason", ""]
+    for reason, cnt in s["reasons"].items():
+        lines.append(f"- {cnt}: {reason}")
+    lines += ["", "## Reading the mismatches", "",
+              "- *robot cell not in free space*: at high noise the noise cells join the walls "
+              "into a border-connected obstacle that covers the centre cell; island removal "
+              "(4-connected) cannot clear it. The thesis does not say what it did with such "
+              "images; here they count as failures.",
+              "- *misaligned pair*: four gateways whose path-continuity rays miss each other. "
+              "Two mechanisms, both named by B §6.3.3: noise near the anchors bends the "
+              "skeleton, and Alg. 6.3's collinearity iteration walks a gateway outward along "
+              "its branch onto noise attached to the walls, up to the LPM edge (inspected at "
+              "0° rotation, 5 % noise, side 249: the up and left gateways end a few cells from "
+              "the border, tilted, while the core sits on two of the four ring junctions).",
+              "- *n gateways*: noise spurs or a core reaching the LPM edge change the number "
+              "of branches leaving the core (small sides: the core covers the whole image).",
+              "- Gateway orientation statistics depend on the skeleton: this thinning differs "
+              "from EVG-Thin in details (tangent smoothing over +-2 nodes, Alg. 6.3 averaging), "
+              "so they are a reference, not a target.",
+              "", "Figures: `accuracy_size_noise.png`, `accuracy_rotation_size_noise.png`, "
+              "`gateway_orientation.png`."]
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    atomic_write_json(out / "summary.json", s)
