@@ -189,3 +189,29 @@ def test_trajectory_scaling_ends_on_the_relaxed_pose():
     # the larger increments absorb more of the discrepancy (Λ ∝ |μ|)
     corr = np.abs(np.diff(p, axis=0) - mu)[:, 0]
     assert np.argmax(corr) == np.argmax(np.abs(mu[:, 0]))
+
+
+def test_bridge_from_the_local_levels_star():
+    from pqrm_jax.hssh import star as local
+
+    # a + place: gateways up, right, down, left (row, col image coordinates)
+    c = np.array([5.0, 5.0])
+    ends = np.array([[[0, 4], [0, 6]], [[4, 10], [6, 10]], [[10, 4], [10, 6]], [[4, 0], [6, 0]]],
+                    float)
+    out = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)
+    entries = local.build_star(ends, out, c)
+    (star, arr), bear = hg.view_from_local_star(entries, arrival_gateway=2)  # came up from below
+    assert len(hg.isomorphisms(star, star)) == 4 and star.alpha == (1, 1, 1, 1)
+    assert entries[star.opp[arr]].gateway == 2
+    assert bear[arr] == pytest.approx(0.0)
+    # the gateway to the right of a robot heading up leaves at -90° (clockwise)
+    g_right = [i for i, e in enumerate(entries) if e.gateway == 1][0]
+    assert bear[g_right] == pytest.approx(-np.pi / 2)
+    # our isomorphisms agree with the local levels' on every star of random worlds
+    for seed in range(4):
+        w = hg.grid_world(4, 4, seed=seed)
+        for a in w.stars:
+            for b in w.stars:
+                ta = list(zip(a.path, a.dir, map(bool, a.alpha), strict=True))
+                tb = list(zip(b.path, b.dir, map(bool, b.alpha), strict=True))
+                assert hg.isomorphisms(a, b) == local.star_isomorphisms(ta, tb)

@@ -28,7 +28,7 @@ from .navigation import (
     plan_route,
     shortest_distance,
 )
-from .star import Star, isomorphisms, match_matrix, pad_views, view_match
+from .star import Star, isomorphisms, match_matrix, pad_views, view_from_local_star, view_match
 from .tree import (
     MapHypothesis,
     TreeLog,
@@ -54,6 +54,7 @@ from .world import (
 )
 
 __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
+           "view_from_local_star",
            "CorridorWorld", "Experience", "explore", "grid_world", "office_world",
            "world_from_lattice", "global_paths",
            "MapHypothesis", "TreeLog", "TreeTooLarge", "build_basic_tree", "build_tree",

@@ -119,6 +119,37 @@ def view_match(v: tuple[Star, int], w: tuple[Star, int]) -> bool:
     return len(sb) == n and (ib - ia) % n in isomorphisms(sa, sb)
 
 
+def view_from_local_star(entries, arrival_gateway: int) -> tuple[tuple[Star, int], tuple]:
+    """The view and entry bearings of a place from the local levels' small-scale star.
+
+    Bridge from :func:`pqrm_jax.hssh.star.build_star` (entries with ``path``, ``direction``,
+    ``traversable``, ``gateway`` and ``angle``: clockwise degrees from "up") to the experience
+    record of :mod:`~pqrm_jax.hssh_global.world`: the robot entered through gateway
+    ``arrival_gateway``, so it arrived on the directed local-path opposite to the traversable
+    entry of that gateway (B Fig. 8.1: entering via g5 is arriving on π̃_c^-).
+
+    Args:
+        entries: the clockwise star entries.
+        arrival_gateway: index of the gateway the robot entered through.
+
+    Returns:
+        ``((star, arrival entry), bearings)``; bearings are counter-clockwise radians from the
+        arrival heading, as :func:`~pqrm_jax.hssh_global.world.explore` records them.
+
+    Raises:
+        ValueError: no traversable entry leaves through ``arrival_gateway``.
+    """
+    star = Star.from_entries([(int(e.path), int(e.direction), int(bool(e.traversable)))
+                              for e in entries])
+    out = [i for i, e in enumerate(entries) if e.traversable and int(e.gateway) == arrival_gateway]
+    if not out:
+        raise ValueError(f"no traversable entry leaves through gateway {arrival_gateway}")
+    arr = star.opp[out[0]]
+    ang = np.radians([float(e.angle) for e in entries])
+    bear = tuple(float((-(a - ang[arr]) + np.pi) % (2 * np.pi) - np.pi) for a in ang)
+    return (star, arr), bear
+
+
 def pad_views(views, l_max: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Padded arrays of views for :func:`match_matrix`.
 
