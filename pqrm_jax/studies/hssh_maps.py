@@ -51,22 +51,29 @@ def config_for(a) -> dict:
         cfg = {"worlds": 4, "sizes": [[3, 3], [4, 3]], "travels": 16, "basic_travels": 8,
                "nav_pairs": 10, "office_seeds": 2}
     else:
-        cfg = {"worlds": 40, "sizes": [[3, 3], [4, 3], [4, 4]], "travels": 30,
+        cfg = {"worlds": 30, "sizes": [[3, 3], [4, 3], [4, 4]], "travels": 24,
                "basic_travels": 10, "nav_pairs": 30, "office_seeds": 10}
-    cfg.update({"loop_prob": 0.5, "sigma_xy": 0.03, "sigma_theta": 0.02, "max_leaves": 50000,
+    cfg.update({"loop_prob": 0.5, "sigma_xy": 0.03, "sigma_theta": 0.02, "max_leaves": 20000,
                 "seed": a.seed, "reasons": REASONS})
     return cfg
 
 
-def _relax_padded(hg, leaves, odometry, cfg):
-    """Relaxes all leaves with shapes bucketed (hypotheses to a power of two, places to
-    travels + 1) so that worlds share compiled code; padding lanes are dropped."""
-    h = len(leaves)
-    padded = leaves + [leaves[0]] * ((1 << (h - 1).bit_length()) - h)
-    prob = hg.pack(padded, odometry, cfg["sigma_xy"], cfg["sigma_theta"],
-                   m_max=len(odometry) + 1)
-    chi, cost = hg.relax(prob)
-    return hg.LayoutProblem(*(x[:h] for x in prob)), chi[:h], np.asarray(cost)[:h]
+def _relax_padded(hg, leaves, odometry, cfg, chunk: int = 1024):
+    """Relaxes all leaves in chunks with shapes bucketed (hypotheses to a power of two up to
+    ``chunk``, places to travels + 1) so that worlds share compiled code; padding is dropped."""
+    probs, chis, costs = [], [], []
+    for s in range(0, len(leaves), chunk):
+        part = leaves[s:s + chunk]
+        h = len(part)
+        padded = part + [part[0]] * ((1 << (h - 1).bit_length()) - h)
+        prob = hg.pack(padded, odometry, cfg["sigma_xy"], cfg["sigma_theta"],
+                       m_max=len(odometry) + 1)
+        chi, cost = hg.relax(prob)
+        probs.append(hg.LayoutProblem(*(np.asarray(x[:h]) for x in prob)))
+        chis.append(np.asarray(chi[:h]))
+        costs.append(np.asarray(cost)[:h])
+    prob = hg.LayoutProblem(*(np.concatenate(xs) for xs in zip(*probs, strict=True)))
+    return prob, np.concatenate(chis), np.concatenate(costs)
 
 
 def run_world(cfg: dict, i: int) -> dict:
