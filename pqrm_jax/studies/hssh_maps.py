@@ -295,19 +295,26 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--reduced", action="store_true", help="4 small worlds (CI, < 1 min)")
     ap.add_argument("--seed", type=int, default=18)
+    ap.add_argument("--worlds", type=int, help="run/report only the first N worlds (resumable)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     cfg = config_for(a)
-    with Store.open(a.out, NAME, cfg) as st:
+    if a.worlds is not None:
+        if a.worlds < 1:
+            raise SystemExit("--worlds must be >= 1")
+        cfg["worlds"] = a.worlds
+    n_worlds = cfg["worlds"]
+    with Store.open(a.out, NAME, cfg, selection=("worlds",)) as st:
         wl = st.records("worlds.jsonl", key=lambda r: r["world"], required=("world", "too_large"))
-        for i in tqdm(range(cfg["worlds"]), disable=a.no_progress, desc="worlds"):
+        for i in tqdm(range(n_worlds), disable=a.no_progress, desc="worlds"):
             if i not in wl:
                 wl.add(run_world(cfg, i))
         ol = st.records("office.jsonl", key=lambda r: r["seed"], required=("seed", "leaves"))
         for s in range(cfg["office_seeds"]):
             if s not in ol:
                 ol.add(run_office(cfg, s))
-        worlds = sorted(wl.values(), key=lambda r: r["world"])
+        worlds = sorted((r for r in wl.values() if r["world"] < n_worlds),
+                        key=lambda r: r["world"])
         office = sorted(ol.values(), key=lambda r: r["seed"])
         st.write_results_csv(
             tidy_rows(worlds, unit=lambda r: f"world{r['world']}", skip=("world", "leaves",
