@@ -288,6 +288,9 @@ def build_basic_tree(experience: Experience, max_leaves: int = 200_000) -> TreeL
     current dstate; new territory branches over every known dstate with an equal symbol plus a
     new dstate; a turn closure merges the two dstates' places (axiom 3.2), and a dstate keeps one
     place. Unlike the HSSH, nothing tells the basic SSH that ``Turn_j ∘ Turn_k = Turn_{j+k}``.
+    Its leaves are partitions of the experienced dstates, while HSSH leaves also fix place
+    identities and gateway correspondences, so "star leaves ≤ basic leaves" is an empirical
+    comparison here, not a theorem (the hssh-maps study reports a counterexample).
 
     Returns:
         A :class:`TreeLog` whose ``leaves`` are ``(R, views, places, q)`` tuples and whose
