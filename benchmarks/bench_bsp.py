@@ -22,6 +22,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 
 from pqrm_jax import calculi
 from pqrm_jax.bsp import env as E
@@ -79,6 +80,7 @@ def main() -> int:
            "batched_s": tb, "loop_s": tl, "ratio": tl / tb, "ms_per_plan_batched": 1e3 * tb / n_env,
            "ms_per_plan_loop": 1e3 * tl / n_env, "same_actions": same, "max_value_diff": close,
            "devices": [str(d) for d in jax.devices()], "cpu_threads_note": "shared 2-core host"}
+    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(res, indent=1))
     Path(a.json).parent.mkdir(parents=True, exist_ok=True)
     Path(a.json).write_text(json.dumps(res, indent=1))

@@ -18,6 +18,7 @@ import time
 
 import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 
 from pqrm_jax import calculi
 from pqrm_jax.compositions.propagation import propagate, propagate_loop
@@ -94,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
                      "devices": len(jax.devices())}
     n = 10 if args.quick else 30
     results["speed"] = bench_speed(tensor, n=n, repeats=2 if args.quick else 3)
+    results["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(results["speed"], indent=1), flush=True)
     sizes = (6, 8, 10) if args.quick else (10, 15, 20, 30, 40, 50)
     results["scaling"] = bench_scaling(tensor, sizes)

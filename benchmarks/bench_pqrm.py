@@ -17,6 +17,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi, pqrm
@@ -99,6 +100,7 @@ def main(argv=None) -> int:
     }
     if args.study_runs:
         res["study_step"] = _study_step(args.study_runs)
+    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(res, indent=2))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 
 from pqrm_jax import sim
 from pqrm_jax.qlink import elements as qel
@@ -106,6 +107,7 @@ def main() -> None:
            "drive_only_ratio": round(td_l / td_b, 1), "cpu_count": os.cpu_count(),
            "device": str(jax.devices()[0]), "setting": "50 landmarks, 100 m x 100 m, R = 20 m, "
            "R' = 0.8R, beta = 2, sigma = 0.3"}
+    out["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(out, indent=1))
     res = Path(__file__).parent / "results"
     res.mkdir(exist_ok=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 
 from pqrm_jax import sim
 from pqrm_jax.qrm import camera as C
@@ -147,6 +148,7 @@ def main() -> None:
     print(f"peak per-update log-log slope {res['per_update']['peak_loglog_slope']:.2f} "
           "(paper 3.5)")
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     Path(a.out).write_text(json.dumps(res, indent=1))
 
 

@@ -22,6 +22,7 @@ if "--one-core" in sys.argv:  # before JAX starts its thread pool (threads inher
 
 import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax._parallel import default_queues
@@ -107,6 +108,7 @@ def main(argv=None) -> int:
     for k, v in out.items():
         print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")
     if args.json:
+        out["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
         with open(args.json, "w") as fh:
             json.dump(out, fh, indent=1)
     return 0

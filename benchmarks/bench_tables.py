@@ -19,6 +19,7 @@ if "--one-core" in sys.argv:  # before JAX starts its thread pool (threads inher
 from pathlib import Path
 
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
@@ -90,12 +91,15 @@ def main() -> None:
                     help="also time an EDC build with z3 confirmation of every refutation")
     ap.add_argument("--one-core", action="store_true",
                     help="run the whole process on one core (the NumPy reference's resources)")
+    ap.add_argument("--random-only", action="store_true",
+                    help="skip the two table builds, time only the --random problems (quick "
+                         "check, e.g. scripts/accelerator_check.sh)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "tables.json"))
     args = ap.parse_args()
     res: dict = {"cores": len(os.sched_getaffinity(0))}
     batches: list[tuple[str, ProblemBatch, dict]] = []
     first_call = 0.0
-    for cname in ("edc", "dcc"):
+    for cname in () if args.random_only else ("edc", "dcc"):
         calc = calculi.get(cname)
         calls: list[float] = []
 
@@ -117,16 +121,18 @@ def main() -> None:
         print(f"{cname} build: {dt:.1f} s, tables identical to the shipped ones: {same}; "
               f"branch-and-bound calls {sum(calls):.1f} s (compilation included); "
               f"stats {raw['stats']}", flush=True)
-    print("branch-and-bound batches of the builds:")
-    res["build_workload"] = _compare(batches, args.repeat, args.single_problems)
-    res["build_workload"]["batched_first_call_s"] = first_call
-    w = res["build_workload"]
-    print(f"all {w['problems']} problems: batched {w['batched_s']:.2f} s on {w['queues']} "
-          f"queue(s) (first calls, compilation included: {first_call:.1f} s), one queue "
-          f"{w['batched_one_queue_s']:.2f} s; NumPy reference {w['numpy_reference_s']:.1f} s "
-          f"-> {w['ratio_vs_numpy']:.1f}x ({w['ratio_vs_numpy_one_queue']:.1f}x on one queue); "
-          f"one problem per call {w['one_per_call_s']:.1f} s -> "
-          f"{w['ratio_vs_one_per_call']:.1f}x")
+    if batches:
+        print("branch-and-bound batches of the builds:")
+        res["build_workload"] = _compare(batches, args.repeat, args.single_problems)
+        res["build_workload"]["batched_first_call_s"] = first_call
+        w = res["build_workload"]
+    if batches:
+        print(f"all {w['problems']} problems: batched {w['batched_s']:.2f} s on {w['queues']} "
+              f"queue(s) (first calls, compilation included: {first_call:.1f} s), one queue "
+              f"{w['batched_one_queue_s']:.2f} s; NumPy reference {w['numpy_reference_s']:.1f} s "
+              f"-> {w['ratio_vs_numpy']:.1f}x ({w['ratio_vs_numpy_one_queue']:.1f}x on one queue); "
+              f"one problem per call {w['one_per_call_s']:.1f} s -> "
+              f"{w['ratio_vs_one_per_call']:.1f}x")
     if args.random:
         print(f"{args.random} random EDC compose problems:")
         kw = {"pool": 32, "max_iters": 120}
@@ -146,6 +152,7 @@ def main() -> None:
                     "included; build times include the witness pre-pass, problem "
                     "construction, path-consistency refutation and z3")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     Path(args.out).write_text(json.dumps(res, indent=1, default=float))
 
 

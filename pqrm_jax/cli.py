@@ -1,6 +1,8 @@
 """The ``pqrm-jax`` command: operator tables and studies.
 
     pqrm-jax tables NAME --json PATH        export a calculus's exact tables as JSON
+    pqrm-jax tables NAME --format F PATH    export as F: json (default format) or sparq
+                                            (a SparQ def-calculus file, docs/tables.md §sparq)
     pqrm-jax tables --rebuild [NAME ...]    regenerate cached tables (progress bar)
     pqrm-jax tables --plot DIR              table figures and a report (the main job's first part)
     pqrm-jax study NAME [args...]           run a study (``pqrm-jax study --list``)
@@ -24,6 +26,8 @@ def _tables(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="pqrm-jax tables", description="exact operator tables")
     p.add_argument("names", nargs="*", help=f"calculi ({', '.join(calculi.names())})")
     p.add_argument("--json", metavar="PATH", help="write the tables of NAME as JSON")
+    p.add_argument("--format", nargs=2, metavar=("FORMAT", "PATH"),
+                   help="write the tables of NAME in FORMAT (json or sparq) to PATH")
     p.add_argument("--rebuild", action="store_true", help="regenerate the cached tables")
     p.add_argument("--plot", metavar="DIR", help="write region/table figures and report.md")
     args = p.parse_args(argv)
@@ -48,10 +52,11 @@ def _study(argv: list[str]) -> int:
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """The exception types the CLI reports as a one-line user error (exit code 2)."""
+    from .studies.distributed import DistributedError
     from .studies.store import StudyError
     from .tables import CacheError
 
-    return (StudyError, CacheError, OSError, ValueError, KeyError)
+    return (StudyError, CacheError, DistributedError, OSError, ValueError, KeyError)
 
 
 def _message(exc: BaseException) -> str:

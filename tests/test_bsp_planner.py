@@ -88,7 +88,8 @@ def _small_envs(n_env, n=6, size=1.6, seed=0):
 @pytest.mark.slow
 def test_pruned_vs_full_tree(mod):
     """Action pruning alone (4 of 20 actions) keeps the full tree's plan; truncating β to the
-    3 likeliest candidates (renormalised, Z-24) changes values more (measured: median 13 %)."""
+    3 likeliest candidates (renormalised, docs/bsp.md §Z-24) changes values more (measured:
+    median 13 %)."""
     agree, rel, agree3, rel3 = [], [], [], []
     for e, env in enumerate(_small_envs(12)):
         b, fg = _graph(mod, env, True, key=e)

@@ -120,3 +120,55 @@ def test_nothing_points_outside_the_repository(needle):
             if needle in line:
                 hits.append(f"{path.relative_to(ROOT)}:{i}: {line.strip()[:80]}")
     assert not hits, "\n".join(hits)
+
+
+# Citations of the source digests (notes outside the repository): "the d-", "d- §3.6",
+# "d- decisions", "d-s/…" (d- = the word, spelt out only in the test strings below).
+# hashlib's hexdigest()/digest() never match (no word boundary, or no following §/"the").
+_D = "dig" + "est"
+DIGEST_CITATION = re.compile(
+    rf"\bthe\s+{_D}\b|\b{_D}\s*§|\b{_D}s?/|\b{_D}\s+decisions?\b|\bof\s+the\s+{_D}\b", re.I)
+
+
+def test_digest_pattern():
+    assert DIGEST_CITATION.search("decision §3.7 of the " + _D + ": existence")
+    assert DIGEST_CITATION.search("(Z §4.3; " + _D + " decisions §3.5–3.6)")
+    assert DIGEST_CITATION.search("knob, " + _D.capitalize() + " §7.3")
+    assert not DIGEST_CITATION.search("return h.hex" + _D + "()[:16]")
+    assert not DIGEST_CITATION.search("hashlib.sha256(b).hex" + _D + "()")
+
+
+def test_nothing_cites_the_digest():
+    """Code, tests, benchmarks, scripts, notebooks and the README cite docs/, not the notes."""
+    hits = []
+    for path in _files(("pqrm_jax", "tests", "benchmarks", "scripts", "notebooks", "sim")):
+        for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if DIGEST_CITATION.search(line):
+                hits.append(f"{path.relative_to(ROOT)}:{i}: {line.strip()[:80]}")
+    assert not hits, "\n".join(hits)
+
+
+def test_bsp_decisions_are_documented():
+    """Every decision key the qbsp study writes to config.json has a heading in docs/bsp.md."""
+    from pqrm_jax.studies import qbsp
+
+    have = _anchors("bsp.md")
+    named = {"compositions": "compositions-once", "observability": "observability",
+             "target": "target", "link_rule": "link-rule"}
+    missing = [k for k in qbsp.DECISIONS if named.get(k, k) not in have]
+    assert not missing, f"docs/bsp.md has no heading for decisions {missing}"
+    for sid in ("calibration", "results", "gaps", "parameters", "plan-exists"):
+        assert sid in have, sid
+
+
+def test_qlink_decisions_are_documented():
+    """The β choice, the calibration, every decision the code cites and the status are there."""
+    have = _anchors("qlink.md")
+    for sid in ("Q1", "Q12", "Q20", "start", "calibration", "parameters", "results", "gaps"):
+        assert sid in have, sid
+    index = (DOCS / "README.md").read_text(encoding="utf-8")
+    studies = _anchors("studies.md")
+    for page in ("bsp.md", "qlink.md", "hssh.md"):
+        assert f"]({page})" in index, f"docs/README.md does not index {page}"
+    for sid in ("qbsp", "qlink", "hssh-plus", "hssh-localization"):
+        assert sid in studies, f"docs/studies.md has no §{sid}"

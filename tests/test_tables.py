@@ -217,7 +217,7 @@ def test_cache_corrupt_and_stale(tmp_path, monkeypatch):
     assert t.definition_hash == lr2.definition_hash
 
 
-def test_cli_json_export(tmp_path):
+def test_cli_json_export(tmp_path, capsys):
     from pqrm_jax.cli import main
 
     out = tmp_path / "edc.json"
@@ -228,8 +228,9 @@ def test_cli_json_export(tmp_path):
     assert set(d["compose"]["1|5"]) == {"1", "5", "11", "12", "17", "19"}
     A, B, C, D = d["witnesses"]["1|5|11"]
     assert len(A) == 2 and isinstance(d["undecided"], list)
-    with pytest.raises(KeyError, match="known calculi"):
-        main(["tables", "nope", "--json", str(out)])
+    # an unknown calculus is a user error: one line naming the known calculi, exit code 2 (D16)
+    assert main(["tables", "nope", "--json", str(out)]) == 2
+    assert "known calculi" in capsys.readouterr().err
 
 
 def test_cache_repair_advice_works_for_user_calculi(tmp_path, monkeypatch):

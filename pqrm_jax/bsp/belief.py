@@ -14,12 +14,12 @@ The belief is the factorised product of eq. 4.2, held as a pytree of static shap
 The update ψ (eq. 4.25) for action ``a`` (go to state a), observed triplet ``β = ij:k``,
 discrete measurement ``ẑ`` and link option ``link`` (0 stay, 1 → frame (i, k), 2 → (j, k),
 the landmark shared with the old frame as the new origin) is, with ``P_F`` the scale of the
-current frame (decision Z-8: association and measurement condition on the scale of F_{t−1}):
+current frame (docs/bsp.md §Z-8: association and measurement condition on the scale of F_{t−1}):
 
     J(s_x, s_τ) ∝ Σ_b P_F(b) · T[b, a, s_x] · P(ij:k = s_τ) · AZ[s_x, s_τ, b, ẑ]
     robot'(s') = Σ_{s_x, s_τ} K[link][s_x, s_τ, s'] · J(s_x, s_τ)         (eq. 4.20, joint J)
 
-normalised by η = ``P(ẑ, β | H⁻)`` (a division, decision Z-7). Evidence with η = 0 keeps the
+normalised by η = ``P(ẑ, β | H⁻)`` (a division, docs/bsp.md §Z-7). Evidence with η = 0 keeps the
 prediction ``Σ_b P_F(b) T[b, a]``, keeps the frame, and increments ``conflicts``: never NaN.
 """
 
@@ -66,7 +66,9 @@ def check_distribution(name: str, p, axis: int = -1, atol: float = 1e-3) -> np.n
 
 def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
                      measured=None) -> jax.Array:
-    """(L, L, nb) frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24, Z-9, Z-10).
+    """(L, L, nb) frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24).
+
+    Decisions: docs/bsp.md §Z-9–Z-10.
 
     With ``measured`` (the measured subset of ``known``), a pair whose scale can be derived
     from measured rows, or that lies inside a measured triplet, gets the same scale as without
@@ -76,7 +78,7 @@ def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
     ``ref`` = (a, b) is the frame whose scale ``ref_scale`` (nb,) is known. The scale of
     ``{a, l}`` comes from ``GA`` and ``P(ab:l)``, of ``{b, l}`` from ``GB``, of ``{l1, l2}``
     from ``G2`` with ``P(ab:l1)``, ``P(ab:l2)``, when those rows are ``known`` (measured or
-    composed). Otherwise (decision Z-10) a pair inside a known triplet gets the uniform
+    composed). Otherwise (docs/bsp.md §Z-10) a pair inside a known triplet gets the uniform
     distribution over the observable bins (an observed triplet has pairwise distances ≤ 2R)
     and any other pair the uniform distribution over all bins.
     """
@@ -170,7 +172,7 @@ def update(models: Models, belief: QBelief, action, k, zhat, link) -> tuple[QBel
 
 def discretise(rel_a, rel_b, rel_c, num_states: int, calc) -> jax.Array:
     """Discrete measurement ẑ = ẑ_x·Q + ẑ_τ from measured positions relative to the robot
-    (decision Z-5); ``-1`` when a state is undefined (boundary, degenerate or non-finite)."""
+    (docs/bsp.md §Z-5); ``-1`` when a state is undefined (boundary, degenerate or non-finite)."""
     zx = calc.classify(rel_a, rel_b, jnp.zeros_like(rel_a))
     zt = calc.classify(rel_a, rel_b, rel_c)
     return jnp.where((zx >= 0) & (zt >= 0), zx * num_states + zt, -1)

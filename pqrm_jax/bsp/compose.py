@@ -7,7 +7,7 @@ composable is composed bottom-up along its tree; one step of eq. 4.28 is ``prob_
 the pattern ``(ij:k, jk:d) → ij:d`` (docs/decisions.md §2.3), and the other five orderings of the
 result are filled with the sampled unary operators ``U`` (LEFT, RIGHT, INVERSE). Composed triplets
 from shared sources are treated as independent (the thesis's product of marginals, eq. 4.27;
-decision Z-25).
+docs/bsp.md §Z-25).
 
 The Link-Graph (Z Def. 2.3.1) — triplets as nodes, an edge when two share exactly two
 landmarks — is :func:`link_graph`; Thm 4.1 says a connected Link-Graph is composable, but not

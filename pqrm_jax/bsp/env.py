@@ -1,4 +1,4 @@
-"""Random study environments and initial beliefs (Z §4.3; digest decisions §3.5–3.6).
+"""Random study environments and initial beliefs (Z §4.3; docs/bsp.md §generator).
 
 * Landmarks: ``n`` uniform in ``[0, S]²`` (units of R) with minimum spacing ``r_min``.
 * Composable initial belief ``M_1`` by *nearest-landmark growth*: start with a random landmark
@@ -10,10 +10,10 @@
 * Initial frame ``F_1``: a random ordered pair of a random ``M_1`` triplet; the robot starts at
   a random point within R of both frame landmarks; target τ*: uniform over the ``M_1``
   triplets that do not contain ``F_1`` (a target outside ``M_1`` could never be observed
-  without compositions, digest §3.6).
+  without compositions, docs/bsp.md §target).
 * Initial belief: every ``M_1`` triplet measured once by PQRM (all orderings), the robot's
   state from the same inverse-sensor sampling, the reference scale (the known frame of
-  Z §4.2.5) is F_1's measured length bin (decision Z-10), and — with compositions — every
+  Z §4.2.5) is F_1's true length bin (docs/bsp.md §Z-10), and — with compositions — every
   other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`).
 
 Bad input raises ``ValueError``: fewer than 3 landmarks, NaN positions, a target with repeated
@@ -185,7 +185,7 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
 
 
 def reference_scale(models: Models, env: Environment) -> np.ndarray:
-    """(nb,) one-hot scale bin of the initial frame F_1 (the known scale, decision Z-10)."""
+    """(nb,) one-hot scale bin of the initial frame F_1 (the known scale, docs/bsp.md §Z-10)."""
     nb = models.num_bins
     a, b = env.frame
     d = float(np.linalg.norm(np.asarray(env.pos[a]) - np.asarray(env.pos[b])))

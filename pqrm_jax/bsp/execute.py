@@ -7,9 +7,9 @@ One lane is one test (environment × mode × cost). Each step (``lax.scan`` over
 2. plan (:func:`~pqrm_jax.bsp.planner.plan`) and take its first qualitative action "go to
    state a": the true robot moves to the world image of the target point ``p_a`` in its true
    frame plus ``N(0, σ_m²)`` — the controller the transition model was sampled from
-   (decision Z-26);
+   (docs/bsp.md §Z-26);
 3. ``pqrm_jax.sim.observe`` all landmarks within R (noise σ_z, 360°); success when the three
-   goal landmarks are visible at once (decision Z-16);
+   goal landmarks are visible at once (docs/bsp.md §Z-16);
 4. among the observed candidates ``frame:k`` in the belief, choose β and the link whose frame
    has the smallest leaf value ``h`` (goal first; ties keep the frame), compute ẑ from the
    real measurement and update the robot's state with ψ (eq. 4.25);
@@ -17,7 +17,7 @@ One lane is one test (environment × mode × cost). Each step (``lax.scan`` over
    sampled inverse sensor model, eq. 2.10 Bayes product) and recompute the frame scales.
    Composed rows are kept from the initial session (decision: compositions once per episode).
 
-Ground-truth executed costs (decision Z-17): cost 1 sums the neighbour distance between the
+Ground-truth executed costs (docs/bsp.md §Z-17): cost 1 sums the neighbour distance between the
 true states before and after each move in the frame of that step; cost 2 sums the metric
 displacement in units of R.
 """

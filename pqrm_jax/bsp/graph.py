@@ -1,6 +1,6 @@
 """The frame graph of a frozen belief: observability, link hops, "plan exists" (Z §4.2.3, §4.3).
 
-With the map frozen during lookahead (decision Z-12), the association weight of candidate
+With the map frozen during lookahead (docs/bsp.md §Z-12), the association weight of candidate
 ``β = ij:k`` seen from frame (i, j) factorises through
 
     Ab[i, j, k, s_x, b] = Σ_{s_τ} A[s_x, s_τ, b] · P(ij:k = s_τ),
@@ -11,7 +11,7 @@ ordered pairs; an observable ``ij:k`` links (i, j) to (i, k) and (j, k) (the lan
 with the old frame is the new origin). The goal τ* = {g1, g2, g3} is reached from a frame
 inside it that observes its third landmark. :func:`hops` is the number of links from each
 frame to such a goal frame (``INF`` when none); a plan exists iff the initial frame's hop
-count is finite (decision §3.7 of the digest: existence is topology and observability, and
+count is finite (docs/bsp.md §plan-exists: existence is topology and observability, and
 therefore the same for both costs).
 """
 

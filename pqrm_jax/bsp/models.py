@@ -5,24 +5,24 @@ third landmark are in the canonical frame of the current ordered pair (A = (0, 0
 B = (0, 1)), uniform over ``state ∩ [−W, W]²`` (W = ``window`` frame units; Z eq. 4.11 and
 4.16 approximate the metric priors as uniform). The global scale of a frame (Z §4.1.1) is the
 bin ``s`` of its metric length ``d``: bins ``[(s−1)·2R/n_F, s·2R/n_F)`` for ``s ≤ n_F`` and
-``[2R, ∞)`` for ``s = n_F + 1`` (decision Z-1; that bin is sampled on ``[2R, 3R]``). Indices
+``[2R, ∞)`` for ``s = n_F + 1`` (docs/bsp.md §Z-1; that bin is sampled on ``[2R, 3R]``). Indices
 here are 0-based: scale bin ``b = s − 1``.
 
 Tables (``Q`` EDC states, ``nb = n_F + 1`` scale bins):
 
 * ``T[b, j, s']`` (nb, Q, Q) — transition model (Z eq. 4.5) of the qualitative action "go to
   state j": the controller drives to the target point ``p_j`` (:func:`target_points`) with
-  additive Gaussian noise ``σ_m`` in metres, i.e. ``σ_m/d`` frame units (decision Z-3/Z-4). The
+  additive Gaussian noise ``σ_m`` in metres, i.e. ``σ_m/d`` frame units (docs/bsp.md §Z-3–Z-4). The
   outcome does not depend on the previous state, so the table has no such axis.
 * ``AZ[s_x, s_τ, b, ẑ]`` (Q, Q, nb, Q²) — joint association and measurement model
   (Z eqs. 4.11–4.13): ``P(β visible, ẑ | s_x, s_τ, b)``, ``ẑ = ẑ_x·Q + ẑ_τ`` the measured robot
   state and triplet state from one noisy relative-position measurement (noise ``σ_z`` in
-  metres; decision Z-5). ``A = AZ.sum(-1)`` is the association model (eq. 4.12); its last
+  metres; docs/bsp.md §Z-5). ``A = AZ.sum(-1)`` is the association model (eq. 4.12); its last
   scale bin is exactly 0 (two landmarks farther than 2R are never both within R).
 * ``K[k, s_x, s_τ, s']`` (5, Q, Q, Q) — link model (Z eqs. 4.15–4.17): from frame AB with
   ``AB:C = s_τ`` and ``AB:X = s_x``, the state of X in frame ``k`` ∈ (BA, AC, CA, BC, CB).
 * ``G2[s1, s2, b_ref, b]``, ``GA[s, b_ref, b]``, ``GB[s, b_ref, b]`` — global-scale model
-  (Z eqs. 4.22–4.24 with the reference scale factor, decision Z-9): the scale bin of the frame
+  (Z eqs. 4.22–4.24 with the reference scale factor, docs/bsp.md §Z-9): the scale bin of the frame
   ``L1 L2`` from the reference frame AB's bin and ``AB:L1 = s1``, ``AB:L2 = s2`` (G2), or of
   ``A L`` / ``B L`` from ``AB:L = s`` (GA / GB).
 * ``U[op, s, s']`` (3, Q, Q) — probabilistic LEFT (BC:A), RIGHT (CA:B), INVERSE (BA:C) of
@@ -123,7 +123,7 @@ class Models(NamedTuple):
     ``counts[name]`` has the shape of the table without its outcome axis (the conditioning
     cells); ``bin_edges`` (nb + 1,) are the scale-bin edges in units of R (last edge 3R caps
     the sampled unobservable bin); ``mid`` (nb,) the representative frame length per bin (the
-    last capped at 2R, decision Z-14).
+    last capped at 2R, docs/bsp.md §Z-14).
     """
 
     T: jax.Array

@@ -1,7 +1,7 @@
 """Belief-tree planner over qualitative and link actions (Z §4.1.2, §4.2, eqs. 4.3–4.14, 4.29–4.30).
 
 The objective of eq. 4.3 has no goal term and links depend on the observed β, so an open-loop
-sequence is ill-defined (decision Z-11). The planner is an expectimax tree to depth ``L``:
+sequence is ill-defined (docs/bsp.md §Z-11). The planner is an expectimax tree to depth ``L``:
 
     V(F, p, ℓ) = h(F)                                                   if ℓ = L
     V(F, p, ℓ) = min_{a ∈ Acts} [ c(p, a) + Σ_β w_β · ( 0 if β = τ* else
@@ -12,19 +12,19 @@ sequence is ill-defined (decision Z-11). The planner is an expectimax tree to de
   (leaf values need no ẑ, so this costs one contraction per action);
 * β — the ``n_beta`` observable candidates containing F (Z §4.2.3 heuristic) with the largest
   ``P(β | a)``, renormalised over those kept (the thesis renormalises over the available
-  candidates, eq. 4.14; decision Z-24);
-* ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, decision Z-6); the
+  candidates, eq. 4.14; docs/bsp.md §Z-24);
+* ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, docs/bsp.md §Z-6); the
   key is a function of (level, frame, a, β) only, so pruned and full trees and any chunking of
   lanes draw the same measurement for the same branch;
 * ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
   eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
   on ẑ (law of total expectation);
 * ``h(F) = c̄ · (1 + ρ) · (hops(F) + 1)`` from the frame graph, ``λ = 10⁵ c̄`` when no path.
-  The digest proposed ρ = 0; then a link of progress is worth about one step's cost and
-  the eq. 4.29 planner (where staying costs 0) dithers. ρ = 10 makes each remaining link cost
-  ten mean steps, so the tree maximises progress towards the goal first and minimises cost
-  second ("the plan that most likely achieves the task's goal while minimizing the cost",
-  Z abstract).
+  A first plan had ρ = 0; then a link of progress is worth about one step's cost and the
+  eq. 4.29 planner (where staying costs 0) dithers. ρ = 10 makes each remaining link cost
+  ten mean steps (docs/bsp.md §Z-11), so the tree maximises progress towards the goal
+  first and minimises cost second ("the plan that most likely achieves the task's goal while
+  minimizing the cost", Z abstract).
 
 All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
 (no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.

@@ -270,7 +270,7 @@ def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids
 
 def start_poses(keys, landmarks, starts, offset):
     """Start poses ``[B, 3]``: the start landmark + ``offset`` in a seeded direction, seeded
-    heading (P §4.4.1 start landmark; decision Q20)."""
+    heading (P §4.4.1 start landmark; docs/qlink.md §Q20)."""
     def one(k, s):
         a, h = jax.random.uniform(jax.random.fold_in(k, 2), (2,), minval=-jnp.pi,
                                   maxval=jnp.pi)

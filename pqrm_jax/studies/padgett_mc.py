@@ -6,7 +6,10 @@ reports entropy, error rates, P(ML state), neighbour distance, confusion matrice
 locations against the published numbers. The open choices (number of landmarks, samples per
 update) are recorded in ``config.json``; a killed study resumes at the first unfinished level.
 
-Setup, recorded choices and engineering: docs/studies.md §padgett-mc.
+Setup, recorded choices and engineering: docs/studies.md §padgett-mc. As N processes on
+``jax.distributed`` (``--coordinator/--processes/--process-id``, the environment or Slurm;
+:mod:`pqrm_jax.studies.distributed`) the chunks of each level are split over the processes and
+gathered, bit-identical to one process; process 0 alone writes.
 """
 
 from __future__ import annotations
@@ -240,7 +243,7 @@ def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
 def _mesh_sharding():
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    devs = np.array(jax.devices())
+    devs = np.array(jax.local_devices())  # this process's devices (all of them with one)
     mesh = Mesh(devs, ("runs",))
     return NamedSharding(mesh, PartitionSpec("runs")), len(devs)
 
@@ -268,24 +271,72 @@ def compiled_runner(cfg: Config, *, dense: bool = False):
 
 
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
-              dense: bool = False) -> dict:
-    """All runs of one noise level, sharded over devices, in chunks; returns numpy results."""
+              dense: bool = False, cluster=None) -> dict:
+    """All runs of one noise level, sharded over devices, in chunks; returns numpy results.
+
+    With a multi-process ``cluster`` (:mod:`.distributed`) process ``p`` of ``K`` computes the
+    chunks ``c`` with ``c % K == p`` — each chunk exactly as a one-process run computes it
+    (same runs, padding, per-device batch and compiled program) — and the chunks are gathered
+    on every process, so the result is bit-identical to a one-process run.
+    """
+    from . import distributed
+
+    cluster = cluster or distributed.Cluster(0, 1, None)
     _, batched, sharding = compiled_runner(cfg, dense=dense)
-    ndev = len(jax.devices())
-    chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
+    chunk = layout(cfg)["chunk"]
     base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
+    starts = list(range(0, cfg.runs, chunk))
+    mine = distributed.share(len(starts), cluster)
+    per_process = -(-len(starts) // cluster.num_processes)
+    # equal shapes for the gather: pad with a repeat of a chunk (computed, then dropped)
+    todo = mine + [mine[-1] if mine else 0] * (per_process - len(mine))
     parts = []
-    for start in range(0, cfg.runs, chunk):
+    for n_done, c in enumerate(todo):
+        start = starts[c]
         idx = np.arange(start, start + chunk)
         idx = np.minimum(idx, cfg.runs - 1)  # pad the last chunk by repeating a run
         keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(idx, jnp.uint32))
         keys = jax.device_put(keys, sharding)
-        res = jax.device_get(batched(keys, jnp.float32(sigma_r)))
-        n_real = min(chunk, cfg.runs - start)
-        parts.append(jax.tree_util.tree_map(lambda x, n=n_real: np.asarray(x)[:n], res))
-        if progress is not None:
-            progress.update(n_real)
-    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
+        try:
+            res = jax.device_get(batched(keys, jnp.float32(sigma_r)))
+        except Exception as exc:  # noqa: BLE001  (XLA's runtime error type varies by version)
+            oom = memory_error(exc, cfg, chunk)
+            if oom is None:
+                raise
+            raise oom from exc
+        parts.append(jax.tree_util.tree_map(np.asarray, res))
+        if progress is not None and n_done < len(mine):
+            progress.update(min(chunk, cfg.runs - start) * cluster.num_processes)
+    if cluster.distributed:
+        stacked = jax.tree_util.tree_map(lambda *xs: np.stack(xs), *parts)
+        every = distributed.gather(stacked, cluster)  # leaves [K, per_process, chunk, ...]
+        parts = [jax.tree_util.tree_map(lambda x, c=c: x[c % cluster.num_processes,
+                                                         c // cluster.num_processes], every)
+                 for c in range(len(starts))]
+    out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts[:len(starts)])
+    return jax.tree_util.tree_map(lambda x: x[:cfg.runs], out)
+
+
+def memory_error(exc: BaseException, cfg: Config, chunk: int):
+    """A :class:`~pqrm_jax.studies.store.StudyError` naming ``--chunk-runs`` when ``exc`` is
+    the device running out of memory for one chunk, else None.
+
+    >>> memory_error(RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 9 GiB"),
+    ...              Config(chunk_runs=500), 500)  # doctest: +ELLIPSIS
+    StudyError('padgett-mc: a chunk of 500 runs does not fit in the memory of ...')
+    >>> memory_error(ValueError("bad"), Config(), 250) is None
+    True
+    """
+    from .store import StudyError
+
+    text = str(exc)
+    if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
+        return None
+    dev = jax.local_devices()[0]
+    return StudyError(f"{NAME}: a chunk of {chunk} runs does not fit in the memory of "
+                      f"{dev.device_kind} ({dev.platform}); lower --chunk-runs (now "
+                      f"{cfg.chunk_runs}, per device {chunk // len(jax.local_devices())} "
+                      f"runs): {text.splitlines()[0][:200]}")
 
 
 def summarise_level(cfg: Config, level: dict, res: dict, level_index: int) -> tuple[dict, dict]:
@@ -359,7 +410,7 @@ def layout(cfg: Config) -> dict:
     the effective chunk and the device count are stored in the config (a resume with
     another layout is refused instead of mixing bits).
     """
-    ndev = len(jax.devices())
+    ndev = len(jax.local_devices())  # per process: the split over processes is bit-neutral
     chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
     return {"chunk": chunk, "devices": ndev}
 
@@ -381,44 +432,72 @@ def results_rows(lines: list[dict]) -> list[tuple[str, str, float]]:
 
 
 def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = False,
-              store=None) -> list[dict]:
+              store=None, cluster=None) -> list[dict]:
     """Run (or resume) the study into ``out``; returns the level summaries.
 
     Every level is its own unit: ``level_XX.npz`` then its line in ``levels.jsonl``, both
     written atomically under the store's lock; a corrupt or missing one is recomputed alone.
+    With a multi-process ``cluster`` (:mod:`.distributed`, already initialised) every process
+    calls this with the same arguments: the configs are compared (a differing one is refused
+    on every process), process 0 alone opens the store and decides which levels are left,
+    every process computes its chunks of each level (:func:`run_level`) and process 0 writes.
     """
     from tqdm.auto import tqdm
 
-    st = store if store is not None else open_store(cfg, out, fresh=fresh)
+    from . import distributed
+
+    cluster = cluster or distributed.current()
+    distributed.agree(cluster, dict(cfg.to_json(), layout=layout(cfg)), "padgett-mc config")
+    levels = cfg.sigma_levels()
+    st = log = None
+    status = np.zeros(len(levels) + 1, np.int32)  # [opened ok, level i left to do...]
+    failure = None
+    if cluster.is_main:
+        try:
+            st = store if store is not None else open_store(cfg, out, fresh=fresh)
+            log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
+                             check=level_check(len(levels)))
+            req = npz_required(cfg.representations)
+            for i in list(log.done):
+                if st.read_npz(f"level_{i:02d}.npz", req) is None:
+                    log.discard(i)
+            status[0] = 1
+            status[1:] = [i not in log for i in range(len(levels))]
+        except BaseException as exc:  # tell the other processes before failing
+            failure = exc
+    status = distributed.broadcast(status, cluster)
+    if failure is not None:
+        raise failure
+    if not status[0]:
+        from .store import StudyError
+
+        raise StudyError(f"{NAME}: process 0 could not open the study store in {out}; "
+                         "see its error")
     try:
-        levels = cfg.sigma_levels()
-        log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
-                         check=level_check(len(levels)))
-        req = npz_required(cfg.representations)
-        for i in list(log.done):
-            if st.read_npz(f"level_{i:02d}.npz", req) is None:
-                log.discard(i)
-        todo = [i for i in range(len(levels)) if i not in log]
-        total = len(todo) * cfg.runs
-        bar = tqdm(total=total, desc="padgett-mc runs", unit="run", disable=quiet,
-                   file=sys.stderr)
+        todo = [i for i in range(len(levels)) if status[1 + i]]
+        bar = tqdm(total=len(todo) * cfg.runs, desc="padgett-mc runs", unit="run",
+                   disable=quiet or not cluster.is_main, file=sys.stderr)
         t0 = time.perf_counter()
         for i in todo:
             bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-            res = run_level(cfg, i, levels[i]["sigma_r"], bar)
-            line, arrays = summarise_level(cfg, levels[i], res, i)
-            st.write_npz(f"level_{i:02d}.npz", arrays)
-            log.add(line)
+            res = run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster)
+            if cluster.is_main:
+                line, arrays = summarise_level(cfg, levels[i], res, i)
+                st.write_npz(f"level_{i:02d}.npz", arrays)
+                log.add(line)
         bar.close()
         elapsed = time.perf_counter() - t0
+        if not cluster.is_main:
+            return []
         timing = {"elapsed_s_this_invocation": elapsed, "levels_computed": len(todo),
-                  "runs_per_level": cfg.runs, "devices": len(jax.devices())}
+                  "runs_per_level": cfg.runs, "devices_per_process": len(jax.local_devices()),
+                  "processes": cluster.num_processes, "devices": len(jax.devices())}
         st.write_json("timing.json", timing, indent=2)
         done = log.values()
         st.write_results_csv(results_rows(done))
         return done
     finally:
-        if store is None:
+        if store is None and st is not None:
             st.close()
 
 
@@ -438,6 +517,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--report-only", action="store_true",
                    help="only rewrite report.md and figures from the stored results")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from . import distributed
+
+    distributed.add_arguments(p)
     args = p.parse_args(argv)
     out = Path(args.out)
     from ._padgett_report import write_report
@@ -463,9 +545,17 @@ def main(argv: list[str] | None = None) -> int:
                 p.error(f"{flag} must be ≥ {lo}{why}, got {val}")
             setattr(cfg, attr, val)
     cfg.seed = args.seed
-    with open_store(cfg, out, fresh=args.fresh) as st:
-        run_study(cfg, out, quiet=args.quiet, store=st)
-        path = write_report(out)
+    cluster = distributed.initialize_from(args)  # before any JAX computation
+    if cluster.distributed:
+        run_study(cfg, out, quiet=args.quiet, fresh=args.fresh, cluster=cluster)
+        if not cluster.is_main:
+            return 0
+        with Store.open(out, NAME, None, legacy=LEGACY):
+            path = write_report(out)
+    else:
+        with open_store(cfg, out, fresh=args.fresh) as st:
+            run_study(cfg, out, quiet=args.quiet, store=st)
+            path = write_report(out)
     print(f"report: {path}")
     return 0
 
@@ -474,5 +564,5 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "run_study", "run_level", "summarise_level", "load_results", "main",
-           "boundary_distance"]
+__all__ = ["Config", "run_study", "run_level", "summarise_level", "memory_error", "load_results",
+           "main", "boundary_distance"]

@@ -8,12 +8,12 @@ run four times (cost eq. 4.29 / eq. 4.30 × without / with compositions) with re
 execution in the simulator (``pqrm_jax.bsp``). The four tests of an environment share their
 random numbers (common random numbers: paired comparisons).
 
-Calibration (the one declared knob, digest §7.3): unless ``--eps`` is given, the
+Calibration (the one declared knob, docs/bsp.md §calibration): unless ``--eps`` is given, the
 observability threshold ``eps_obs`` (a candidate triplet counts as observable from a frame when
 the predicted probability of seeing it from the best robot state is at least ``eps_obs``) is
 chosen from a grid on a separate calibration seed so that the *with-composition* plan-exists
 rate is closest to the published 81.6 %; every other published number is then a held-out
-prediction on fresh environments. The digest proposed S/R as the knob; under the
+prediction on fresh environments. The first plan made S/R the knob; under the
 nearest-landmark-growth generator (every initial triplet has its minimum enclosing circle
 within R) the plan-exists rates do not move with S/R (measured: 0.85 / 1.00 at S/R = 2.5, 3.5
 and 4.5, 40 environments, eps_obs = 0.01), so S/R is fixed at 2.5 and the threshold, which

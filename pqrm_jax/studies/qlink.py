@@ -117,7 +117,8 @@ def _atomic_write(path: Path, text: str | bytes) -> None:
 
 def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
     """``[Q, Q]`` d[q_r, q_l]: fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
-    whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r`` (Q12)."""
+    whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r``
+    (docs/qlink.md §Q12)."""
     from pqrm_jax import calculi
     from pqrm_jax.qlink import elements as qel
     from pqrm_jax.qlink import trajectory as tr

@@ -14,9 +14,11 @@ Decisions: docs/decisions.md §2.3; the build pipeline: docs/tables.md §method.
 * :mod:`.build` — the exact build (branch and bound + z3 certificates); :mod:`.feasibility`,
   :mod:`.problems`, :mod:`.exact`, :mod:`.symmetry`, :mod:`.certify` are its parts.
 * :mod:`.probabilistic` — probabilistic composition of open calculi (Z eq. 2.4).
+* :mod:`.sparq` — export as a SparQ ``def-calculus`` file (:func:`to_sparq`, :func:`write_sparq`).
 * :mod:`.reference` — a plain NumPy solver (test oracle, benchmark baseline).
 """
 
+from .sparq import shortcut_table, sparq_names, to_sparq, write_sparq
 from .store import (
     FORMAT_VERSION,
     PACKAGE_DIR,
@@ -36,5 +38,5 @@ from .store import (
 __all__ = [
     "FORMAT_VERSION", "PACKAGE_DIR", "UNARY", "CacheError", "OperatorTables", "build_tables",
     "cache_dir", "cache_path", "clear_memo", "load_tables", "read_cache", "safe_file_stem",
-    "write_cache",
+    "write_cache", "shortcut_table", "sparq_names", "to_sparq", "write_sparq",
 ]

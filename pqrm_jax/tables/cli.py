@@ -21,14 +21,34 @@ def _names(args) -> list[str]:
     return names
 
 
+FORMATS = ("json", "sparq")
+
+
+def export(name: str, fmt: str, path: str) -> None:
+    """Write the tables of calculus ``name`` to ``path`` in ``fmt`` (one of :data:`FORMATS`)."""
+    if fmt not in FORMATS:
+        raise SystemExit(f"unknown table format {fmt!r}; known formats: {', '.join(FORMATS)}")
+    t = load_tables(calculi.get(name))
+    if fmt == "sparq":
+        from .sparq import write_sparq
+
+        write_sparq(t, path)
+    else:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(t.to_json(), indent=1))
+    print(f"wrote {path} ({fmt}): {t.summary()}")
+
+
 def run(args) -> int:
-    if args.json:
+    fmt = getattr(args, "format", None)
+    if args.json and fmt:
+        raise SystemExit("give either --json PATH or --format FORMAT PATH, not both")
+    export_to = ("json", args.json) if args.json else tuple(fmt) if fmt else None
+    if export_to:
         if len(args.names) != 1:
-            raise SystemExit("--json needs exactly one calculus name")
-        t = load_tables(calculi.get(args.names[0]))
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(t.to_json(), indent=1))
-        print(f"wrote {args.json}: {t.summary()}")
+            raise SystemExit(f"--{'json' if args.json else 'format'} needs exactly one "
+                             "calculus name")
+        export(args.names[0], *export_to)
     if args.rebuild:
         for name in _names(args):
             t0 = time.perf_counter()
@@ -36,7 +56,7 @@ def run(args) -> int:
             print(f"{name}: {t.summary()} ({time.perf_counter() - t0:.1f} s)")
     if args.plot:
         plot_report(Path(args.plot), _names(args))
-    if not (args.json or args.rebuild or args.plot):
+    if not (export_to or args.rebuild or args.plot):
         for name in _names(args):
             print(load_tables(calculi.get(name)).summary())
     return 0

@@ -1,0 +1,336 @@
+"""Multi-process studies on JAX's distributed runtime (``jax.distributed``).
+
+A study runs as N cooperating processes (one host or many): each process computes only its
+share of the run axis on its local devices, the shares are gathered with JAX collectives
+(gloo on CPU) and process 0 alone writes the results through the study store, so no two
+processes write one file. A study adopts it in a few lines::
+
+    cluster = distributed.initialize_from(args)    # before any other JAX call
+    distributed.agree(cluster, config_json)         # refuse processes with other configs
+    mine = distributed.share(n_items, cluster)      # indices this process computes
+    parts = distributed.gather(local_results, cluster)  # [num_processes, ...] everywhere
+    if cluster.is_main: ...write...
+
+Where the process count, id and coordinator come from, first match wins:
+
+1. the arguments (``--coordinator HOST:PORT --processes N --process-id I``);
+2. the environment: ``JAX_COORDINATOR_ADDRESS`` (JAX's own variable), ``JAX_NUM_PROCESSES``,
+   ``JAX_PROCESS_ID``;
+3. Slurm (inside ``srun``, more than one task): the count and id from ``SLURM_NTASKS`` and
+   ``SLURM_PROCID``, and JAX's own Slurm detection derives the coordinator from the node list
+   and job id (then JAX's timeout applies: after ``timeout_s`` JAX ends the process with a
+   fatal ``DEADLINE_EXCEEDED`` log line instead of our message);
+4. none of these: one process, and ``jax.distributed`` is not started.
+
+Bad input is refused before anything is computed: a process count below 1, an id outside
+``0 <= I < N``, a malformed address (``ValueError``); an unreachable coordinator ends with a
+:class:`DistributedError` after ``timeout_s`` seconds (``--init-timeout``, default 60), never a
+hang; a process whose configuration differs from process 0's is refused on every process
+(:func:`agree`).
+
+Bit-identity with one process: every process runs the same compiled program on the same
+per-device batches as a one-process run would (the split is over whole work items, e.g.
+padgett-mc's chunks, never inside one), so the gathered results equal the one-process results
+bit for bit; the process count is therefore not part of a study's stored configuration.
+
+>>> c = initialize(num_processes=1, process_id=0, env={})
+>>> (c.process_id, c.num_processes, c.is_main)
+(0, 1, True)
+>>> share(5, Cluster(1, 2, "127.0.0.1:1234"))
+[1, 3]
+>>> initialize(num_processes=2, process_id=2, coordinator="127.0.0.1:1234", env={})
+Traceback (most recent call last):
+...
+ValueError: process id 2 is out of range for 2 processes (need 0 <= id < 2)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["Cluster", "DistributedError", "add_arguments", "agree", "broadcast", "current",
+           "gather", "initialize", "initialize_from", "share"]
+
+_ADDRESS = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):(\d{1,5})$")
+
+
+_STARTED: dict[str, str | None] = {}  # the coordinator address this process connected to
+
+
+class DistributedError(RuntimeError):
+    """The distributed runtime could not be started or the processes disagree."""
+
+
+class Cluster(NamedTuple):
+    """Where this process stands: its id, the process count and the coordinator address."""
+
+    process_id: int
+    num_processes: int
+    coordinator: str | None
+
+    @property
+    def is_main(self) -> bool:
+        """Process 0: the one that writes results."""
+        return self.process_id == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.num_processes > 1
+
+
+def add_arguments(parser) -> None:
+    """The ``--coordinator``, ``--processes``, ``--process-id``, ``--init-timeout`` flags."""
+    g = parser.add_argument_group("multi-process (jax.distributed; README 'Running on a "
+                                  "cluster')")
+    g.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="address of process 0 (default: $JAX_COORDINATOR_ADDRESS, Slurm)")
+    g.add_argument("--processes", dest="num_processes", type=int, metavar="N",
+                   help="process count (default: $JAX_NUM_PROCESSES, Slurm, else 1)")
+    g.add_argument("--process-id", type=int, metavar="I",
+                   help="this process's id, 0 <= I < N (default: $JAX_PROCESS_ID, Slurm)")
+    g.add_argument("--init-timeout", type=int, default=60, metavar="S",
+                   help="seconds to wait for all processes to connect (default 60)")
+
+
+def _int_env(env: Mapping[str, str], name: str) -> int | None:
+    raw = env.get(name)
+    if raw in (None, ""):
+        return None
+    try:
+        return int(raw)
+    except ValueError:
+        raise ValueError(f"${name} must be an integer, got {raw!r}") from None
+
+
+_SLURM = ("SLURM_JOB_ID", "SLURM_STEP_NODELIST", "SLURM_NTASKS", "SLURM_PROCID",
+          "SLURM_LOCALID")  # the variables JAX's Slurm detection reads (inside ``srun``)
+
+
+def _slurm(env: Mapping[str, str]) -> bool:
+    try:
+        return all(v in env for v in _SLURM) and int(env["SLURM_NTASKS"]) > 1
+    except ValueError:
+        return False
+
+
+def initialize(coordinator: str | None = None, num_processes: int | None = None,
+               process_id: int | None = None, *, timeout_s: int = 60,
+               heartbeat_s: int = 60, env: Mapping[str, str] | None = None) -> Cluster:
+    """Start ``jax.distributed`` for this process (see the module docstring for the sources).
+
+    Must run before any JAX computation in the process (JAX's own rule). On CPU the
+    collectives use gloo. Returns the :class:`Cluster`; with one process nothing is started.
+    """
+    env = os.environ if env is None else env
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS") or None
+    slurm = _slurm(env)
+    if num_processes is None:
+        num_processes = _int_env(env, "JAX_NUM_PROCESSES")
+        if num_processes is None and slurm:
+            num_processes = _int_env(env, "SLURM_NTASKS")
+    if process_id is None:
+        process_id = _int_env(env, "JAX_PROCESS_ID")
+        if process_id is None and slurm:
+            process_id = _int_env(env, "SLURM_PROCID")
+    if timeout_s is None or int(timeout_s) < 1:
+        raise ValueError(f"the initialization timeout must be >= 1 s, got {timeout_s}")
+    explicit = (coordinator, num_processes, process_id)
+    if all(v is None for v in explicit):
+        return Cluster(0, 1, None)
+    if num_processes is not None and (isinstance(num_processes, bool)
+                                      or int(num_processes) != num_processes
+                                      or num_processes < 1):
+        raise ValueError(f"the process count must be an integer >= 1, got {num_processes}")
+    if num_processes == 1 and process_id in (None, 0):
+        return Cluster(0, 1, None)
+    if process_id is not None and num_processes is not None and not (
+            0 <= process_id < num_processes):
+        raise ValueError(f"process id {process_id} is out of range for {num_processes} "
+                         f"processes (need 0 <= id < {num_processes})")
+    if not slurm and None in explicit:
+        missing = [n for n, v in zip(("coordinator address (--coordinator or "
+                                      "$JAX_COORDINATOR_ADDRESS)",
+                                      "process count (--processes or $JAX_NUM_PROCESSES)",
+                                      "process id (--process-id or $JAX_PROCESS_ID)"),
+                                     explicit, strict=True) if v is None]
+        raise ValueError("a multi-process run needs " + ", ".join(missing))
+    if coordinator is not None:
+        m = _ADDRESS.match(coordinator)
+        if not m or not 0 < int(m.group(2)) < 65536:
+            raise ValueError(f"the coordinator address must be HOST:PORT with a port in "
+                             f"1..65535, got {coordinator!r}")
+    import jax
+
+    if coordinator is not None and process_id is not None and num_processes is not None:
+        _rendezvous(coordinator, num_processes, process_id, float(timeout_s))
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    try:
+        jax.distributed.initialize(coordinator, num_processes, process_id,
+                                   initialization_timeout=int(timeout_s),
+                                   heartbeat_timeout_seconds=int(heartbeat_s))
+    except (ValueError, TypeError):
+        raise
+    except Exception as exc:  # XlaRuntimeError (DEADLINE_EXCEEDED, UNAVAILABLE, ...)
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DistributedError(
+            f"could not start jax.distributed as process {process_id} of {num_processes} with "
+            f"coordinator {coordinator} within {timeout_s} s (is process 0 running and the "
+            f"port reachable? all N processes started?): {first[:300]}") from exc
+    _STARTED["coordinator"] = coordinator
+    return current()
+
+
+def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
+    """Meet on the coordinator's port before JAX does, so that failures get clear errors.
+
+    JAX's client ends the process with a fatal log line (no exception) when the coordinator
+    or a peer never comes; here process 0 listens on the port until every id ``1..N-1`` has
+    said hello (two processes claiming one id are refused), each peer retries connecting until
+    ``timeout_s``, then process 0 answers and closes the port for JAX's own service.
+    """
+    import socket
+    import struct
+    import time
+
+    host, port = coordinator.rsplit(":", 1)
+    host, port = host.strip("[]"), int(port)
+    deadline = time.monotonic() + timeout_s
+    if pid == 0:
+        try:
+            srv = socket.create_server(("", port), reuse_port=False)
+        except OSError as exc:
+            raise DistributedError(f"process 0 cannot listen on port {port} of {coordinator} "
+                                   f"({exc.strerror or exc}); choose a free port") from exc
+        peers: dict[int, socket.socket] = {}
+        try:
+            while len(peers) < n - 1:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    missing = sorted(set(range(1, n)) - set(peers))
+                    raise DistributedError(
+                        f"process 0 waited {timeout_s:g} s on {coordinator} but processes "
+                        f"{missing} of {n} never connected (started? same --coordinator?)")
+                srv.settimeout(left)
+                try:
+                    conn, _ = srv.accept()
+                except TimeoutError:
+                    continue
+                conn.settimeout(max(deadline - time.monotonic(), 0.1))
+                try:
+                    their_id, their_n = struct.unpack("!ii", conn.recv(8, socket.MSG_WAITALL))
+                except (OSError, struct.error):
+                    conn.close()
+                    continue
+                problem = (f"process count {their_n} differs from process 0's {n}"
+                           if their_n != n else
+                           f"id {their_id} is out of range" if not 0 < their_id < n else
+                           f"id {their_id} is claimed by two processes"
+                           if their_id in peers else "")
+                if problem:
+                    conn.sendall(b"E")
+                    conn.close()
+                    for c in peers.values():
+                        c.sendall(b"E")
+                    raise DistributedError(f"refused a process on {coordinator}: {problem}")
+                peers[their_id] = conn
+            for c in peers.values():
+                c.sendall(b"K")
+        finally:
+            for c in peers.values():
+                c.close()
+            srv.close()
+        return
+    while True:
+        try:
+            conn = socket.create_connection((host, port), timeout=1.0)
+            break
+        except OSError as exc:
+            if time.monotonic() >= deadline:
+                raise DistributedError(
+                    f"process {pid} could not reach the coordinator {coordinator} within "
+                    f"{timeout_s:g} s ({exc.strerror or exc}); start process 0 there, or fix "
+                    f"--coordinator / $JAX_COORDINATOR_ADDRESS") from exc
+            time.sleep(0.2)
+    try:
+        conn.settimeout(max(deadline - time.monotonic(), 1.0))
+        conn.sendall(struct.pack("!ii", pid, n))
+        answer = conn.recv(1)
+    except OSError as exc:
+        raise DistributedError(f"process {pid}: the coordinator {coordinator} did not confirm "
+                               f"within {timeout_s:g} s ({exc})") from exc
+    finally:
+        conn.close()
+    if answer != b"K":
+        raise DistributedError(f"process {pid} was refused by the coordinator {coordinator} "
+                               "(another process has this id, or the process counts differ; "
+                               "see process 0's error)")
+
+
+def initialize_from(args, env: Mapping[str, str] | None = None) -> Cluster:
+    """:func:`initialize` from the flags of :func:`add_arguments`."""
+    return initialize(getattr(args, "coordinator", None), getattr(args, "num_processes", None),
+                      getattr(args, "process_id", None),
+                      timeout_s=getattr(args, "init_timeout", 60), env=env)
+
+
+def current() -> Cluster:
+    """The :class:`Cluster` of this process as JAX sees it (one process if not started)."""
+    import jax
+
+    if not jax.distributed.is_initialized():
+        return Cluster(0, 1, None)
+    return Cluster(jax.process_index(), jax.process_count(), _STARTED.get("coordinator"))
+
+
+def share(n: int, cluster: Cluster) -> list[int]:
+    """The items of ``range(n)`` this process computes: ``i`` with ``i % N == id``."""
+    return list(range(cluster.process_id, n, cluster.num_processes))
+
+
+def gather(tree: Any, cluster: Cluster) -> Any:
+    """Stack a pytree of equal-shaped numpy arrays from every process: leaves ``[N, ...]``.
+
+    With one process the leaves just get the leading axis of size 1 (no collective).
+    """
+    import jax
+
+    if not cluster.distributed:
+        return jax.tree_util.tree_map(lambda x: np.asarray(x)[None], tree)
+    from jax.experimental import multihost_utils
+
+    out = multihost_utils.process_allgather(tree, tiled=False)
+    return jax.tree_util.tree_map(np.asarray, out)
+
+
+def broadcast(tree: Any, cluster: Cluster) -> Any:
+    """Process 0's value of a pytree of numpy arrays, on every process."""
+    if not cluster.distributed:
+        return tree
+    import jax
+    from jax.experimental import multihost_utils
+
+    return jax.tree_util.tree_map(np.asarray, multihost_utils.broadcast_one_to_all(tree))
+
+
+def agree(cluster: Cluster, config: Any, what: str = "configuration") -> None:
+    """Refuse (on every process) to go on when the processes' ``config`` differ.
+
+    ``config`` is anything JSON-serialisable; its SHA-256 is gathered from every process and
+    compared with process 0's. Raises :class:`DistributedError` naming the disagreeing ids.
+    """
+    if not cluster.distributed:
+        return
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).digest()
+    mine = np.frombuffer(digest, np.uint8).astype(np.int32)
+    every = gather(mine, cluster)
+    bad = [i for i in range(cluster.num_processes) if not np.array_equal(every[i], every[0])]
+    if bad:
+        raise DistributedError(f"processes {bad} were started with a different {what} than "
+                               f"process 0; start every process with the same arguments")

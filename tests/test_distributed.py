@@ -1,0 +1,220 @@
+"""Multi-process studies on jax.distributed: 2 local processes give the 1-process results bit
+for bit; bad process counts/ids, an unreachable coordinator, missing peers and differing
+configs are refused with clear errors in bounded time."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pqrm_jax.cli import main
+from pqrm_jax.studies import distributed
+
+ROOT = Path(__file__).resolve().parent.parent
+
+_DRIVER = """
+import sys
+from pathlib import Path
+from pqrm_jax.studies import distributed, padgett_mc as P
+out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+hb = int(sys.argv[5]) if len(sys.argv) > 5 else 60
+cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=hb)
+cfg = P.Config(runs=4, levels=2, num_samples=8, num_landmarks=4, chunk_runs=2,
+               representations=("edc",))
+P.run_study(cfg, Path(out), quiet=True, cluster=cluster)
+print("done", cluster.process_id, cluster.num_processes)
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env() -> dict:
+    return dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+
+
+def _launch(argvs: list[list[str]], timeout: float = 300) -> list[subprocess.CompletedProcess]:
+    procs = [subprocess.Popen(a, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=_env(), cwd=ROOT) for a in argvs]
+    out = []
+    for p in procs:
+        try:
+            so, se = p.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            for q in procs:
+                q.kill()
+            raise
+        out.append(subprocess.CompletedProcess(p.args, p.returncode, so, se))
+    return out
+
+
+def _same_results(a: Path, b: Path) -> int:
+    names = sorted(p.name for p in a.glob("level_*.npz"))
+    assert names and names == sorted(p.name for p in b.glob("level_*.npz"))
+    for name in names:
+        x, y = np.load(a / name), np.load(b / name)
+        assert sorted(x.files) == sorted(y.files)
+        for k in x.files:
+            np.testing.assert_array_equal(x[k], y[k], err_msg=f"{name}:{k}")
+    for f in ("levels.jsonl", "results.csv", "config.json"):
+        assert (a / f).read_text() == (b / f).read_text(), f
+    return len(names)
+
+
+def test_two_processes_bit_identical_to_one(tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    # the one-process reference runs beside the two cooperating processes (wall time)
+    r1, *rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
+                      + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
+                         for i in (1, 0)])
+    for r in (r1, *rs):
+        assert r.returncode == 0, r.stderr[-2000:]
+    last = [r.stdout.strip().splitlines()[-1] for r in (r1, *rs)]
+    assert last == ["done 0 1", "done 1 2", "done 0 2"]
+    assert _same_results(one, two) == 6
+    # only process 0 wrote: the directory holds exactly the files of a one-process run
+    assert sorted(p.name for p in one.iterdir()) == sorted(p.name for p in two.iterdir())
+
+
+def test_bad_process_count_id_and_address_are_refused_before_starting():
+    with pytest.raises(ValueError, match="out of range for 2 processes"):
+        distributed.initialize("127.0.0.1:1234", 2, 2, env={})
+    with pytest.raises(ValueError, match="out of range"):
+        distributed.initialize("127.0.0.1:1234", 2, -1, env={})
+    with pytest.raises(ValueError, match="process count must be an integer >= 1"):
+        distributed.initialize("127.0.0.1:1234", 0, 0, env={})
+    with pytest.raises(ValueError, match="HOST:PORT"):
+        distributed.initialize("localhost", 2, 1, env={})
+    with pytest.raises(ValueError, match="port in 1..65535"):
+        distributed.initialize("127.0.0.1:70000", 2, 1, env={})
+    with pytest.raises(ValueError, match="needs coordinator address"):
+        distributed.initialize(None, 2, 1, env={})
+    with pytest.raises(ValueError, match=r"\$JAX_NUM_PROCESSES must be an integer"):
+        distributed.initialize(env={"JAX_NUM_PROCESSES": "two"})
+    # the environment is read like the flags
+    with pytest.raises(ValueError, match="out of range for 3 processes"):
+        distributed.initialize(env={"JAX_COORDINATOR_ADDRESS": "h:1", "JAX_NUM_PROCESSES": "3",
+                                    "JAX_PROCESS_ID": "3"})
+    assert distributed.initialize(env={}) == distributed.Cluster(0, 1, None)
+
+
+def test_unreachable_coordinator_and_missing_peer_fail_in_bounded_time():
+    port = free_port()
+    t0 = time.perf_counter()
+    with pytest.raises(distributed.DistributedError, match="could not reach the coordinator"):
+        distributed.initialize(f"127.0.0.1:{port}", 2, 1, timeout_s=2, env={})
+    with pytest.raises(distributed.DistributedError, match=r"processes \[1\] of 2 never"):
+        distributed.initialize(f"127.0.0.1:{port}", 2, 0, timeout_s=2, env={})
+    assert time.perf_counter() - t0 < 10
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    argv = ["study", "padgett-mc", "--out", str(tmp_path / "o"), "--quiet"]
+    assert main([*argv, "--coordinator", "127.0.0.1:1", "--processes", "2",
+                 "--process-id", "7"]) == 2
+    assert "process id 7 is out of range for 2 processes" in capsys.readouterr().err
+    assert main([*argv, "--coordinator", f"127.0.0.1:{free_port()}", "--processes", "2",
+                 "--process-id", "1", "--init-timeout", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pqrm-jax: error: process 1 could not reach") and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_processes_with_different_configs_are_refused(tmp_path):
+    port = str(free_port())
+    base = [sys.executable, "-m", "pqrm_jax.cli", "study", "padgett-mc", "--out",
+            str(tmp_path / "o"), "--quiet", "--runs", "2", "--levels", "2",
+            "--coordinator", f"127.0.0.1:{port}", "--processes", "2"]
+    rs = _launch([[*base, "--samples", "8", "--process-id", "1"],
+                  [*base, "--samples", "16", "--process-id", "0"]], timeout=120)
+    for r in rs:
+        assert r.returncode == 2, r.stderr[-2000:]
+        assert "processes [1] were started with a different padgett-mc config" in r.stderr
+    assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+_SLURM_DRIVER = """
+import numpy as np
+from pqrm_jax.studies import distributed as d
+c = d.initialize(timeout_s=30)
+print(c.process_id, c.num_processes, d.gather(np.array([c.process_id * 7]), c).ravel().tolist())
+"""
+
+
+def test_slurm_environment_is_detected():
+    """Two tasks with the variables ``srun`` sets (faked on localhost): JAX's Slurm detection
+    gives the coordinator (port from the job id), ours the count and the ids."""
+    for job in range(1000, 5096):  # JAX takes port 61440 + job % 4096
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", 61440 + job % 4096))
+                break
+            except OSError:
+                continue
+    envs = [dict(_env(), SLURM_JOB_ID=str(job), SLURM_STEP_NODELIST="localhost",
+                 SLURM_NTASKS="2", SLURM_PROCID=str(i), SLURM_LOCALID=str(i)) for i in (0, 1)]
+    procs = [subprocess.Popen([sys.executable, "-c", _SLURM_DRIVER], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=e, cwd=ROOT) for e in envs]
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (_, se) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, se[-2000:]
+    assert [so.strip().splitlines()[-1] for so, _ in outs] == ["0 2 [0, 7]", "1 2 [0, 7]"]
+    # a batch script outside srun (no step node list) is one process
+    assert distributed.initialize(env={"SLURM_JOB_ID": "1", "SLURM_NTASKS": "4"}).num_processes == 1
+
+
+@pytest.mark.slow
+def test_cli_two_processes_equal_one_full_representations(tmp_path):
+    """The real command line, all six representations, 2 processes vs 1."""
+    args = ["study", "padgett-mc", "--runs", "8", "--levels", "2", "--samples", "16",
+            "--landmarks", "5", "--chunk-runs", "4", "--quiet"]
+    py = [sys.executable, "-m", "pqrm_jax.cli"]
+    (r1,) = _launch([[*py, *args, "--out", str(tmp_path / "one")]], timeout=600)
+    port = str(free_port())
+    two = [*py, *args, "--out", str(tmp_path / "two"), "--coordinator", f"127.0.0.1:{port}",
+           "--processes", "2"]
+    rs = _launch([[*two, "--process-id", "1"], [*two, "--process-id", "0"]], timeout=600)
+    for r in (r1, *rs):
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_results(tmp_path / "one", tmp_path / "two") == 6
+    assert (tmp_path / "two" / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
+    """Kill process 1 after the first level is written: process 0 stops within the heartbeat
+    timeout (no hang); re-running both processes resumes and ends with the 1-process files."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _DRIVER, str(two), "2", str(i), port, "5"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=_env(), cwd=ROOT) for i in (1, 0)]
+    deadline = time.monotonic() + 300
+    while not (two / "level_00.npz").exists():
+        assert time.monotonic() < deadline and procs[1].poll() is None
+        time.sleep(0.2)
+    procs[0].kill()
+    t_kill = time.monotonic()
+    procs[1].communicate(timeout=120)  # process 0 must give up, not hang
+    procs[0].communicate()
+    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    done = len(list(two.glob("level_*.npz")))
+    assert 1 <= done < 6
+    port = str(free_port())
+    r1, *rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
+                      + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
+                         for i in (1, 0)])
+    for r in (r1, *rs):
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_results(one, two) == 6
