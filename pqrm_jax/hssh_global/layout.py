@@ -81,6 +81,9 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
         hypotheses: leaves of the tree (same experience).
         odometry: ``[N, 3]`` λ_i; NaN entries raise ``ValueError``.
         sigma_xy: sd per unit travelled on x, y (relative), ``sigma_theta`` sd of θ per corridor.
+            The θ sd is ``sigma_theta · d / median |λ|`` (scale-free); the generator in
+            :func:`~pqrm_jax.hssh_global.world.explore` divides by the shortest corridor
+            instead, a deliberate small model mismatch.
         m_max: padded number of places (default: the largest hypothesis).
     """
     odo = np.asarray(odometry, float).reshape(-1, 3)
