@@ -10,6 +10,7 @@ Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.; design notes 
 * :mod:`~pqrm_jax.compositions` — composable sets and composition propagation (Z).
 * :mod:`~pqrm_jax.qlink` — Q-Link navigation over qualitative maps (P ch. 4).
 * :mod:`~pqrm_jax.bsp` — Zilberman's belief-space planning with compositions (Z ch. 4).
+* :mod:`~pqrm_jax.hssh_global` — HSSH global levels: tree of maps, layout, navigation (B ch. 8–9).
 * :mod:`~pqrm_jax.sim` — the JAX 2D rover simulator.
 * :mod:`~pqrm_jax.studies` — long studies run by ``pqrm-jax study NAME``.
 * :mod:`~pqrm_jax.triplets` — the triplet layouts (rows, dense) and their converters.
@@ -29,7 +30,7 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp", "hssh"]
+           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global"]
 SUBPACKAGES = tuple(__all__)
 
 

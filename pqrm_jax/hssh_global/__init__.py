@@ -1,0 +1,67 @@
+"""HSSH global levels: tree of topological maps, global metrical layout, navigation (B ch. 8–9).
+
+* :mod:`~pqrm_jax.hssh_global.star` — stars, views, isomorphism matching (B §5.1, §8.2).
+* :mod:`~pqrm_jax.hssh_global.world` — abstract corridor worlds and explorations (B §8.4).
+* :mod:`~pqrm_jax.hssh_global.tree` — the tree of topological map hypotheses (B Alg. 8.1).
+* :mod:`~pqrm_jax.hssh_global.layout` — SE(2) compounding, LM spring relaxation (B ch. 9).
+* :mod:`~pqrm_jax.hssh_global.navigation` — routes and turn commands (B §7.1.3).
+"""
+
+from .layout import (
+    LayoutProblem,
+    compose,
+    inverse,
+    pack,
+    relax,
+    relax_loop,
+    scale_trajectory,
+    score_hypotheses,
+    true_layout,
+)
+from .navigation import (
+    NavigationError,
+    apply_command,
+    command,
+    evaluate_navigation,
+    execute,
+    map_graph,
+    plan_route,
+    shortest_distance,
+)
+from .star import Star, isomorphisms, match_matrix, pad_views, view_from_local_star, view_match
+from .tree import (
+    MapHypothesis,
+    TreeLog,
+    TreeTooLarge,
+    build_basic_tree,
+    build_tree,
+    canonical_places,
+    extend,
+    is_true_map,
+    minimal_models,
+    preference_order,
+    root,
+    view_symbol,
+)
+from .world import (
+    CorridorWorld,
+    Experience,
+    explore,
+    global_paths,
+    grid_world,
+    office_world,
+    world_from_lattice,
+)
+
+__all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
+           "view_from_local_star",
+           "CorridorWorld", "Experience", "explore", "grid_world", "office_world",
+           "world_from_lattice", "global_paths",
+           "MapHypothesis", "TreeLog", "TreeTooLarge", "build_basic_tree", "build_tree",
+           "canonical_places", "extend",
+           "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
+           "LayoutProblem", "compose", "inverse", "pack", "relax", "relax_loop",
+           "scale_trajectory",
+           "score_hypotheses", "true_layout",
+           "NavigationError", "apply_command", "command", "evaluate_navigation", "execute",
+           "map_graph", "plan_route", "shortest_distance"]

@@ -1,0 +1,37 @@
+"""The hssh-maps study in its reduced setting: files, truth never discarded, resume, guard."""
+
+import csv
+import json
+
+import pytest
+
+from pqrm_jax.studies import discover
+from pqrm_jax.studies.store import StoreError
+
+
+def test_reduced_study(tmp_path):
+    mod = discover()["hssh-maps"]
+    out = tmp_path / "h"
+    assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0
+    worlds = [json.loads(x) for x in (out / "worlds.jsonl").read_text().splitlines()]
+    assert len(worlds) == 4
+    for r in worlds:
+        if not r["too_large"]:
+            assert r["true_in_leaves"] == 1
+            assert r["bound_branching_ok"] == 1 and r["bound_events_ok"] == 1
+            assert r["layout_err_relaxed"] < r["layout_err_odometry"]
+            assert r["star_leaves_prefix"] <= r["basic_leaves_prefix"] or \
+                r["basic_leaves_prefix"] == -1
+    office = [json.loads(x) for x in (out / "office.jsonl").read_text().splitlines()]
+    assert all(r["true_in_leaves"] == 1 and len(r["leaves"]) == 15 for r in office)
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {"study", "unit", "metric", "value"} == set(rows[0])
+    rep = (out / "report.md").read_text()
+    assert "83" in rep and "not published" in rep
+    for f in ("tree_size.png", "layout.png", "navigation.png"):
+        assert (out / f).stat().st_size > 1000
+    before = (out / "worlds.jsonl").read_text()
+    assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0  # resume: no rerun
+    assert (out / "worlds.jsonl").read_text() == before
+    with pytest.raises(StoreError):
+        mod.main(["--reduced", "--out", str(out), "--no-progress", "--seed", "3"])
