@@ -1,9 +1,10 @@
 """Structure rules of the package, enforced by parsing every module with ``ast``.
 
 * No private name (``_x``) crosses a file: a name with one leading underscore may be imported
-  from another pqrm_jax module only when it is a module itself (``from . import _store``), and
-  ``obj._x`` is allowed only where ``_x`` is defined in the same file (or is part of the
-  NamedTuple API: ``_fields``, ``_replace``, ``_asdict``, ``_make``).
+  from another pqrm_jax module only when it is a module itself
+  (``from . import _qlink_report``), and ``obj._x`` is allowed only where ``_x`` is defined in
+  the same file (or is part of the NamedTuple API: ``_fields``, ``_replace``, ``_asdict``,
+  ``_make``).
 * Every ``__init__.py`` declares ``__all__``, and everything it lists exists.
 """
 
@@ -69,7 +70,7 @@ def violations(source: str, label: str) -> list[str]:
 
 def test_the_checker_catches_cross_file_private_names():
     src = ("from .camera import _measure_image\nimport x\nx.y._classify(1)\n"
-           "from . import _store\n_store.guard_config\nfrom .a import b as _b\n"
+           "from . import _qlink_report\n_qlink_report.write_report\nfrom .a import b as _b\n"
            "def _own():\n    pass\nx._own\nt._replace(a=1)\n")
     found = violations(src, "bad.py")
     assert len(found) == 2, found
@@ -120,3 +121,16 @@ def test_registry_knows_its_builtins():
 
     assert calculi.is_builtin("edc") and calculi.is_builtin("lr_full")
     assert not calculi.is_builtin("my_lr")
+
+
+def test_readme_lists_every_study():
+    """The README's ``pqrm-jax study --list`` line names exactly the discovered studies."""
+    import re
+
+    from pqrm_jax.studies import discover
+
+    readme = (ROOT.parent / "README.md").read_text()
+    line = re.search(r"^pqrm-jax study --list\s+#\s*(.+)$", readme, re.M)
+    assert line, "README has no 'pqrm-jax study --list  # names' line"
+    listed = {n.strip() for n in line.group(1).split(",")}
+    assert listed == set(discover()), (sorted(listed), sorted(discover()))

@@ -1,11 +1,16 @@
-"""The qbsp study (Z §4.3) at test size: outputs, raw rows, resume, chunk independence."""
+"""The qbsp study (Z §4.3) at test size: outputs, raw rows, resume, chunk independence, and
+the study store (a torn record recomputed alone, a second writer refused, a corrupt model
+cache failing the study)."""
 
 import csv
 import json
+import shutil
+import warnings
 
 import pytest
 
 from pqrm_jax.studies import discover, qbsp
+from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError, StudyError
 
 
 def _run(out, *extra):
@@ -29,7 +34,12 @@ def test_tiny_study(tmp_path, request):
     envs = [json.loads(x) for x in open(out / "environments.jsonl")]
     assert len(envs) == 4 and all(len(e["triplets"]) == len(e["pos"]) - 2 for e in envs)
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["calibration"]["knob"] is None and "decisions" in cfg
+    assert cfg["eps_fixed"] == 0.35 and "decisions" in cfg and cfg["precision"] == "float32"
+    assert cfg["layout"]["chunk"] == 4
+    assert json.loads((out / "study.json").read_text())["study"] == "qbsp"
+    tidy = list(csv.DictReader(open(out / "results.csv")))
+    assert tidy[0].keys() == {"study", "unit", "metric", "value"}
+    assert {r["unit"] for r in tidy} >= {"env00000/with/cost1", "table4.1"}
     rep = (out / "report.md").read_text()
     assert "0.684" in rep and "0.816" in rep and "ratio" in rep
     assert (out / "fig45_plan_exists.png").exists()
@@ -38,8 +48,41 @@ def test_tiny_study(tmp_path, request):
     (out / "report.md").unlink()
     assert _run(out, "--models-dir", models, "--chunk", "4") == 0
     assert (out / "tests.csv").read_text() == before
-    with pytest.raises(SystemExit, match="different config"):
+    with pytest.raises(StoreError, match="different config"):
         _run(out, "--models-dir", models, "--depth", "2")
+    # a torn and a wrong-shape record: named, set aside, recomputed alone, same rows
+    dmg = tmp_path / "damaged"
+    shutil.copytree(out, dmg)
+    p1, p2 = dmg / "chunks" / "env00001.json", dmg / "chunks" / "env00002.json"
+    p1.write_text(p1.read_text()[:40])
+    p2.write_text('{"env": 2, "rows": []}')
+    kept = {i: (dmg / "chunks" / f"env{i:05d}.json").stat().st_mtime_ns for i in (0, 3)}
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        assert _run(dmg, "--models-dir", models, "--chunk", "4") == 0
+    msg = " ".join(str(w.message) for w in rec if w.category is CorruptRecordWarning)
+    assert "env00001.json" in msg and "env00002.json" in msg
+    assert all((dmg / "chunks" / f"env{i:05d}.json").stat().st_mtime_ns == t
+               for i, t in kept.items())
+    assert (dmg / "tests.csv").read_text() == before
+    # a second writer on the same --out is refused while the first holds it
+    with Store.open(out, "qbsp", None):
+        with pytest.raises(StoreError, match="in use by another process"):
+            _run(out, "--models-dir", models, "--chunk", "4")
+
+
+def test_corrupt_model_cache_fails_the_study(tmp_path):
+    from pqrm_jax.bsp import models as M
+
+    args = qbsp.argparse.Namespace(tiny=True, reduced=False, envs=None, depth=None,
+                                   chunk=None, samples=None, seed=2022, eps=0.35, size=2.5)
+    key = M.ModelParams(**qbsp.config_for(args)["models"]).key()
+    cache = tmp_path / "models"
+    cache.mkdir()
+    (cache / f"bsp-edc-{key}.npz").write_bytes(b"PK\x03\x04 torn")
+    with pytest.raises(StudyError, match="BSP models are not available"):
+        _run(tmp_path / "s", "--models-dir", str(cache))
+    assert not list((tmp_path / "s" / "chunks").glob("*.json"))
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ import pytest
 
 from pqrm_jax.studies import discover
 from pqrm_jax.studies import hssh_plus as study
-from pqrm_jax.studies.store import StoreError
+from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError
 
 
 def test_registered():
@@ -37,5 +37,25 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
     assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before
     assert (tmp_path / "results.csv").read_text().startswith("study,unit,metric,value")
+    # a torn unit is named, set aside and recomputed alone; the other is not touched
+    torn, other = units
+    torn.write_text(before[torn.name][: len(before[torn.name]) // 2])
+    mtime = other.stat().st_mtime_ns
+    with pytest.warns(CorruptRecordWarning, match=torn.name):
+        assert study.main(argv) == 0
+    assert other.stat().st_mtime_ns == mtime
+    def untimed(text):
+        return [{k: v for k, v in r.items() if k != "seconds"}
+                for r in json.loads(text)["records"]]
+
+    assert untimed(torn.read_text()) == untimed(before[torn.name])
+    # a record of the wrong shape is refused too
+    torn.write_text(json.dumps({"records": [{"side": 49}]}))
+    with pytest.warns(CorruptRecordWarning, match="fails its study's check"):
+        assert study.main(argv) == 0
+    # a second writer on the same --out is refused while the first holds it
+    with Store.open(tmp_path, "hssh-plus", None):
+        with pytest.raises(StoreError, match="in use by another process"):
+            study.main(argv)
     with pytest.raises(StoreError, match="different config"):
         study.main(argv + ["--supersample", "2"])

@@ -1,12 +1,15 @@
-"""The Q-Link study (P §4.4.1) in its reduced setting: files, resume, config guard, baseline."""
+"""The Q-Link study (P §4.4.1) in its reduced setting: files, resume, config guard, baseline,
+and the study store (torn/garbage trial files recomputed alone, a second writer refused)."""
 
 import csv
 import json
+import warnings
 
 import numpy as np
 import pytest
 
 from pqrm_jax.studies import discover
+from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError
 
 
 def test_reduced_study(tmp_path):
@@ -35,5 +38,49 @@ def test_reduced_study(tmp_path):
     assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0
     assert (out / "trials.csv").read_text() == before
     # a different configuration is refused
-    with pytest.raises(SystemExit, match="different config"):
+    with pytest.raises(StoreError, match="different config"):
         mod.main(["--reduced", "--out", str(out), "--max-pairs", "10", "--no-progress"])
+    assert cfg["precision"] == "float32"
+    assert json.loads((out / "study.json").read_text())["study"] == "qlink"
+    tidy = list(csv.DictReader((out / "results.csv").open()))
+    assert tidy[0].keys() == {"study", "unit", "metric", "value"}
+    assert {"w00/b2/R", "mean/b2/R"} <= {r["unit"] for r in tidy}
+    # a torn trials file and a garbage one: named, set aside, recomputed alone, same rows
+    torn, junk = out / "trials" / "w00_b2_0.8R.csv", out / "trials" / "w00_b1_R.csv"
+    text = torn.read_text()
+    torn.write_text(text[: len(text) // 2])
+    junk.write_bytes(b"\x00\xffgarbage")
+    kept = [p for p in (out / "trials").glob("*.csv") if p not in (torn, junk)]
+    kept.append(out / "world_00.npz")
+    mtimes = {p: p.stat().st_mtime_ns for p in kept}
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0
+    msg = " ".join(str(w.message) for w in rec if w.category is CorruptRecordWarning)
+    assert "w00_b2_0.8R.csv" in msg and "w00_b1_R.csv" in msg
+    assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items())
+    assert (out / "trials.csv").read_text() == before
+    # a second writer on the same --out is refused while the first holds it
+    with Store.open(out, "qlink", None):
+        with pytest.raises(StoreError, match="in use by another process"):
+            mod.main(["--reduced", "--out", str(out), "--no-progress"])
+
+
+def test_failed_table_dependency_fails_the_study(tmp_path, monkeypatch, capsys):
+    """A table cache that cannot be read while the map is built fails the study (exit 2 from
+    the CLI, one line naming the table) and stores no trials."""
+    from pqrm_jax import cli
+    from pqrm_jax.studies import qlink
+    from pqrm_jax.studies.store import StudyError
+    from pqrm_jax.tables import CacheError
+
+    def broken(cfg, w):
+        raise CacheError("table file quadrant.json is corrupt (truncated)")
+
+    monkeypatch.setattr(qlink, "build_world", broken)
+    out = tmp_path / "q"
+    with pytest.raises(StudyError, match="table the map of world 0 needs"):
+        qlink.main(["--reduced", "--out", str(out), "--no-progress"])
+    assert cli.main(["study", "qlink", "--reduced", "--out", str(out), "--no-progress"]) == 2
+    assert "quadrant.json is corrupt" in capsys.readouterr().err
+    assert not list(out.rglob("*.csv"))

@@ -26,6 +26,8 @@ from pqrm_jax.studies.store import (
     StoreError,
     StudyError,
     atomic_write_npz,
+    csv_text,
+    read_csv,
     read_npz,
 )
 
@@ -308,3 +310,23 @@ def test_directory_of_an_older_version_is_adopted_with_its_config(tmp_path):
     with pytest.raises(StoreError, match="trials: 8 there, 9 asked"):
         Store.open(serge_dir, "serge", {"trials": 9}, legacy=("meta.json",),
                    legacy_config="meta.json")
+
+
+@pytest.mark.parametrize("damage", ["torn_row", "cut_at_row", "empty", "garbage", "header",
+                                    "extra_cell"])
+def test_corrupt_csv_record_is_named_and_set_aside(tmp_path, damage):
+    """A checked CSV record (qlink's per-setting trials): any damage makes the file 'not done'."""
+    fields = ["unit", "x"]
+    p = tmp_path / "t.csv"
+    good = csv_text(fields, [{"unit": i, "x": i / 4} for i in range(6)])
+    p.write_text(good)
+    assert read_csv(p, fields, check=lambda rows: len(rows) == 6)[5] == {"unit": "5",
+                                                                        "x": "1.25"}
+    lines = good.splitlines(keepends=True)
+    bad = {"torn_row": "".join(lines[:-1]) + lines[-1][:2], "cut_at_row": "".join(lines[:-2]),
+           "empty": "", "garbage": "\x00\x01garbage\n", "header": good.replace("x", "y", 1),
+           "extra_cell": good.replace("1.25", "1.25,9")}[damage]
+    p.write_text(bad)
+    with pytest.warns(CorruptRecordWarning, match="t.csv"):
+        assert read_csv(p, fields, check=lambda rows: len(rows) == 6) is None
+    assert not p.exists() and (tmp_path / "t.csv.corrupt").exists()

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
+from .store import atomic_savefig, atomic_write_text
+
 
 def _rate(rows):
     reach = [r for r in rows if r["reachable"] == "1" or r["reachable"] == 1]
@@ -106,7 +108,7 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
                              cfg.landmarks < 200 or 14 <= n.max() <= 22) else "mismatch"))
         ax[0, i].set(title=f"β = {b}", xlabel="|P| (map elements)", ylabel="paths")
     fig.tight_layout()
-    fig.savefig(out / "fig4_6_path_elements.png", dpi=120)
+    atomic_savefig(fig, out / "fig4_6_path_elements.png", dpi=120)
     plt.close(fig)
     lines += ["", "![Fig. 4.6](fig4_6_path_elements.png)", ""]
     # ---- Fig. 4.7
@@ -146,7 +148,7 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
     ax.set(xlabel="|P| (map elements)", ylabel="mean length (m)", yscale="log")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "fig4_7_length_vs_elements.png", dpi=120)
+    atomic_savefig(fig, out / "fig4_7_length_vs_elements.png", dpi=120)
     plt.close(fig)
     lines += ["", f"Individual successful trials above the bound: {above_total} of {n_total} "
               "(published: \"None of the paths exceed either distance bound\").",
@@ -166,4 +168,4 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
     lines += ["", "Every knob and its reason: `config.json`. Raw rows: `trials.csv` "
               "(world, beta, setting, start, goal, reachable, success, reason, n_elements, "
               "length_m)."]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .store import Store, atomic_write_text
+from .store import Store, StudyError, atomic_savefig, atomic_write_text
 
 NAME = "hssh-localization"
 HELP = "HSSH adaptive particle proposals x action models in simulation (B §4.3.2, Table 4.2)"
@@ -122,12 +122,18 @@ def main(argv: list[str] | None = None) -> int:
            "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
            "models": list(MODELS)}
     with Store.open(out, NAME, cfg) as st:
+        def check(u):  # one number per step for every method, else recomputed
+            return all(isinstance(u[m], list) and len(u[m]) == steps
+                       and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
+
         todo = [(r, m) for r in range(2) for m in MODELS
-                if st.read_json(_unit_name(r, m), required=METHODS) is None]
+                if st.read_json(_unit_name(r, m), METHODS, check) is None]
         for run, model in tqdm(todo, desc="hssh-localization", unit="unit"):
             st.write_json(_unit_name(run, model), run_unit(run, model, cfg))  # atomic
-        data = {(r, m): st.read_json(_unit_name(r, m), required=METHODS)
+        data = {(r, m): st.read_json(_unit_name(r, m), METHODS, check)
                 for r in range(2) for m in MODELS}
+        if any(v is None for v in data.values()):
+            raise StudyError(f"{NAME}: a unit did not read back as written")
         _report(data, cfg, out)
         st.write_results_csv([(f"run{r}_{m}_{meth}", "mean_best_likelihood",
                                float(np.mean(data[(r, m)][meth])))
@@ -234,5 +240,5 @@ def _report(data, cfg, out: Path) -> None:
     ax.set_ylabel("mean best likelihood")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "best_likelihood.png", dpi=110)
+    atomic_savefig(fig, out / "best_likelihood.png", dpi=110)
     plt.close(fig)

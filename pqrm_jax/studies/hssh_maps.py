@@ -227,6 +227,7 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
     import matplotlib.pyplot as plt
 
     from .. import hssh_global as hg
+    from .store import atomic_savefig
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for r in worlds:
@@ -241,7 +242,7 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
     ax.set_title("tree of maps (blue: random worlds, red: office)")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "tree_size.png", dpi=110)
+    atomic_savefig(fig, out / "tree_size.png", dpi=110)
     plt.close(fig)
 
     w = hg.grid_world(4, 4, loop_prob=cfg["loop_prob"], seed=cfg["seed"])
@@ -264,7 +265,7 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
     ax.legend(loc="best", fontsize=8)
     ax.set_title("global layout before/after relaxation")
     fig.tight_layout()
-    fig.savefig(out / "layout.png", dpi=110)
+    atomic_savefig(fig, out / "layout.png", dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(5, 5))
@@ -282,7 +283,7 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
     ax.legend(fontsize=7)
     ax.set_title("navigation runs (F/L/R/T commands)")
     fig.tight_layout()
-    fig.savefig(out / "navigation.png", dpi=110)
+    atomic_savefig(fig, out / "navigation.png", dpi=110)
     plt.close(fig)
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .store import Store, atomic_write_json, atomic_write_text, tidy_rows
+from .store import Store, atomic_savefig, atomic_write_json, atomic_write_text, tidy_rows
 
 NAME = "hssh-plus"
 HELP = "HSSH anchor gateways on the +-intersection corpus: rotation x size x noise (B §6.3.3)"
@@ -162,6 +162,20 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
     return recs
 
 
+UNIT_FIELDS = ("side", "rotation", "noise", "success", "gateways", "paths", "kind", "reason",
+               "seconds")
+
+
+def unit_ok(unit: dict, noise_levels: list) -> bool:
+    """True when a stored unit holds one complete record per noise level of one (size,
+    rotation) pair (else it is set aside and recomputed)."""
+    recs = unit["records"]
+    return (isinstance(recs, list) and len(recs) == len(noise_levels)
+            and all(isinstance(r, dict) and all(k in r for k in UNIT_FIELDS) for r in recs)
+            and [r["noise"] for r in recs] == list(noise_levels)
+            and len({(r["side"], r["rotation"]) for r in recs}) == 1)
+
+
 def _unit_name(side: int, rot: float) -> str:
     return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
 
@@ -178,8 +192,11 @@ def main(argv: list[str] | None = None) -> int:
     with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
                     legacy=("units", "units/*", "config.json", "report.md", "summary.json",
                             "*.png")) as st:
+        def check(u):
+            return unit_ok(u, cfg["noise_levels"])
+
         todo = [(s, r) for s in sizes for r in rots
-                if st.read_json(_unit_name(s, r), required=("records",)) is None]
+                if st.read_json(_unit_name(s, r), ("records",), check) is None]
         t_start = time.perf_counter()
         for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
             # atomic (temp file + os.replace): a killed run leaves no half unit
@@ -187,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         wall = time.perf_counter() - t_start
         rows = []
         for path in sorted((out / "units").glob("s*_r*.json")):
-            unit = st.read_json(f"units/{path.name}", required=("records",))
+            unit = st.read_json(f"units/{path.name}", ("records",), check)
             if unit is not None:
                 rows.extend(unit["records"])
         summary = summarise(rows, cfg)
@@ -279,7 +296,7 @@ def _figures(rows, cfg, out: Path) -> None:
     ax.set_title("correct + local topology, mean over rotations (cf. B Fig. 6.36)")
     fig.colorbar(im, ax=ax, label="accuracy")
     fig.tight_layout()
-    fig.savefig(out / "accuracy_size_noise.png", dpi=110)
+    atomic_savefig(fig, out / "accuracy_size_noise.png", dpi=110)
     plt.close(fig)
 
     rots = sorted({r["rotation"] for r in rows})
@@ -305,7 +322,7 @@ def _figures(rows, cfg, out: Path) -> None:
     axes[2].set(xlabel="noise (%)", ylabel="accuracy", ylim=(0, 1.02),
                 title=f"side {big}, over rotations (cf. Fig. 6.35a)")
     fig.tight_layout()
-    fig.savefig(out / "accuracy_rotation_size_noise.png", dpi=110)
+    atomic_savefig(fig, out / "accuracy_rotation_size_noise.png", dpi=110)
     plt.close(fig)
 
     errs = [e for r in rows for e in r.get("orientation_errors", [])]
@@ -315,7 +332,7 @@ def _figures(rows, cfg, out: Path) -> None:
         ax.set(xlabel="gateway orientation error mod 90° (deg)", ylabel="gateways",
                title="correct cases, rotated back (cf. Fig. 6.33c)")
         fig.tight_layout()
-        fig.savefig(out / "gateway_orientation.png", dpi=110)
+        atomic_savefig(fig, out / "gateway_orientation.png", dpi=110)
         plt.close(fig)
 
 

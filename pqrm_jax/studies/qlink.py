@@ -6,29 +6,39 @@ navigating range R′ ∈ {R, 0.9R, 0.8R, 0.7R, 0.6R} and landmark (occluder) si
 {0.1, 0.3, 0.5, 0.7} m at R′ = R. Per world the study builds the map (lawnmower sweep,
 :func:`pqrm_jax.qlink.elements.from_mapping_run`), the Link Graph for β = 2 (primary) and the
 literal β = 1, drives every trial with :func:`pqrm_jax.qlink.navigate.navigate_pairs` and
-writes ``world_XX.npz``, one CSV per (world, β, setting) under ``trials/`` (resume unit),
-``trials.csv`` (all rows), ``config.json`` (every knob with its reason, see :data:`REASONS`),
-``report.md`` and figures. Published numbers (:data:`PUBLISHED`) are fixtures the measured
-values are compared against, never outputs.
+writes ``world_XX.npz`` and ``world_XX.json``, one CSV per (world, β, setting) under
+``trials/`` (the resume unit), ``trials.csv`` (all rows), ``config.json`` (every knob with its
+reason, see :data:`REASONS`, and the precision), the tidy ``results.csv`` (``study, unit,
+metric, value``: per (world, β, setting) and the world means), ``report.md`` and figures.
+Published numbers (:data:`PUBLISHED`) are fixtures the measured values are compared against,
+never outputs.
+
+The directory is kept by the shared study store (:mod:`pqrm_jax.studies.store`): a second
+process on the same ``--out`` is refused, ``study.json`` marks it as a qlink study, a resume
+with another configuration is refused naming the fields, every file is written atomically, and
+every stored record is checked when read (a trials CSV must hold one complete row per pair of
+its world; the world's arrays and summary must be complete): a torn or garbage one is named in
+a warning, set aside and recomputed alone. ``worlds`` and ``chunk`` only choose what is
+computed and how it is batched: worlds accumulate (a run computes what is missing of every
+world stored so far plus the ones asked), and ``chunk`` does not change a bit of the trials
+(measured: the reduced study at ``--chunk 16`` and ``32`` writes identical files). A table the
+map needs that cannot be read fails the study with a
+:class:`~pqrm_jax.studies.store.StudyError`.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
-import json
-import os
 import time
 import zlib
-from pathlib import Path
+from collections import Counter
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._store import guard_config
+from .store import Store, StudyError
 
 NAME = "qlink"
 HELP = "Q-Link navigation over a PQRM (P §4.4.1: Table 4.1, Figs. 4.6-4.7), beta=2 and beta=1"
@@ -107,12 +117,6 @@ def settings(cfg: Config) -> list[tuple[str, float, float]]:
     """``(name, R'/R, occluder diameter)`` of every setting."""
     out = [("R" if f == 1.0 else f"{f:g}R", f, 0.0) for f in cfg.sensor_fracs]
     return out + [(f"occ {s:g} m", 1.0, s) for s in cfg.occluder_sizes]
-
-
-def _atomic_write(path: Path, text: str | bytes) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_bytes(text.encode() if isinstance(text, str) else text)
-    os.replace(tmp, path)
 
 
 def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
@@ -210,17 +214,53 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
     return rows
 
 
-def _csv(rows: list[dict]) -> str:
-    buf = io.StringIO()
-    wr = csv.DictWriter(buf, FIELDS)
-    wr.writeheader()
-    wr.writerows(rows)
-    return buf.getvalue()
+WORLD_ARRAYS = ("positions", "element_ids", "element_probs", "betas", "detection")
+WORLD_INFO = ("elements", "mapped_landmarks", "pairs", "map_s", "detection", "setting_s")
 
 
-def _read_csv(path: Path) -> list[dict]:
-    with path.open() as f:
-        return list(csv.DictReader(f))
+def trials_name(w: int, beta: int, name: str) -> str:
+    """The resume unit of (world, β, setting): ``trials/wXX_bB_<setting>.csv``."""
+    return f"trials/w{w:02d}_b{beta}_{name.replace(' ', '_')}.csv"
+
+
+def trials_ok(rows: list[dict], w: int, beta: int, name: str, n_pairs: int) -> bool:
+    """True when ``rows`` are the complete trials of (world ``w``, ``beta``, setting ``name``):
+    one per pair, each with the unit's keys and well-formed numbers."""
+    pairs = {(int(r["start"]), int(r["goal"])) for r in rows}
+    return (len(rows) == n_pairs and len(pairs) == n_pairs
+            and all(int(r["world"]) == w and int(r["beta"]) == beta and r["setting"] == name
+                    and r["reachable"] in ("0", "1") and r["success"] in ("0", "1")
+                    and r["reason"] and int(r["n_elements"]) >= 0
+                    and np.isfinite(float(r["length_m"])) for r in rows))
+
+
+def _read_trials(st: Store, w: int, beta: int, name: str, n_pairs: int) -> list[dict] | None:
+    return st.read_csv(trials_name(w, beta, name), FIELDS,
+                       check=lambda rows: trials_ok(rows, w, beta, name, n_pairs))
+
+
+def results_table(rows: list[dict]) -> list[tuple[str, str, float]]:
+    """Tidy ``(unit, metric, value)`` rows: per (world, β, setting) the trial, reachable and
+    success counts, the failure rate over reachable pairs (%, NaN without any) and the count of
+    each outcome; per (β, setting) the world mean of the failure rate (unit ``mean/bB/S``)."""
+    groups: dict[tuple[int, int, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((int(r["world"]), int(r["beta"]), r["setting"]), []).append(r)
+    out, means = [], {}
+    for (w, b, name), rs in groups.items():
+        unit = f"w{w:02d}/b{b}/{name}"
+        reach = [r for r in rs if r["reachable"] == "1"]
+        fail = sum(r["success"] != "1" for r in reach)
+        pct = 100.0 * fail / len(reach) if reach else float("nan")
+        out += [(unit, "trials", len(rs)), (unit, "reachable", len(reach)),
+                (unit, "success", sum(r["success"] == "1" for r in rs)),
+                (unit, "failure_pct", pct)]
+        out += [(unit, f"reason/{k}", v) for k, v in sorted(Counter(r["reason"]
+                                                                      for r in rs).items())]
+        means.setdefault((b, name), []).append(pct)
+    out += [(f"mean/b{b}/{name}", "failure_pct", float(np.mean(v)))
+            for (b, name), v in means.items()]
+    return out
 
 
 def main(argv: list[str]) -> int:
@@ -239,40 +279,60 @@ def main(argv: list[str]) -> int:
         cfg.max_pairs = a.max_pairs
     if a.chunk:
         cfg.chunk = a.chunk
-    out = Path(a.out)
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
-    guard_config(out, stored, selection=("worlds", "chunk"))
-    (out / "trials").mkdir(parents=True, exist_ok=True)
-    t0 = time.time()
-    summary = {}
-    for w in cfg.worlds:
-        summary[w] = _run_world(cfg, w, out, not a.no_progress)
-    rows = []
-    for f in sorted((out / "trials").glob("w*.csv")):
-        rows += _read_csv(f)
-    _atomic_write(out / "trials.csv", _csv(rows))
-    examples = example_trajectories(cfg, out, rows)
-    from ._qlink_report import write_report
-    write_report(out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg), time.time() - t0,
-                 examples)
-    print(f"wrote {out / 'report.md'} ({len(rows)} trials, {time.time() - t0:.0f} s)")
+    with Store.open(a.out, NAME, stored, selection=("worlds", "chunk"),
+                    legacy=("config.json", "world_*.npz", "world_*.json", "trials",
+                            "trials.csv", "report.md", "*.png")) as st:
+        # every world stored so far plus the ones asked (selection: union)
+        cfg.worlds = tuple(int(w) for w in st.config["worlds"])
+        t0 = time.time()
+        summary, units = {}, {}
+        for w in cfg.worlds:
+            summary[w], got = _run_world(cfg, w, st, not a.no_progress)
+            units.update(got)
+        rows = [r for name in sorted(units) for r in units[name]]
+        st.write_csv("trials.csv", FIELDS, rows)
+        st.write_results_csv(results_table(rows))
+        examples = example_trajectories(cfg, st, rows)
+        from ._qlink_report import write_report
+        write_report(st.out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg),
+                     time.time() - t0, examples)
+        print(f"wrote {st.out / 'report.md'} ({len(rows)} trials, {time.time() - t0:.0f} s)")
     return 0
 
 
-def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
+def _build(cfg: Config, w: int):
+    """The map of world ``w`` and its detection model; a table it needs that cannot be read
+    fails the study."""
+    from pqrm_jax.tables import CacheError
+
+    try:
+        lm, el = build_world(cfg, w)
+        detect = (estimate_detection(lm, el, cfg.map_range, cfg.map_range)
+                  if cfg.detection == "estimated" else None)
+    except CacheError as exc:
+        raise StudyError(f"{NAME}: a table the map of world {w} needs is not available "
+                         f"({exc})") from exc
+    return lm, el, detect
+
+
+def _run_world(cfg: Config, w: int, st: Store, progress: bool) -> tuple[dict, dict]:
+    """(summary, {trials file: rows}) of world ``w``; only missing or corrupt units are run."""
     from pqrm_jax.qlink import elements as qel
     from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
     todo = [(b, name) for b in cfg.betas for name, _, occ in settings(cfg)
             if b == cfg.betas[0] or occ == 0]
-    done_all = all((out / "trials" / f"w{w:02d}_b{b}_{n.replace(' ', '_')}.csv").exists()
-                   for b, n in todo)
-    if done_all and (out / f"world_{w:02d}.json").exists():     # resume: nothing left
-        return json.loads((out / f"world_{w:02d}.json").read_text())
+    info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
+    arrays = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
+    if info is not None and arrays is not None:      # resume: check every unit of the world
+        got = {trials_name(w, b, n): _read_trials(st, w, b, n, info["pairs"]) for b, n in todo}
+        if all(v is not None for v in got.values()):
+            return info, got
     t0 = time.time()
-    lm, el = build_world(cfg, w)
+    lm, el, detect = _build(cfg, w)
     t_map = time.time() - t0
     inc = qel.incidence(el)
     lms = np.flatnonzero(inc.any(1))
@@ -280,15 +340,12 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
     goal_row[lms] = np.arange(len(lms))
     tables = nav.start_tables(el)
     pairs = _pairs(cfg, lms, w)
-    detect = (estimate_detection(lm, el, cfg.map_range, cfg.map_range)
-              if cfg.detection == "estimated" else None)
-    npz = out / f"world_{w:02d}.npz"
-    if not npz.exists():
-        buf = io.BytesIO()
-        np.savez(buf, positions=np.asarray(lm), element_ids=np.asarray(el.ids),
-                 element_probs=np.asarray(el.probs), betas=np.asarray(cfg.betas),
-                 detection=np.asarray(detect if detect is not None else np.nan))
-        _atomic_write(npz, buf.getvalue())
+    if arrays is None:
+        st.write_npz(f"world_{w:02d}.npz",
+                     dict(positions=np.asarray(lm), element_ids=np.asarray(el.ids),
+                          element_probs=np.asarray(el.probs), betas=np.asarray(cfg.betas),
+                          detection=np.asarray(detect if detect is not None else np.nan)),
+                     compressed=False)
     from pqrm_jax.qlink import pomdp
 
     plans = nav.qsr_plans(el, pomdp.search_model("quadrant", horizon=cfg.horizon,
@@ -297,6 +354,7 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
             "pairs": int(len(pairs)), "map_s": round(t_map, 1),
             "detection": None if detect is None else np.round(detect, 3).tolist(),
             "setting_s": {}}
+    got = {}
     for beta in cfg.betas:
         g = lg.link_graph(el, beta)
         to_go = lg.goal_distances(g, el, lms)
@@ -305,18 +363,22 @@ def _run_world(cfg: Config, w: int, out: Path, progress: bool) -> dict:
         for name, frac, occ in settings(cfg):
             if beta != cfg.betas[0] and occ > 0:
                 continue        # the literal beta = 1 variant: sensor-range rows only
-            f = out / "trials" / f"w{w:02d}_b{beta}_{name.replace(' ', '_')}.csv"
-            if f.exists():
-                continue        # resume: one file per (world, beta, setting)
+            f = trials_name(w, beta, name)
+            got[f] = _read_trials(st, w, beta, name, len(pairs))
+            if got[f] is not None:
+                continue        # resume: one checked file per (world, beta, setting)
             t1 = time.time()
             rows = run_setting(cfg, w, beta, name, frac, occ, world, progress)
-            _atomic_write(f, _csv(rows))
+            st.write_csv(f, FIELDS, rows)
+            got[f] = _read_trials(st, w, beta, name, len(pairs))    # the rows as stored
+            if got[f] is None:
+                raise StudyError(f"{NAME}: {f} did not read back as written")
             info["setting_s"][f"b{beta} {name}"] = round(time.time() - t1, 1)
-    _atomic_write(out / f"world_{w:02d}.json", json.dumps(info, indent=1))
-    return info
+    st.write_json(f"world_{w:02d}.json", info)
+    return info, got
 
 
-def example_trajectories(cfg: Config, out: Path, rows: list[dict]) -> list[str]:
+def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
     """Re-drive up to three trials of the first world with pose recording (same per-trial keys,
     so the same outcome) and plot them over the map, in the style of P Fig. 4.9."""
     import matplotlib
@@ -344,7 +406,9 @@ def example_trajectories(cfg: Config, out: Path, rows: list[dict]) -> list[str]:
         picks.append(max(occ, key=lambda r: float(r["length_m"])))
     if not picks:
         return []
-    z = np.load(out / f"world_{w:02d}.npz")
+    z = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
+    if z is None:       # set aside since _run_world checked it: no examples this run
+        return []
     lm = jnp.asarray(z["positions"])
     el = qel.MapElements(jnp.asarray(z["element_ids"]), jnp.asarray(z["element_probs"]),
                          int(lm.shape[0]))
@@ -376,7 +440,7 @@ def example_trajectories(cfg: Config, out: Path, rows: list[dict]) -> list[str]:
         notes.append(f"{name}, {pair[0].tolist()}: {outcome} (trials.csv: {r['reason']}), "
                      f"{float(res.length[0]):.0f} m")
     fig.tight_layout()
-    fig.savefig(out / "example_trajectories.png", dpi=110)
+    st.savefig("example_trajectories.png", fig, dpi=110)
     plt.close(fig)
     return notes
 

@@ -17,7 +17,8 @@ resume and inspect:
 * **atomic writes** — every file goes through a temp file in the same directory and
   ``os.replace``: a kill leaves the old file or the new one, never half of one.
 * **verified reads** — :meth:`Store.read_npz` reads every array (zip CRC checked),
-  :meth:`Store.read_json` and :meth:`Store.records` parse and check each record. A truncated,
+  :meth:`Store.read_json`, :meth:`Store.read_csv` and :meth:`Store.records` parse and check
+  each record. A truncated,
   empty or garbage file, a torn JSONL line, or a valid-JSON line of the wrong shape (``null``,
   ``{"lvl": 2}``) is named in a :class:`CorruptRecordWarning` (file, and line number for
   JSONL); a bad file is moved aside (``*.corrupt``), a bad line is dropped when the file is
@@ -260,6 +261,71 @@ def read_jsonl(path: Path, key: Callable[[dict], Any], required: Iterable[str] =
             continue
         good[k] = rec
     return good, bad
+
+
+def read_csv(path: Path, fields: Iterable[str], check: Callable[[list[dict]], bool] | None = None,
+             *, quarantine: bool = True) -> list[dict] | None:
+    """The rows of a CSV file (dicts of strings), or ``None`` when missing, torn or malformed.
+
+    The header must be exactly ``fields``; a last line without its line end or a row with a
+    missing or extra cell (torn), an undecodable file or rows failing ``check`` (e.g. a wrong
+    row count) make the whole file corrupt: it is named in a :class:`CorruptRecordWarning`
+    and, with ``quarantine``, moved aside, so the unit it holds is recomputed.
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    fields = list(fields)
+    why = None
+    try:
+        with path.open(newline="") as fh:
+            text = fh.read()
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        rows = list(reader)
+        header = reader.fieldnames
+    except (UnicodeDecodeError, csv.Error) as exc:
+        why = f"torn or garbage CSV ({type(exc).__name__}: {exc})"
+    else:
+        if text and not text.endswith("\n"):
+            why = "the last line is cut (torn)"
+        elif header != fields:
+            why = f"header {header} is not {fields}"
+        elif any(None in r or any(v is None for v in r.values()) for r in rows):
+            why = "a row with missing or extra cells (torn)"
+        elif check is not None:
+            try:
+                ok = check(rows)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                why = f"bad rows ({type(exc).__name__}: {exc})"
+            else:
+                why = None if ok else "rows fail their study's check"
+    if why is None:
+        return rows
+    if quarantine:
+        _quarantine(path, why)
+    else:
+        warnings.warn(f"{path}: {why}", CorruptRecordWarning, stacklevel=2)
+    return None
+
+
+def csv_text(fields: Iterable[str], rows: Iterable[dict]) -> str:
+    """The CSV text (header ``fields``, ``\\r\\n`` line ends as :mod:`csv` writes) of ``rows``."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(fields), extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def atomic_savefig(fig: Any, path: Path, **kwargs: Any) -> Path:
+    """Save a matplotlib figure atomically (rendered in memory, then :func:`atomic_write_bytes`).
+
+    The format is taken from the suffix of ``path``; ``kwargs`` go to ``fig.savefig``.
+    """
+    path = Path(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format=kwargs.pop("format", path.suffix.lstrip(".") or "png"), **kwargs)
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 # ------------------------------------------------------------------------------------------
@@ -581,6 +647,19 @@ class Store:
         """The JSON object of ``out/name``, or ``None`` (missing; corrupt: warned, set aside)."""
         return read_json(self.out / name, required, check)
 
+    def read_csv(self, name: str, fields: Iterable[str],
+                 check: Callable[[list[dict]], bool] | None = None) -> list[dict] | None:
+        """The rows of ``out/name``, or ``None`` (missing; corrupt: warned, set aside)."""
+        return read_csv(self.out / name, fields, check)
+
+    def write_csv(self, name: str, fields: Iterable[str], rows: Iterable[dict]) -> Path:
+        """Atomically write ``rows`` (dicts; keys beyond ``fields`` ignored) to ``out/name``."""
+        return atomic_write_text(self.path(name), csv_text(fields, rows))
+
+    def savefig(self, name: str, fig: Any, **kwargs: Any) -> Path:
+        """Atomically save a matplotlib figure to ``out/name`` (see :func:`atomic_savefig`)."""
+        return atomic_savefig(fig, self.path(name), **kwargs)
+
     def records(self, name: str, key: Callable[[dict], Any], required: Iterable[str] = (),
                 check: Callable[[dict], bool] | None = None) -> Records:
         """The JSONL records of ``out/name`` (bad lines warned and dropped), to extend."""
@@ -608,5 +687,6 @@ def write_results_csv(path: Path, study: str, rows: Iterable[tuple[Any, str, flo
 
 __all__ = ["Store", "Records", "StudyError", "StoreError", "CorruptRecordWarning",
            "precision", "atomic_write_bytes", "atomic_write_text", "atomic_write_json",
-           "atomic_write_npz", "read_npz", "read_json", "read_jsonl", "flatten_metrics",
+           "atomic_write_npz", "atomic_savefig", "read_npz", "read_json", "read_jsonl",
+           "read_csv", "csv_text", "flatten_metrics",
            "tidy_rows", "write_results_csv"]
