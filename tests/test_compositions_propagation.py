@@ -257,3 +257,17 @@ def test_pqrm_adapter(sampled):
     truth = simulation.true_states(calc, pos)
     f = np.asarray(r.filled)
     assert (np.asarray(r.probs)[f].argmax(-1) == truth[f]).mean() > 0.5
+
+
+def test_heldout_study_refuses_fractions_without_held_out_or_observed_triplets():
+    calc = calculi.get("lr")
+    t = calc.tables.prob_compose
+    for frac in (0.0, 1.0, -0.5, float("nan")):
+        with pytest.raises(ValueError, match="fraction"):
+            simulation.heldout_study(calc, t, jax.random.key(0), num_landmarks=6, fraction=frac)
+
+
+def test_score_of_an_empty_mask_is_the_documented_sentinel():
+    p = np.full((4, 2), 0.5)
+    r = simulation.score(p, np.zeros(4, int), np.zeros(4, bool))
+    assert r["n"] == 0 and all(np.isnan(r[k]) for k in ("error", "entropy", "nll", "brier"))

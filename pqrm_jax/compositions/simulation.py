@@ -127,7 +127,11 @@ def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 
 
 
 def score(probs, truth, mask) -> dict[str, float]:
-    """Error rate of the ML state, mean entropy (nats), mean −log P(truth) and Brier score."""
+    """Error rate of the ML state, mean entropy (nats), mean −log P(truth) and Brier score.
+
+    An empty ``mask`` is a documented sentinel, not an error: ``n`` is 0 and the four means
+    are NaN (a mean over no triplet is undefined); callers check ``n`` before averaging.
+    """
     p = np.asarray(probs, np.float64)[mask]
     t = np.asarray(truth)[mask]
     if len(t) == 0:
@@ -174,6 +178,12 @@ def heldout_study(calc, tensor, key, *, num_landmarks: int = 20, fraction: float
         A dict from each score name above to its error rate, mean entropy, mean −log P(truth)
         and Brier score (and the coverage of the propagated held-out triplets).
     """
+    if not 0.0 < float(fraction) < 1.0:
+        raise ValueError(f"fraction must be in (0, 1) (observed and held-out triplets both "
+                         f"needed), got {fraction!r}")
+    if int(runs) < 1 or int(num_landmarks) < 3:
+        raise ValueError(f"need runs >= 1 and num_landmarks >= 3, got {runs!r}, "
+                         f"{num_landmarks!r}")
     q = calc.num_states
     acc: dict[str, list[dict[str, float]]] = {}
     for _ in range(runs):
@@ -204,4 +214,10 @@ def heldout_study(calc, tensor, key, *, num_landmarks: int = 20, fraction: float
         rows["heldout/propagated"]["coverage"] = float(np.asarray(fill.filled)[held].mean())
         for k, v in rows.items():
             acc.setdefault(k, []).append(v)
-    return {k: {m: float(np.mean([r[m] for r in v])) for m in v[0]} for k, v in acc.items()}
+    # runs whose score set is empty (n = 0, NaN means) are left out of that score's average
+    out = {}
+    for k, v in acc.items():
+        used = [r for r in v if r["n"] > 0]
+        out[k] = {m: float(np.mean([r[m] for r in (v if m == "n" else used)]))
+                  if (m == "n" or used) else float("nan") for m in v[0]}
+    return out
