@@ -168,13 +168,12 @@ FIELDS = ["world", "beta", "setting", "start", "goal", "reachable", "success", "
           "n_elements", "length_m"]
 
 
-def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, world,
-                progress: bool = True) -> list[dict]:
-    """All trials of one (world, β, setting); rows for ``trials.csv``."""
+def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, detect,
+                 pairs):
+    """Navigation parameters, search model and per-trial keys from (world, setting, pair)."""
     from pqrm_jax.qlink import navigate as nav
     from pqrm_jax.qlink import pomdp
 
-    lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
     params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
                            occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
                            turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
@@ -184,6 +183,16 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
     base = jax.random.fold_in(jax.random.fold_in(jax.random.key(cfg.seed), w), sid)
     pid = jnp.asarray(pairs[:, 0] * cfg.landmarks + pairs[:, 1], jnp.uint32)
     keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(pid)
+    return params, model, keys
+
+
+def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, world,
+                progress: bool = True) -> list[dict]:
+    """All trials of one (world, β, setting); rows for ``trials.csv``."""
+    from pqrm_jax.qlink import navigate as nav
+
+    lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
+    params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
     # static Link Graph reachability from the start landmark's elements
     cand = tables[0][pairs[:, 0]]
     tg = np.asarray(to_go)[goal_row[pairs[:, 1]]]
@@ -447,18 +456,9 @@ def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
 
 def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     from pqrm_jax.qlink import navigate as nav
-    from pqrm_jax.qlink import pomdp
 
     lm, el, g, to_go, goal_row, tables, _, detect, plans = world
-    params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
-                           occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
-                           turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
-                           start_offset=cfg.start_offset)
-    model = pomdp.search_model("quadrant", horizon=cfg.horizon, detect=detect)
-    sid = zlib.crc32(f"{beta}/{name}".encode()) & 0x7FFFFFFF
-    base = jax.random.fold_in(jax.random.fold_in(jax.random.key(cfg.seed), w), sid)
-    pid = jnp.asarray(pairs[:, 0] * cfg.landmarks + pairs[:, 1], jnp.uint32)
-    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(pid)
+    params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
     return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
                               pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
                               record=record, plans=plans)
