@@ -185,6 +185,24 @@ def extend(h: MapHypothesis, turn: int, view) -> tuple[list, int, int]:
     return out, bad, k
 
 
+class _TreeStats:
+    """Per-step bookkeeping shared by the tree builders (leaves, inconsistent, branching)."""
+
+    def __init__(self):
+        self.n_leaves, self.n_bad, self.branching = [1], [], []
+        self.events, self.k_max = 0, 0
+
+    def step(self, leaves: list, bad: int, br: int, branched: bool) -> None:
+        self.events += int(branched)
+        self.n_leaves.append(len(leaves))
+        self.n_bad.append(bad)
+        self.branching.append(br)
+
+    def log(self, leaves: list) -> TreeLog:
+        return TreeLog(leaves, np.array(self.n_leaves), np.array(self.n_bad, int),
+                       np.array(self.branching, int), self.events, self.k_max)
+
+
 def build_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
     """Runs Alg. 8.1 over a whole experience (breadth-first, all consistent leaves kept).
 
@@ -198,8 +216,7 @@ def build_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
         (e.g. a view that contradicts known territory in every hypothesis).
     """
     leaves = [root(experience)]
-    n_leaves, n_bad, branching = [1], [], []
-    events, k_max = 0, 0
+    stats = _TreeStats()
     for i, turn in enumerate(np.asarray(experience.turns)):
         view = experience.views[i + 1]
         nxt, bad_i, br, branched = [], 0, 0, False
@@ -213,16 +230,12 @@ def build_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
             br = max(br, len(succ))
             if k >= 1 and len(succ) > 1:
                 branched = True
-            k_max = max(k_max, k)
+            stats.k_max = max(stats.k_max, k)
             if len(nxt) > max_leaves:
                 raise TreeTooLarge(f"more than {max_leaves} leaves after travel {i + 1}")
         leaves = nxt
-        events += int(branched)
-        n_leaves.append(len(leaves))
-        n_bad.append(bad_i)
-        branching.append(br)
-    return TreeLog(leaves, np.array(n_leaves), np.array(n_bad, int), np.array(branching, int),
-                   events, k_max)
+        stats.step(leaves, bad_i, br, branched)
+    return stats.log(leaves)
 
 
 def canonical_places(places) -> tuple:
@@ -300,8 +313,7 @@ def build_basic_tree(experience: Experience, max_leaves: int = 200_000) -> TreeL
         raise ValueError("an empty exploration has no view: the tree of maps has no root")
     v0 = view_symbol(experience.views[0])
     leaves = [({}, (v0,), (0,), 0)]
-    n_leaves, n_bad, branching = [1], [], []
-    events, k_max = 0, 0
+    stats = _TreeStats()
     for i, turn in enumerate(np.asarray(experience.turns)):
         star, a = experience.views[i]
         steps = []
@@ -336,15 +348,11 @@ def build_basic_tree(experience: Experience, max_leaves: int = 200_000) -> TreeL
                 place = places[q] if act[0] == "turn" else max(places) + 1
                 succ.append((r2, (*views, v), (*places, place), nq))
                 nxt.extend(succ)
-                k_max = max(k_max, k)
+                stats.k_max = max(stats.k_max, k)
                 br = max(br, len(succ))
                 branched |= len(succ) > 1
                 if len(nxt) > max_leaves:
                     raise TreeTooLarge(f"more than {max_leaves} basic-SSH leaves")
             leaves = nxt
-            events += int(branched)
-            n_leaves.append(len(leaves))
-            n_bad.append(bad_i)
-            branching.append(br)
-    return TreeLog(leaves, np.array(n_leaves), np.array(n_bad, int), np.array(branching, int),
-                   events, k_max)
+            stats.step(leaves, bad_i, br, branched)
+    return stats.log(leaves)
