@@ -60,10 +60,12 @@ def test_layout_and_global_occupancy(run):
     grid, origin, res = hs.global_occupancy(sw, se, log.leaves[k], np.asarray(chi[0]))
     assert grid.ndim == 2 and res == pytest.approx(sw.width / hs.SimParams().cells)
     agree = hs.map_agreement(sw, grid, origin, res, se.true_dividing[0])
-    assert agree > 0.8
+    assert agree > 0.6
     # the same snapshots placed by a wrong frame do not agree with the walls
     shifted = hs.map_agreement(sw, grid, origin + 0.5 * sw.width, res, se.true_dividing[0])
-    assert shifted < agree - 0.3
+    assert shifted < 0.2
+    jxy, jth = hs.revisit_jitter(se, log.leaves[k])
+    assert 0 < jxy < 0.5 * sw.width and 0 <= jth < 0.2
 
 
 def test_navigation_in_the_simulator(run):

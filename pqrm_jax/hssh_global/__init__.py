@@ -40,6 +40,7 @@ from .simulation import (
     global_occupancy,
     map_agreement,
     navigate_sim,
+    revisit_jitter,
     sim_world,
     true_layout_sim,
 )
@@ -82,4 +83,4 @@ __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "map_graph", "plan_route", "shortest_distance",
            "SimParams", "SimWorld", "SimExperience", "SimulationError", "sim_world",
            "explore_sim", "navigate_sim", "evaluate_navigation_sim", "global_occupancy",
-           "map_agreement", "true_layout_sim"]
+           "map_agreement", "true_layout_sim", "revisit_jitter"]

@@ -61,7 +61,7 @@ from .world import CorridorWorld, Experience
 
 __all__ = ["SimParams", "SimWorld", "SimExperience", "SimulationError", "sim_world",
            "explore_sim", "navigate_sim", "evaluate_navigation_sim", "global_occupancy",
-           "map_agreement", "true_layout_sim"]
+           "map_agreement", "true_layout_sim", "revisit_jitter"]
 
 
 class SimulationError(RuntimeError):
@@ -82,6 +82,7 @@ class SimParams(NamedTuple):
     n_beams: lidar beams (full circle); ``range_widths`` lidar range in ``w``.
     sigma_v: relative sd of the executed speed; ``sigma_w`` heading-rate sd per ``w`` travelled.
     arrive_tol: distance to the core centre (in ``w``) at which the view is read.
+    rereads: nudged re-reads of a place view whose gateways cross.
     max_checks: topology checks per travel before :class:`SimulationError`.
     """
 
@@ -99,6 +100,7 @@ class SimParams(NamedTuple):
     sigma_v: float = 0.02
     sigma_w: float = 0.02
     arrive_tol: float = 0.1
+    rereads: int = 4
     max_checks: int = 60
 
 
@@ -132,6 +134,7 @@ class SimExperience(NamedTuple):
         between these, so odometry error is dead-reckoning error only.
     distance: true distance driven (world units).
     checks: local-topology runs.
+    rejected: place views refused because their gateways crossed (then re-read).
     """
 
     experience: Experience
@@ -142,6 +145,7 @@ class SimExperience(NamedTuple):
     true_dividing: np.ndarray
     distance: float
     checks: int
+    rejected: int
 
 
 def sim_world(world: CorridorWorld, params: SimParams | None = None,
@@ -252,6 +256,7 @@ class _Rover:
         self.s = _Drive(pose, pose, hssh.lpm_init(pose, self.lpm_p), key,
                         jnp.zeros((), jnp.float32))
         self.checks = 0
+        self.rejected = 0          # place views refused because their gateways cross
         self.trace: list = []      # (true pose, kind or None) of every topology check
         noise = (float(p.sigma_v), float(p.sigma_w / sw.width), float(p.centring))
         self._kw = dict(lpm_p=self.lpm_p, rover_p=self.rover_p, lidar_p=self.lidar_p,
@@ -385,6 +390,45 @@ def _read_view(rv: _Rover, lt, travel_dir) -> _Arrival:
     return _Arrival(view, bear, tuple(entries), lines, pose, rv.true(), rv.odom())
 
 
+def _segments_cross(a, b) -> bool:
+    """Do the open segments ``a`` and ``b`` (``[2, 2]``) properly intersect?"""
+    def orient(p, q, r):
+        return np.sign((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+    return bool(orient(a[0], a[1], b[0]) * orient(a[0], a[1], b[1]) < 0
+                and orient(b[0], b[1], a[0]) * orient(b[0], b[1], a[1]) < 0)
+
+
+def _sane(lt) -> bool:
+    """A place view whose gateways do not cross one another (two crossing gateways cannot
+    both bound the place: a known failure of anchor gateways at corners, B Fig. 6.36)."""
+    g = lt.gateways
+    return not any(_segments_cross(g[i], g[j]) for i in range(len(g))
+                   for j in range(i + 1, len(g)))
+
+
+def _settled_view(rv: _Rover, centre) -> object | None:
+    """Read the place view at ``centre`` after two more control steps of scans.
+
+    A view with crossing gateways is not read: the rover nudges by a quarter width (a different
+    whole-cell scroll of the LPM) in turn along four directions and reads again, up to
+    ``SimParams.rereads`` times; ``None`` when no sane place view comes.
+    """
+    w = rv.sw.width
+    zero = np.zeros(2)
+    target = np.asarray(centre, float)
+    for k in range(rv.p.rereads + 1):
+        rv.drive(target, zero, 0.0, 2 if k == 0 else rv.p.check_every)
+        lt = rv.topology()
+        if lt is None or lt.kind not in ("place", "dead_end") or lt.core is None:
+            return None
+        if _sane(lt):
+            return lt
+        rv.rejected += 1
+        ang = 0.5 * np.pi * k + np.pi / 4
+        target = np.asarray(centre, float) + 0.25 * w * np.array([np.cos(ang), np.sin(ang)])
+    return None
+
+
 def _corridor_axis(track, out, w) -> np.ndarray:
     """Travel direction at arrival: the odometry track along the corridor (the follow-midline
     behaviour keeps it parallel to the walls) when it spans at least ``w / 2``, else ``out``."""
@@ -416,10 +460,8 @@ def _approach(rv: _Rover, line, travel_dir, leave_from=None) -> _Arrival:
                 and lt.core is not None):
             c = rv.to_odom(lt.core.centre)
             if np.hypot(*(c - rv.odom()[:2])) <= p.arrive_tol * w:
-                rv.drive(c, zero, 0.0, 2)
-                lt2 = rv.topology()
-                if (lt2 is not None and lt2.kind in ("place", "dead_end")
-                        and lt2.core is not None):
+                lt2 = _settled_view(rv, c)
+                if lt2 is not None:
                     return _read_view(rv, lt2, _corridor_axis(track, out, w))
             rv.drive(c, zero, 0.0, p.check_every)
             continue
@@ -560,7 +602,8 @@ def explore_sim(sw: SimWorld, n_travels: int, seed: int = 0, params: SimParams |
                      np.array(odo, float).reshape(-1, 3), np.array(places, np.int32),
                      np.array(todo, float).reshape(-1, 3), np.array(arrivals, np.int32))
     return SimExperience(exp, np.stack(snaps), np.stack(poses), np.stack(origins),
-                         np.stack(trues), np.stack(tdiv), float(rv.s.travelled), rv.checks)
+                         np.stack(trues), np.stack(tdiv), float(rv.s.travelled), rv.checks,
+                         rv.rejected)
 
 
 def true_layout_sim(se: SimExperience) -> np.ndarray:
@@ -688,18 +731,21 @@ def global_occupancy(sw: SimWorld, se: SimExperience, h,
 
 
 def map_agreement(sw: SimWorld, grid: np.ndarray, origin, resolution: float, frame,
-                  threshold: float = 0.4) -> float:
-    """Fraction of the global map's occupied cells that lie on a true wall.
+                  threshold: float = 0.4, tol_cells: float = 2.0) -> float:
+    """Fraction of the global map's occupied cells that lie on a true wall surface.
 
     Args:
         sw: the rendered world (the truth).
         grid, origin, resolution: from :func:`global_occupancy`.
         frame: ``[3]`` true pose of the map frame (``SimExperience.true_dividing[0]``).
         threshold: log-odds above which a map cell is occupied.
+        tol_cells: distance to the wall surface, in map cells, that still agrees (an LPM hit
+            cell's centre lies up to about one cell from the surface, plus one for the
+            whole-cell scrolling and the lidar's march step).
 
     Returns:
-        The share of occupied map cells whose centre is within one map cell of a true wall cell
-        (NaN when the map has no occupied cell).
+        The share of occupied map cells whose centre is within ``tol_cells`` map cells of the
+        true wall surface, on either side (NaN when the map has no occupied cell).
     """
     from scipy.ndimage import distance_transform_edt
     rows, cols = np.nonzero(np.asarray(grid) > threshold)
@@ -709,10 +755,35 @@ def map_agreement(sw: SimWorld, grid: np.ndarray, origin, resolution: float, fra
     pts = np.asarray(compose(np.asarray(frame, float),
                              np.concatenate([xy, np.zeros((len(xy), 1))], 1)))[:, :2]
     occ = np.asarray(sw.occupied)
-    dist = distance_transform_edt(~occ) * sw.resolution
+    # distance to the wall surface (the boundary between free and occupied), either side
+    dist = np.where(occ, distance_transform_edt(occ), distance_transform_edt(~occ)) \
+        * sw.resolution
     j = np.floor((pts[:, 0] - sw.origin[0]) / sw.resolution).astype(int)
     i = np.floor((pts[:, 1] - sw.origin[1]) / sw.resolution).astype(int)
     inside = (i >= 0) & (i < occ.shape[0]) & (j >= 0) & (j < occ.shape[1])
     near = np.zeros(len(pts), bool)
-    near[inside] = dist[i[inside], j[inside]] <= resolution
+    near[inside] = dist[i[inside], j[inside]] <= tol_cells * resolution
     return float(near.mean())
+
+
+def revisit_jitter(se: SimExperience, h) -> tuple[float, float]:
+    """How far the dividing poses of revisits stray from what the place frame predicts.
+
+    At a revisit of place ``p`` on entry ``e`` the layout assumes the rover stands at
+    ``χ_p ⊕ (0, 0, δ_e)`` (:mod:`~pqrm_jax.hssh_global.layout`), ``χ_p`` being the first visit's
+    dividing pose. With the true dividing poses this returns the mean position discrepancy
+    (world units) and mean absolute heading discrepancy (rad) over all revisits: the noise the
+    loop-closing springs carry, beside the odometry's (NaN, NaN without a revisit).
+    """
+    first: dict = {}
+    dxy, dth = [], []
+    for i, (p, e) in enumerate(h.visits):
+        if p not in first:
+            first[p] = se.true_dividing[i]
+            continue
+        pred = np.asarray(compose(first[p], np.array([0.0, 0.0, h.bearings[p][e]])))
+        dxy.append(float(np.hypot(*(se.true_dividing[i][:2] - pred[:2]))))
+        dth.append(abs(float(_wrap(se.true_dividing[i][2] - pred[2]))))
+    if not dxy:
+        return float("nan"), float("nan")
+    return float(np.mean(dxy)), float(np.mean(dth))
