@@ -95,3 +95,19 @@ def test_bad_input_and_lost_rover():
         hs.explore_sim(sw, 1, params=hs.SimParams(cells=20))
     with pytest.raises(hs.SimulationError, match="no place reached"):
         hs.explore_sim(sw, 1, seed=1, params=hs.SimParams(max_checks=3))
+
+
+@pytest.mark.slow
+def test_simulator_exploration_is_scale_free():
+    """The same world at lattice spacing 1 and 3: the same views and turns, and odometry that
+    scales with the world (everything in the simulator is measured in corridor widths)."""
+    runs = []
+    for scale in (1.0, 3.0):
+        lattice = hg.world_from_lattice(LOOP, scale=scale)
+        runs.append(hs.explore_sim(hs.sim_world(lattice), 6, seed=2).experience)
+    a, b = runs
+    assert [v[0] for v in a.views] == [v[0] for v in b.views]
+    assert [v[1] for v in a.views] == [v[1] for v in b.views]
+    np.testing.assert_array_equal(a.turns, b.turns)
+    np.testing.assert_allclose(b.odometry[:, :2] / 3.0, a.odometry[:, :2], atol=0.02)
+    np.testing.assert_allclose(b.odometry[:, 2], a.odometry[:, 2], atol=0.05)
