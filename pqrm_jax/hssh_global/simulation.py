@@ -317,16 +317,43 @@ class _Arrival(NamedTuple):
     odom_pose: np.ndarray     # odometry rover pose at the reading
 
 
+def _gateway_axes(lt) -> np.ndarray:
+    """Corridor axis ``[G, 2]`` (row, col unit vectors) leaving through each gateway.
+
+    The pruned skeleton runs along the midline of the corridor beyond a gateway to an exit at
+    the LPM border; the axis is the direction from the gateway's skeleton point to the exit
+    best aligned with its outward normal (cosine at least 0.7), else the normal itself. Anchor
+    gateways at L corners are sometimes diagonal (B Fig. 6.36), their normals then point up to
+    45° off the corridor, while the skeleton does not.
+    """
+    out = np.asarray(lt.outward, float).reshape(-1, 2).copy()
+    exits = np.asarray(lt.skeleton.exits, float).reshape(-1, 2)
+    for g, rec in enumerate(lt.details):
+        if len(exits) == 0:
+            break
+        d = exits - np.asarray(rec.centre, float)[None, :]
+        n = np.hypot(d[:, 0], d[:, 1])
+        ok = n > 1.0
+        if not ok.any():
+            continue
+        cos = np.where(ok, (d @ out[g]) / np.where(ok, n, 1.0), -1.0)
+        k = int(np.argmax(cos))
+        if cos[k] >= 0.7:
+            out[g] = d[k] / n[k]
+    return out
+
+
 def _star_entries(lt) -> list:
     """The star of a local topology with every entry placed by its gateway normal.
 
     The pairing of gateways into local paths is the local levels' (path continuity, B §5.2.2);
-    each traversable entry sits at the angle of its gateway's outward normal and the
-    non-traversable opposite of an unpaired gateway at the angle of the inward normal (the
-    direction of B's inward ray). :func:`pqrm_jax.hssh.build_star` places the latter where a
+    each traversable entry sits at the angle of its corridor axis (:func:`_gateway_axes`) and
+    the non-traversable opposite of an unpaired gateway at the opposite angle (the direction of
+    B's inward ray). :func:`pqrm_jax.hssh.build_star` places the latter where a
     short ray from the gateway midpoint ends, which is unstable when the midpoint lies near the
     core centre (seen at L corners with a tilted gateway: the two non-traversable entries swap).
     """
+    axes = _gateway_axes(lt)
     groups: dict = {}
     for e in lt.entries:
         if e.traversable:
@@ -334,10 +361,9 @@ def _star_entries(lt) -> list:
     raw = []
     for grp, gws in groups.items():
         for g in gws:
-            raw.append((hssh.star.clockwise_angle(lt.outward[g]), True, g, grp))
+            raw.append((hssh.star.clockwise_angle(axes[g]), True, g, grp))
         if len(gws) == 1:
-            raw.append((hssh.star.clockwise_angle(-np.asarray(lt.outward[gws[0]])), False, -1,
-                        grp))
+            raw.append((hssh.star.clockwise_angle(-axes[gws[0]]), False, -1, grp))
     raw.sort(key=lambda t: (round(t[0], 9), not t[1]))
     ids: dict = {}
     seen: set = set()
@@ -358,9 +384,9 @@ def _read_view(rv: _Rover, lt, travel_dir) -> _Arrival:
 
     The arrival gateway is the one whose outward normal points most nearly back along the
     travel direction. The dividing pose heading is the travel direction (the corridor axis from
-    the last path views); entry bearings are the gateway normals relative to it (a
-    non-traversable entry: its opposite's bearing plus π). Gateway normals are more accurate
-    than star angles (measured around the mean base point).
+    the odometry track); entry bearings are the corridor axes of the gateways
+    (:func:`_gateway_axes`) relative to it (a non-traversable entry: its opposite's bearing plus
+    π). Exit lines run from a gateway's skeleton point along its axis.
     """
     outs = np.array([rv.vec_to_odom(o) for o in lt.outward]).reshape(-1, 2)
     travel_dir = np.asarray(travel_dir, float) / np.linalg.norm(travel_dir)
@@ -369,13 +395,14 @@ def _read_view(rv: _Rover, lt, travel_dir) -> _Arrival:
     if back[g] < 0.7:
         raise SimulationError(f"no gateway behind the rover (best cosine {back[g]:.2f})")
     entries = _star_entries(lt)
+    axes = np.array([rv.vec_to_odom(o) for o in _gateway_axes(lt)]).reshape(-1, 2)
     view, _ = view_from_local_star(entries, g)
     star, arr = view
     heading = float(np.arctan2(travel_dir[1], travel_dir[0]))
     head = [None] * len(star)
     for i, e in enumerate(entries):
         if e.traversable:
-            head[i] = float(np.arctan2(outs[e.gateway][1], outs[e.gateway][0]))
+            head[i] = float(np.arctan2(axes[e.gateway][1], axes[e.gateway][0]))
     for i in range(len(star)):
         if head[i] is None:
             head[i] = head[star.opp[i]] + np.pi
@@ -385,8 +412,8 @@ def _read_view(rv: _Rover, lt, travel_dir) -> _Arrival:
     lines = {}
     for i, e in enumerate(entries):
         if e.traversable:
-            mid = rv.to_odom(np.mean(lt.gateways[e.gateway], axis=0))
-            lines[i] = (mid, outs[e.gateway])
+            mid = rv.to_odom(lt.details[e.gateway].centre)
+            lines[i] = (mid, axes[e.gateway])
     return _Arrival(view, bear, tuple(entries), lines, pose, rv.true(), rv.odom())
 
 
