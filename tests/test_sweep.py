@@ -127,6 +127,8 @@ def test_two_by_two_sweep_runs_resumes_and_reports(tmp_path):
     log.clear()
     sweep.run(tiny, [*GRID, "--out", str(out), "--report-only"])
     assert log == [] and (out / "sweep_report.md").exists()
+    with pytest.raises(sweep.SweepError, match="holds a sweep over"):
+        sweep.run(tiny, ["--sweep", "n=2", "--out", str(out), "--report-only"])
 
 
 def _records(out: Path) -> list[dict]:

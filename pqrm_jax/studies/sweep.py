@@ -245,16 +245,19 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     cfgs = [_configure_cell(module, rest, c) for c in cells]  # every cell checked first
     out = Path(args.out)
     sweep_study = f"{module.NAME}-sweep"
-    if getattr(args, "report_only", False):
-        with Store.open(out, sweep_study, None) as st:
-            return write_sweep_report(st, module.NAME, axes, _records(st).values())
-    cluster = distributed.initialize_from(args)  # before any JAX computation
     swept = {a.key for a in axes}
     fields = {f.name for f in dataclasses.fields(module.Config)}
     guard = {"study": module.NAME,
              "axes": {a.key: [_jsonable(v) for v in a.values] for a in axes},
              "base": {k: v for k, v in base.to_json().items()
                       if k in fields and k not in swept}}
+    if getattr(args, "report_only", False):
+        with Store.open(out, sweep_study, None) as st:
+            if st.config.get("axes") != guard["axes"]:
+                raise SweepError(f"{out} holds a sweep over {st.config.get('axes')}, not "
+                                 f"{guard['axes']}; give its --sweep axes with --report-only")
+            return write_sweep_report(st, module.NAME, axes, _records(st).values())
+    cluster = distributed.initialize_from(args)  # before any JAX computation
     distributed.agree(cluster, guard, f"{module.NAME} sweep")
     st = log = None
     status = np.zeros(len(cells) + 1, np.int32)  # [opened ok, cell i left to do, ...]
