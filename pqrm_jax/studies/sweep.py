@@ -381,7 +381,11 @@ def _figures(st, axes: list[Axis], records: list[dict]) -> list[str]:
                 g = tuple(_cell_value(r, b.key) for b in others)
                 groups.setdefault(g, []).append(r)
             labels = [_fmt(v) for v in a.values]
-            for g, rs in sorted(groups.items(), key=lambda t: str(t[0])):
+            try:
+                ordered = sorted(groups.items(), key=lambda t: t[0])
+            except TypeError:  # values of mixed types: by their text
+                ordered = sorted(groups.items(), key=lambda t: str(t[0]))
+            for g, rs in ordered:
                 ys = []
                 for v in a.values:
                     hit = [_numeric(r["summary"]).get(m, math.nan) for r in rs
