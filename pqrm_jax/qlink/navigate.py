@@ -435,7 +435,7 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     order = np.argsort(-n_elements, kind="stable")
     inv = np.argsort(order)
     b = len(order)
-    q = max(chunk, 1 << int(np.ceil(np.log2(max(b, 1)))))     # queue length: few compiles
+    q = max(4 * chunk, 1 << int(np.ceil(np.log2(max(b, 1)))))   # queue: few compiles
     pad = np.concatenate([order, np.full(q - b, order[0] if b else 0)])
     args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
             jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
