@@ -439,7 +439,7 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     pad = np.concatenate([order, np.full(q - b, order[0] if b else 0)])
     args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
             jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
-    args = [x[jnp.asarray(pad)] for x in args]
+    args = _take(args, jnp.asarray(pad, jnp.int32))
     if plans is None:
         plans = qsr_plans(elements, model)
     occ_tab, occlusion = _occ_inputs(landmarks, p)
@@ -447,7 +447,13 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
                     jnp.asarray(plans), model.feasible, model.detect, p, occ_tab,
                     horizon=int(model.horizon), occlusion=occlusion, width=int(chunk),
                     record=int(record))
-    return jax.tree.map(lambda x: x[jnp.asarray(inv)], res)
+    return _take(res, jnp.asarray(inv, jnp.int32))
+
+
+@jax.jit
+def _take(tree, idx):
+    """Every leaf's rows ``idx`` (one compiled gather per tree layout, not one per leaf)."""
+    return jax.tree.map(lambda x: x[idx], tree)
 
 
 def _chunked(fn, args, chunk):
