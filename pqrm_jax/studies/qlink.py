@@ -463,5 +463,5 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     lm, el, g, to_go, goal_row, tables, _, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
     return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
-                              pairs[:, 1], params, model, chunk=cfg.chunk, record=record,
-                              plans=plans)
+                              pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
+                              record=record, plans=plans)    # few lanes: the traces are big
