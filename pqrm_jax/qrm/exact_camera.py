@@ -228,14 +228,20 @@ def _roots(A, B, C, z0, z1):
 
 
 def _sample_params(A, B, C, z0, z1):
-    """Edge parameters ``t`` [3K + 1, …] and their validity: the midpoints between the
-    sorted roots in (0, 1) (2K + 1), then the vertex of every quadratic (K)."""
+    """Edge parameters ``t`` [3K + 1, …] and their validity: the midpoints between
+    consecutive roots in (0, 1) and the ends (2K + 1; repeated roots repeat a sample), then
+    the vertex of every quadratic (K)."""
     r = _roots(A, B, C, z0, z1).reshape((-1,) + A.shape[1:])  # (2K, …)
     inside = jnp.isfinite(r) & (r > 0) & (r < 1)
     r = jnp.where(inside, r, 0.0)
     zero = jnp.zeros((1,) + r.shape[1:], r.dtype)
-    pts = jnp.sort(jnp.concatenate([zero, r, zero + 1]), axis=0)
-    mids = 0.5 * (pts[1:] + pts[:-1])
+    pts = jnp.concatenate([zero, r])  # every interval starts at one of these
+    # midpoint of each interval [p, next value above p] (no sort: a min over the others)
+    # (ties broken by index: a repeated root gives a sample on it, as a sort would)
+    idx = np.arange(pts.shape[0]).reshape((-1,) + (1,) * (pts.ndim - 1))
+    above = (pts[None] > pts[:, None]) | ((pts[None] == pts[:, None]) & (idx[None] > idx[:, None]))
+    nxt = jnp.min(jnp.where(above, pts[None], 1.0), axis=1)
+    mids = 0.5 * (pts + nxt)
     top = -B / jnp.where(A == 0, 1.0, 2 * A)
     t = jnp.concatenate([mids, jnp.where(A != 0, top, 0.5)])
     valid = (t > 0) & (t < 1)
@@ -264,23 +270,17 @@ def _or(x, axes):
     return jax.lax.reduce(x, np.uint32(0), jax.lax.bitwise_or, axes)
 
 
-def _preimage(w, reps, o):
-    """Ranges ``(d_near, d_mid, d_far)`` [R, T] each (max-normalised, d_far ≥ 0) with
-    ``E = c D`` for the points ``c`` [R, 2] and relation ``o``: the kernel of
-    ``d_X (c − 1) w_X − d_Y c w_Y + d_Z w_Z = 0`` (complex)."""
-    X, Y, Z = CYCLIC[o]
+def _preimage(w, reps):
+    """Ranges ``(d_X, d_Y, d_Z)`` [O, R, T] each with ``E = c D`` for the points ``c``
+    [R, 2]: the kernel of ``d_X (c − 1) w_X − d_Y c w_Y + d_Z w_Z = 0`` (complex), with
+    ``w = (cos, sin)`` [3, O, 1, T] in each relation's (X, Y, Z) order."""
     cw, sw = w
     cr, ci = reps[:, :1], reps[:, 1:]
-    re, im = [None] * 3, [None] * 3
-    re[X], im[X] = (cr - 1) * cw[X] - ci * sw[X], (cr - 1) * sw[X] + ci * cw[X]
-    re[Y], im[Y] = -(cr * cw[Y] - ci * sw[Y]), -(cr * sw[Y] + ci * cw[Y])
-    re[Z], im[Z] = jnp.broadcast_to(cw[Z], re[X].shape), jnp.broadcast_to(sw[Z], re[X].shape)
-    d = [re[1] * im[2] - re[2] * im[1], re[2] * im[0] - re[0] * im[2],
-         re[0] * im[1] - re[1] * im[0]]
-    sgn = jnp.where(d[2] < 0, -1.0, 1.0)
-    scale = jnp.maximum(jnp.maximum(jnp.abs(d[0]), jnp.abs(d[1])), jnp.abs(d[2]))
-    scale = jnp.maximum(scale, jnp.finfo(cw.dtype).tiny)
-    return [x * sgn / scale for x in d]
+    re = [(cr - 1) * cw[0] - ci * sw[0], -(cr * cw[1] - ci * sw[1]), None]
+    im = [(cr - 1) * sw[0] + ci * cw[0], -(cr * sw[1] + ci * cw[1]), None]
+    re[2], im[2] = jnp.broadcast_to(cw[2], re[0].shape), jnp.broadcast_to(sw[2], re[0].shape)
+    return [re[1] * im[2] - re[2] * im[1], re[2] * im[0] - re[0] * im[2],
+            re[0] * im[1] - re[1] * im[0]]
 
 
 def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -294,57 +294,67 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array
         ``(possible, undecided)`` [T, 3] uint32 *atom* masks: ``possible`` holds every
         feasible atom and, besides the witnessed ones, the ``undecided`` atoms that only a
         near-degenerate sample could not exclude (normally none).
+
+    The three relations run as one program along an axis O = 3: relation o is relation 0
+    of the triple with its slots permuted to (X, Y, Z) = ``CYCLIC[o]``.
     """
     st = camera_structure(spec)
     dtype = bearings.dtype
     eps = jnp.finfo(dtype).eps
-    w = (jnp.cos(bearings).T, jnp.sin(bearings).T)  # [3, T] each: the triple axis is minor
     K = spec.k
+    perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
+    inv = np.argsort(perm, 1)  # inv[o][slot] = relation-order position
+    cw, sw = jnp.cos(bearings).T[perm], jnp.sin(bearings).T[perm]  # [O, 3, T]
+    cw, sw = jnp.swapaxes(cw, 0, 1), jnp.swapaxes(sw, 0, 1)  # [3 (X, Y, Z), O, T]
+
+    w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
+
+    def rel_d(vals, shape):  # slot-order constants (..., 3) → 3 × [O, ...] in (X, Y, Z) order
+        v = np.asarray(vals)[..., perm]  # (..., O, 3)
+        v = np.moveaxis(v, -2, 0)  # (O, ..., 3)
+        return [jnp.asarray(v[..., k].reshape(shape), dtype) for k in range(3)]
+
     i, j = np.array(EDGES).T
     # the three vertices and the three edge midpoints, for the edge quadratics
     nodes = np.concatenate([VERTICES, 0.5 * (VERTICES[i] + VERTICES[j])], 0)  # (6, 3)
-    node_d = [jnp.asarray(nodes[:, s, None], dtype) for s in range(3)]
+    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)), 0)  # (K, O, 6, T)
+    van = np.moveaxis(st.vanish, 1, 0)  # (K, O, 3 vertices)
+    vmask = jnp.asarray(van)[..., None]
+    f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
+    e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
+    f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
+    A = 2 * f0 - 4 * fh + 2 * f1
+    B = -3 * f0 + 4 * fh - f1
+    emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
+    t, valid = _sample_params(A, B, f0, jnp.asarray(van[:, :, i, None]),
+                              jnp.asarray(van[:, :, j, None]))  # (S, O, 3, T)
+    S = t.shape[0]
+    Vi = rel_d(VERTICES[i], (1, 3, 3, 1))
+    Vd = rel_d(VERTICES[j] - VERTICES[i], (1, 3, 3, 1))
+    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)], 0)  # (K,S,O,3,T)
+    band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
+    # a quadratic's vertex is only needed where it nears zero there (a tangency that the
+    # roots may have missed); elsewhere it could sit on another constraint's root
+    own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
+    own_band = jnp.moveaxis(jnp.diagonal(band[:, S - K:], axis1=0, axis2=1), -1, 0)
+    valid = jnp.concatenate([valid[:S - K], valid[S - K:] & (jnp.abs(own) <= own_band)])
+    wit, poss = _atoms(spec, fe, _CERTAIN * ee, band)  # (S, O, 3, T)
+    ok = jnp.asarray(st.edge_ok)[None, :, :, None] & valid
+    wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 2))  # (O, T)
+    poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 2))
+    # region points: R_s inside the image of the cone
     reps = jnp.asarray(st.reps, dtype)
-    Vi = [jnp.asarray(VERTICES[i, s].reshape(1, 3, 1), dtype) for s in range(3)]
-    Vd = [jnp.asarray((VERTICES[j, s] - VERTICES[i, s]).reshape(1, 3, 1), dtype)
-          for s in range(3)]
-    possible, witnessed = [], []
-    for o in range(3):
-        f, e = form_values(spec, w, node_d, o)  # (K, 6, T)
-        van = st.vanish[o]  # (K, 3)
-        vmask = jnp.asarray(van)[:, :, None]
-        f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :3]), f[:, 3:]], 1)
-        e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :3]), e[:, 3:]], 1)
-        f0, fh, f1 = f[:, i], f[:, 3:], f[:, j]  # (K, 3 edges, T)
-        A = 2 * f0 - 4 * fh + 2 * f1
-        B = -3 * f0 + 4 * fh - f1
-        emax = jnp.maximum(jnp.maximum(e[:, i], e[:, 3:]), e[:, j])  # (K, 3, T)
-        t, valid = _sample_params(A, B, f0, jnp.asarray(van[:, i, None]),
-                                  jnp.asarray(van[:, j, None]))  # (S, 3, T)
-        S = t.shape[0]
-        fe, ee = form_values(spec, w, [Vi[s] + t * Vd[s] for s in range(3)], o)
-        band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])  # (K, S, 3, T)
-        # a quadratic's vertex is only needed where it nears zero there (a tangency that the
-        # roots may have missed); elsewhere it could sit on another constraint's root
-        own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
-        own_band = jnp.moveaxis(jnp.diagonal(band[:, S - K:], axis1=0, axis2=1), -1, 0)
-        valid = jnp.concatenate([valid[:S - K], valid[S - K:] & (jnp.abs(own) <= own_band)])
-        wit, poss = _atoms(spec, fe, _CERTAIN * ee, band)  # (S, 3, T)
-        ok = jnp.asarray(st.edge_ok[o])[None, :, None] & valid
-        wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 1))
-        poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 1))
-        # region points: R_s inside the image of the cone
-        dr = _preimage(w, reps, o)  # 3 × (R, T)
-        fr, er = form_values(spec, w, dr, o)
-        g = (dr[0], dr[1] - dr[0], dr[2] - dr[1])
-        inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
-        cb = -_CONE_BAND * eps
-        near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
-        rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)
-        wit = wit | _or(jnp.where(inside, rw, jnp.uint32(0)), (0,))
-        poss = poss | _or(jnp.where(near, rp, jnp.uint32(0)), (0,))
-        witnessed.append(wit)
-        possible.append(poss | wit)
-    wit = jnp.stack(witnessed, -1)
-    poss = jnp.stack(possible, -1)
-    return poss, poss & ~wit
+    dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
+    fr, er = form_values(spec, w, dr, 0)  # (K, O, R, T)
+    D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
+    ds = jnp.take_along_axis(D, jnp.asarray(inv.T)[:, :, None, None], 0)
+    ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
+    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
+    g = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
+    inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
+    cb = -_CONE_BAND * eps
+    near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
+    rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)  # (O, R, T)
+    wit = wit | _or(jnp.where(inside, rw, jnp.uint32(0)), (1,))
+    poss = poss | _or(jnp.where(near, rp, jnp.uint32(0)), (1,)) | wit
+    return poss.T, (poss & ~wit).T
