@@ -64,16 +64,17 @@ DECISIONS = {
     "Z-7": "eta divides (normalisation)",
     "Z-8": "association and measurement condition on the scale of F_{t-1}",
     "Z-9": "frame scale = reference scale x |X1 - X2| (tables G2, GA, GB)",
-    "Z-10": "reference = F_1's measured scale bin; fallback uniform over observable bins for "
-            "pairs in a known triplet, over all bins otherwise; pairs derivable from measured "
-            "rows or inside a measured triplet keep their measured-only scale in both modes "
-            "(compositions serve only the other pairs: plan existence is monotone)",
+    "Z-10": "reference = F_1's true scale bin (one-hot); fallback uniform over observable "
+            "bins for pairs in a known triplet, over all bins otherwise; pairs derivable from "
+            "measured rows or inside a measured triplet keep their measured-only scale in "
+            "both modes (compositions serve only the other pairs: plan existence is monotone)",
     "Z-11": "expectimax tree: min over actions, expectation over beta and z, min over links; "
             "goal branch terminal; leaf h = cbar (1 + rho) (hops + 1) with rho = 10 (each "
-           "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
-           "the cost-1 planner dither), lambda = 1e5 cbar without a path",
+            "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
+            "the cost-1 planner dither), lambda = 1e5 cbar without a path",
     "Z-12": "map frozen during lookahead",
-    "Z-13": "cost 1 uses neighbour distance with edges and corners (SPEC 2.1)",
+    "Z-13": "cost 1 uses the EDC neighbour distance with edges and corners as neighbours "
+            "(P §2.3.1; docs/decisions.md §2.1)",
     "Z-14": "cost 2 literal: D2[s,s] > 0; mid(last bin) = 2R",
     "Z-15": "comparable = plan exists in both modes and both executions reach the goal; "
             "different = executed (frame, action) sequences differ; share of all tests, "
@@ -119,6 +120,11 @@ def config_for(args) -> dict:
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
                       "pqrm_samples": 64, "eps_obs": 0.01},
         "initial_measurement_samples": 256,
+        # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
+        "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
+                   "depths": [1, 2]} if args.tiny else
+                  {"seed": args.seed + 20_000, "envs": 60 if args.reduced else 200,
+                   "sizes": [1.5, 2.5, 3.5, 5.0], "depths": [1, 2, 3]}),
         "chunk": base["chunk"],
         "decisions": DECISIONS,
         "published": PUBLISHED,
@@ -159,6 +165,60 @@ def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
     rates = {str(x): float(np.mean(v)) for x, v in ok.items()}
     best = min(cfg["eps_grid"], key=lambda x: abs(rates[str(x)] - PUBLISHED["exists_with"]))
     return float(best), rates
+
+
+def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
+    """Plan exists vs S/R (frame graph) and vs the depth L (tree root < λ), both modes.
+
+    Environments on the sweep seed (``cfg["sweep"]``), ``eps_obs`` = the study's. Existence
+    by the frame graph does not involve L; the tree's existence is measured at each depth on
+    the ``cfg["size"]`` environments (it equals the graph's by construction, §plan-exists: a
+    figure of the check, not of a dependence).
+    """
+    import jax
+    import jax.numpy as jnp
+    from tqdm.auto import tqdm
+
+    from ..bsp import env as E
+    from ..bsp import graph as G
+    from ..bsp import planner as P
+
+    sw = cfg["sweep"]
+    sizes = sorted(set(sw["sizes"]) | {cfg["size"]})
+    out = {"sizes": sizes, "depths": sw["depths"], "eps_obs": eps, "envs": sw["envs"],
+           "exists": {m: {} for m in ("without", "with")},
+           "tree_exists": {m: {} for m in ("without", "with")}}
+    pps = {d: P.PlannerParams(depth=d, n_actions=cfg["planner"]["n_actions"],
+                              n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
+                              rho=cfg["planner"]["rho"]) for d in sw["depths"]}
+    bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
+    for size in sizes:
+        ex = {m: [] for m in ("without", "with")}
+        tex = {m: {d: [] for d in sw["depths"]} for m in ("without", "with")}
+        for e in range(sw["envs"]):
+            env = make_env(cfg, sw["seed"], e, size)
+            goal = jnp.asarray(env.goal)
+            for mode in ("without", "with"):
+                b = E.initial_belief(models, env, jax.random.key(e),
+                                     compositions=mode == "with", L_max=cfg["L_max"],
+                                     sigma_z=cfg["execution"]["sigma_z"],
+                                     samples=cfg["initial_measurement_samples"])
+                fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
+                                   float(eps))
+                ex[mode].append(bool(G.plan_exists(fg, b.frame)))
+                if size == cfg["size"]:
+                    for d, pp in pps.items():
+                        pl = P.plan(models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
+                                    jax.random.key(e), pp, 1)
+                        tex[mode][d].append(bool(pl.exists))
+            bar.update(1)
+        for mode in ("without", "with"):
+            out["exists"][mode][str(size)] = float(np.mean(ex[mode]))
+            if size == cfg["size"]:
+                out["tree_exists"][mode] = {str(d): float(np.mean(v))
+                                            for d, v in tex[mode].items()}
+    bar.close()
+    return out
 
 
 def shard_lanes(tree):
@@ -313,6 +373,24 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
             m: float(np.mean([by[e, m, cost]["reached"] for e in range(n_env)
                               if by[e, m, cost]["plan_exists"]] or [np.nan]))
             for m in ("without", "with")}
+        # execution success split by population (docs/bsp.md §execution-failures): the
+        # environments where a plan exists in both modes, and those where only compositions
+        # give one; failures that never left the initial frame
+        only = [e for e in range(n_env) if by[e, "with", cost]["plan_exists"]
+                and not by[e, "without", cost]["plan_exists"]]
+        mean = lambda v: float(np.mean(v)) if v else float("nan")  # noqa: E731
+        res[f"reached_split_{cost}"] = {
+            "both_exist_n": len(both_exist),
+            "both_exist_without": mean([by[e, "without", cost]["reached"] for e in both_exist]),
+            "both_exist_with": mean([by[e, "with", cost]["reached"] for e in both_exist]),
+            "only_with_n": len(only),
+            "only_with": mean([by[e, "with", cost]["reached"] for e in only])}
+        for m in ("without", "with"):
+            fail = [by[e, m, cost] for e in range(n_env)
+                    if by[e, m, cost]["plan_exists"] and not by[e, m, cost]["reached"]]
+            res[f"reached_split_{cost}"][f"failures_{m}"] = len(fail)
+            res[f"reached_split_{cost}"][f"failures_never_linked_{m}"] = sum(
+                len({tuple(f) for f in r["frames"]}) <= 1 for r in fail)
     res["tree_vs_graph_agreement"] = float(np.mean([r["tree_exists"] == r["plan_exists"]
                                                     for r in rows]))
     res["conflicts_total"] = int(sum(r["conflicts"] for r in rows))
@@ -372,12 +450,34 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
                      f"different as share of comparable {res[f'cost{cost}_cd_of_comparable']:.3f}"
                      f"; paired bootstrap (without − with) {d:.3f} [{lo:.3f}, {hi:.3f}]; "
                      f"reached | plan exists {res[f'reached_given_exists_{cost}']}")
+    lines += ["", "## Execution success by population", "",
+              "| cost | both exist: n, reached without / with | only with compositions: n, "
+              "reached | failures never leaving the first frame, without / with |",
+              "|---|---|---|---|"]
+    for cost in (1, 2):
+        q = res[f"reached_split_{cost}"]
+        lines.append(f"| {cost} | {q['both_exist_n']}: {q['both_exist_without']:.3f} / "
+                     f"{q['both_exist_with']:.3f} | {q['only_with_n']}: {q['only_with']:.3f} | "
+                     f"{q['failures_never_linked_without']}/{q['failures_without']} / "
+                     f"{q['failures_never_linked_with']}/{q['failures_with']} |")
+    sw = res.get("sweep")
+    if sw:
+        lines += ["", "## Plan exists vs S/R and vs L", "",
+                  f"{sw['envs']} environments per size (sweep seed), eps_obs = {sw['eps_obs']}.",
+                  "", "| S/R | without | with |", "|---|---|---|"]
+        lines += [f"| {x} | {sw['exists']['without'][str(x)]:.3f} | "
+                  f"{sw['exists']['with'][str(x)]:.3f} |" for x in sw["sizes"]]
+        lines += ["", f"Tree root < λ at S/R = {cfg['size']}:", "", "| L | without | with |",
+                  "|---|---|---|"]
+        lines += [f"| {d} | {sw['tree_exists']['without'][str(d)]:.3f} | "
+                  f"{sw['tree_exists']['with'][str(d)]:.3f} |" for d in sw["depths"]]
     lines += ["", "## Calibration", "", f"knob: {cfg['calibration']['knob'] or 'none'}; "
               f"grid rates (with compositions, calibration seed): {cfg['calibration']['rates']}",
               "", "## Time", "", f"{json.dumps(timing)}", "",
               "Verdict = the published value lies inside our 95 % interval (Wilson for shares, "
               "bootstrap for ratios). Figures: fig45_plan_exists.png, cost_hist.png, "
-              "plan_exists_vs_n.png, plan_exists_vs_eps.png, fig46_*.png."]
+              "plan_exists_vs_n.png, plan_exists_vs_eps.png, "
+              "plan_exists_vs_size_and_depth.png, fig46_*.png."]
     text = "\n".join(lines) + "\n"
     st.write_text("report.md", text)
     return text
@@ -426,6 +526,29 @@ def figures(st: Store, cfg: dict, rows: list[dict], envs: list, res: dict) -> No
     fig.tight_layout()
     st.savefig("plan_exists_vs_n.png", fig, dpi=120)
     plt.close(fig)
+
+    sw = res.get("sweep")
+    if sw:
+        fig, axs = plt.subplots(1, 2, figsize=(8, 3.2))
+        for mode, c in (("without", "tab:gray"), ("with", "tab:blue")):
+            xs = sw["sizes"]
+            axs[0].plot(xs, [sw["exists"][mode][str(x)] for x in xs], "o-", color=c,
+                        label=mode)
+            ds = sw["depths"]
+            axs[1].plot(ds, [sw["tree_exists"][mode][str(d)] for d in ds], "o-", color=c,
+                        label=mode)
+        axs[0].set_xlabel("environment size S/R")
+        axs[1].set_xlabel("planner depth L")
+        axs[1].set_xticks(sw["depths"])
+        for ax in axs:
+            ax.set_ylabel("plan exists")
+            ax.set_ylim(-0.02, 1.02)
+            ax.legend()
+        axs[0].set_title(f"frame graph, {sw['envs']} environments per size", fontsize=8)
+        axs[1].set_title(f"tree root < λ, S/R = {cfg['size']}", fontsize=8)
+        fig.tight_layout()
+        st.savefig("plan_exists_vs_size_and_depth.png", fig, dpi=120)
+        plt.close(fig)
 
     rates = cfg["calibration"]["rates"]
     if rates:
@@ -499,6 +622,7 @@ ROW_FIELDS = ("env", "n", "mode", "cost", "plan_exists", "tree_exists", "reached
               "actions", "path", "lane_seconds")
 COMBOS = {(m, c) for m in ("without", "with") for c in (1, 2)}
 CALIBRATION_FIELDS = ("knob", "how", "rates", "eps_obs")
+SWEEP_FIELDS = ("sizes", "depths", "eps_obs", "envs", "exists", "tree_exists")
 
 
 def _write_tests_csv(st: Store, rows: list[dict]) -> None:
@@ -631,8 +755,15 @@ def main(argv: list[str]) -> int:
         t_lanes = time.perf_counter() - t0
         _write_tests_csv(st, rows)
         res = analyse(rows, n_env)
+        t0 = time.perf_counter()
+        sw = st.read_json("sweep.json", SWEEP_FIELDS)
+        if sw is None:
+            sw = sweep(cfg, models, D1, cal["eps_obs"], not a.no_progress)
+            st.write_json("sweep.json", sw)
+        res["sweep"] = sw
+        t_sweep = time.perf_counter() - t0
         timing = {"models_s": round(t_models, 1), "calibration_s": round(t_calib, 1),
-                  "lanes_s": round(t_lanes, 1),
+                  "lanes_s": round(t_lanes, 1), "sweep_s": round(t_sweep, 1),
                   "total_s": round(time.perf_counter() - t_start, 1),
                   "lane_seconds_mean": float(np.mean([r["lane_seconds"] for r in rows])),
                   "devices": len(__import__("jax").devices())}
