@@ -34,17 +34,25 @@ match/mismatch), figures ``*.png``. Discrete outcomes do not depend on ``--chunk
 count, but float costs may differ at rounding, so both are part of the stored config (a resume
 with another layout is refused). A model or table cache that cannot be read fails the study
 with a :class:`~pqrm_jax.studies.store.StudyError`.
+
+As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
+environment or Slurm; :mod:`pqrm_jax.studies.distributed`) process ``p`` computes the
+calibration environments and the environment chunks ``≡ p (mod N)`` whole, on its own devices;
+the answers are gathered and process 0 alone reads and writes the store, so the files are
+bit-identical to one process (which is why the process count is not part of the config).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import distributed
 from .store import Store, StudyError, flatten_metrics, tidy_rows
 
 NAME = "qbsp"
@@ -143,8 +151,12 @@ def make_env(cfg: dict, seed: int, e: int, size: float):
     return E.generate(rng, n, size, r_min=cfg["r_min"], R=cfg["R"])
 
 
-def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
-    """Choose eps_obs on the calibration seed (with-composition plan-exists rate vs 81.6 %)."""
+def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, dict]:
+    """Choose eps_obs on the calibration seed (with-composition plan-exists rate vs 81.6 %).
+
+    With a multi-process ``cluster`` process ``p`` of ``K`` computes the environments
+    ``e ≡ p (mod K)`` and the answers are gathered: the same result on every process.
+    """
     import jax
     import jax.numpy as jnp
     from tqdm.auto import tqdm
@@ -152,17 +164,26 @@ def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
     from ..bsp import env as E
     from ..bsp import graph as G
 
-    ok = {x: [] for x in cfg["eps_grid"]}
-    for e in tqdm(range(cfg["calib_envs"]), desc="qbsp calibration", disable=not progress):
+    cluster = cluster or distributed.Cluster(0, 1, None)
+    n, grid = cfg["calib_envs"], cfg["eps_grid"]
+    mine = distributed.share(n, cluster)
+    per = -(-n // cluster.num_processes)
+    todo = mine + [mine[-1] if mine else 0] * (per - len(mine))
+    ok = np.zeros((per, len(grid)), np.int8)
+    for r, e in enumerate(tqdm(todo, desc="qbsp calibration", disable=not progress)):
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
         b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
                              samples=cfg["initial_measurement_samples"])
-        for x in cfg["eps_grid"]:
+        for c, x in enumerate(grid):
             fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
                                jnp.asarray(env.goal), float(x))
-            ok[x].append(bool(G.plan_exists(fg, b.frame)))
-    rates = {str(x): float(np.mean(v)) for x, v in ok.items()}
+            ok[r, c] = bool(G.plan_exists(fg, b.frame))
+    if cluster.distributed:
+        every = distributed.gather(ok, cluster)  # [K, per, grid]
+        ok = np.stack([every[e % cluster.num_processes, e // cluster.num_processes]
+                       for e in range(n)])
+    rates = {str(x): float(np.mean(ok[:n, c])) for c, x in enumerate(grid)}
     best = min(cfg["eps_grid"], key=lambda x: abs(rates[str(x)] - PUBLISHED["exists_with"]))
     return float(best), rates
 
@@ -230,7 +251,7 @@ def shard_lanes(tree):
     import jax
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    devs = jax.devices()
+    devs = jax.local_devices()  # per process: a multi-process run splits whole chunks
     n = jax.tree.leaves(tree)[0].shape[0]
     if lane_devices(n) < 2:
         return tree
@@ -242,12 +263,22 @@ def lane_devices(n_lanes: int) -> int:
     """How many devices :func:`shard_lanes` spreads ``n_lanes`` lanes over (1: not sharded)."""
     import jax
 
-    d = len(jax.devices())
+    d = len(jax.local_devices())
     return 1 if d < 2 or n_lanes % d else d
+
+
+COMBO_ORDER = [(m, c) for m in ("without", "with") for c in (1, 2)]  # lane blocks of a chunk
 
 
 def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) -> list[dict]:
     """Run the four tests of each environment in ``envs`` (padded to the chunk width)."""
+    out, dt = run_chunk_arrays(cfg, models, D1, envs, ids)
+    return chunk_rows(out, dt, envs, ids)
+
+
+def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
+    """The batched :func:`~pqrm_jax.bsp.execute.run_lanes` of the four tests of each
+    environment in ``envs`` (padded to the chunk width): (numpy Outcome, seconds)."""
     import jax
     import jax.numpy as jnp
 
@@ -278,7 +309,7 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
                 for e, i in zip(pad, pid, strict=True)]
         beliefs[mode] = jax.tree.map(lambda *x: jnp.stack(x), *bels)
     # all four tests of every environment in one batched call: lanes = (mode, cost, env)
-    combos = [(m, c) for m in ("without", "with") for c in (1, 2)]
+    combos = COMBO_ORDER
     B = jax.tree.map(lambda *x: jnp.concatenate(x), *[beliefs[m] for m, _ in combos])
     rep = lambda x: jnp.concatenate([x] * len(combos))  # noqa: E731
     costs = jnp.asarray(np.repeat([c for _, c in combos], width), jnp.int32)
@@ -290,6 +321,16 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
     t0 = time.perf_counter()
     out = jax.device_get(X.run_lanes(models, D1, *lanes, pp, ep))
     dt = time.perf_counter() - t0
+    return tuple(np.asarray(x) for x in out), dt
+
+
+def chunk_rows(out, dt: float, envs: list, ids: list[int]) -> list[dict]:
+    """The per-test rows of one chunk from :func:`run_chunk_arrays`'s outcome fields."""
+    from ..bsp import execute as X
+
+    out = X.Outcome(*out)
+    width = out.exists.shape[0] // len(COMBO_ORDER)
+    combos = COMBO_ORDER
     rows = []
     for c_i, (mode, cost) in enumerate(combos):
         for r, i in enumerate(ids):
@@ -685,6 +726,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seed", type=int, default=2022)
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
+    distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
     if cfg["envs"] < 1 or cfg["chunk"] < 1:
@@ -697,36 +739,88 @@ def main(argv: list[str]) -> int:
     from ..bsp import models as M
 
     t_start = time.perf_counter()
+    cluster = distributed.initialize_from(a)  # before any JAX computation
     chunk = cfg.pop("chunk")
     cfg["models_key"] = M.ModelParams(**cfg["models"]).key()
     # the calibrated threshold is a result (calibration.json), not a setting
     del cfg["execution"]["eps_obs"]
-    # lane layout: batch width and devices change float bits of the costs at rounding
+    # lane layout: batch width and devices (per process) change float bits of the costs at
+    # rounding; the process count does not (each chunk is computed whole on one process)
     cfg["layout"] = {"chunk": chunk, "devices": lane_devices(4 * chunk)}
-    with Store.open(a.out, NAME, cfg, selection=("envs",),
-                    legacy=("config.json", "calibration.json", "environments.jsonl", "chunks",
-                            "tests.csv", "results.json", "report.md", "*.png")) as st:
-        cfg = st.config
+    distributed.agree(cluster, cfg, "qbsp config")
+    main_ = cluster.is_main
+    progress = main_ and not a.no_progress
+    ctx = (Store.open(a.out, NAME, cfg, selection=("envs",),
+                      legacy=("config.json", "calibration.json", "environments.jsonl",
+                              "chunks", "tests.csv", "results.json", "report.md", "*.png"))
+           if main_ else contextlib.nullcontext(None))
+    with ctx as st:
+        cfg = st.config if main_ else json.loads(json.dumps(cfg))
         _, models, D1 = _dependencies(cfg, a.models_dir)
         t_models = time.perf_counter() - t_start
         t0 = time.perf_counter()
-        if a.eps is not None:
-            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": a.eps}
-        else:
-            cal = st.read_json("calibration.json", CALIBRATION_FIELDS)
-            if cal is None:
-                eps, rates = calibrate(cfg, models, not a.no_progress)
-                cal = {"knob": "eps_obs", "how": "calibrated: with-composition plan-exists "
-                       "rate closest to 81.6 % on the calibration seed", "rates": rates,
-                       "eps_obs": eps, "target": PUBLISHED["exists_with"]}
-                st.write_json("calibration.json", cal)
-        t_calib = time.perf_counter() - t0
-        cfg["calibration"] = cal
-        cfg["execution"]["eps_obs"] = cal["eps_obs"]
-        cfg["chunk"] = chunk
         n_env = cfg["envs"] if a.envs is None else a.envs
         n_env = min(n_env, cfg["envs"])
+        # process 0 reads what is stored; everyone learns it (one process: no collective)
+        cal = None
+        if a.eps is not None:
+            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": a.eps}
+        elif main_:
+            cal = st.read_json("calibration.json", CALIBRATION_FIELDS)
+        have_cal = distributed.broadcast(np.asarray([cal is not None], np.int8), cluster)[0]
+        if not have_cal:
+            eps, rates = calibrate(cfg, models, progress, cluster)
+            cal = {"knob": "eps_obs", "how": "calibrated: with-composition plan-exists "
+                   "rate closest to 81.6 % on the calibration seed", "rates": rates,
+                   "eps_obs": eps, "target": PUBLISHED["exists_with"]}
+            if main_:
+                st.write_json("calibration.json", cal)
+        eps_obs = float(distributed.broadcast(np.asarray([cal["eps_obs"] if cal else 0.0],
+                                                         np.float64), cluster)[0])
+        t_calib = time.perf_counter() - t0
+        cfg["execution"]["eps_obs"] = eps_obs
+        cfg["chunk"] = chunk
         envs = [make_env(cfg, cfg["seed"], e, cfg["size"]) for e in range(n_env)]
+        # one checked record per environment id, so any chunking resumes correctly and a
+        # torn or garbage record is recomputed alone; process 0 decides what is left
+        have: dict[int, dict | None] = {}
+        if main_:
+            have = {i: st.read_json(f"chunks/env{i:05d}.json", ("env", "rows"),
+                                    check=lambda r, i=i: env_record_ok(r, i))
+                    for i in range(n_env)}
+        left = distributed.broadcast(np.asarray([have.get(i) is None for i in range(n_env)],
+                                                np.int8), cluster)
+        work = [ids for s0 in range(0, n_env, chunk)
+                if (ids := [i for i in range(s0, min(s0 + chunk, n_env)) if left[i]])]
+        t0 = time.perf_counter()
+        mine = distributed.share(len(work), cluster)
+        per_process = -(-len(work) // cluster.num_processes)
+        # equal shapes for the gather: pad with a repeat of a work item (computed, dropped)
+        todo = mine + [mine[-1] if mine else 0] * (per_process - len(mine)) if work else []
+        bar = tqdm(total=sum(map(len, work)), desc="qbsp lanes", unit="env",
+                   disable=not progress)
+        parts = []
+        for n_done, w in enumerate(todo):
+            parts.append(run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w]))
+            if n_done < len(mine):
+                bar.update(len(work[w]) * cluster.num_processes)
+            if not cluster.distributed and main_:  # write as we go (resume unit)
+                _store_rows(st, work[w], chunk_rows(*parts[-1], [envs[i] for i in work[w]],
+                                                    work[w]), have)
+        bar.close()
+        if cluster.distributed and work:
+            stacked = jax_tree_stack(parts)
+            every = distributed.gather(stacked, cluster)  # leaves [K, per_process, ...]
+            if main_:
+                K = cluster.num_processes
+                for w, ids in enumerate(work):
+                    part = [np.asarray(x)[w % K, w // K] for x in every]
+                    out, dt = tuple(part[:-1]), float(part[-1])
+                    _store_rows(st, ids, chunk_rows(out, dt, [envs[i] for i in ids], ids),
+                                have)
+        t_lanes = time.perf_counter() - t0
+        if not main_:
+            return 0
         env_lines = [json.dumps({"env": e, "pos": np.round(v.pos, 6).tolist(),
                                  "triplets": [list(map(int, t)) for t in v.triplets],
                                  "frame": list(map(int, v.frame)),
@@ -734,42 +828,43 @@ def main(argv: list[str]) -> int:
                                  "start": np.round(v.start, 6).tolist()})
                      for e, v in enumerate(envs)]
         st.write_text("environments.jsonl", "\n".join(env_lines) + "\n")
-        rows: list[dict] = []
-        t0 = time.perf_counter()
-        starts = list(range(0, n_env, chunk))
-        for s in tqdm(starts, desc="qbsp lanes", disable=a.no_progress):
-            ids = list(range(s, min(s + chunk, n_env)))
-            # one checked record per environment id, so any chunking resumes correctly and a
-            # torn or garbage record is recomputed alone
-            have = {i: st.read_json(f"chunks/env{i:05d}.json", ("env", "rows"),
-                                    check=lambda r, i=i: env_record_ok(r, i)) for i in ids}
-            todo = [i for i in ids if have[i] is None]
-            if todo:
-                new = run_chunk(cfg, models, D1, [envs[i] for i in todo], todo, cfg["size"])
-                for i in todo:
-                    rec = {"env": i, "rows": [r for r in new if r["env"] == i]}
-                    st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
-                    have[i] = json.loads(json.dumps(rec))  # the rows as stored
-            for i in ids:
-                rows += have[i]["rows"]
-        t_lanes = time.perf_counter() - t0
+        cfg["calibration"] = cal
+        rows = [r for i in range(n_env) for r in have[i]["rows"]]
         _write_tests_csv(st, rows)
         res = analyse(rows, n_env)
         t0 = time.perf_counter()
         sw = st.read_json("sweep.json", SWEEP_FIELDS)
         if sw is None:
-            sw = sweep(cfg, models, D1, cal["eps_obs"], not a.no_progress)
+            sw = sweep(cfg, models, D1, eps_obs, progress)
             st.write_json("sweep.json", sw)
         res["sweep"] = sw
         t_sweep = time.perf_counter() - t0
+        import jax
+
         timing = {"models_s": round(t_models, 1), "calibration_s": round(t_calib, 1),
                   "lanes_s": round(t_lanes, 1), "sweep_s": round(t_sweep, 1),
                   "total_s": round(time.perf_counter() - t_start, 1),
                   "lane_seconds_mean": float(np.mean([r["lane_seconds"] for r in rows])),
-                  "devices": len(__import__("jax").devices())}
+                  "processes": cluster.num_processes,
+                  "devices_per_process": len(jax.local_devices()),
+                  "devices": len(jax.devices())}
         st.write_text("results.json", json.dumps({"results": res, "timing": timing},
                                                  indent=1, default=float))
         st.write_results_csv(results_table(rows, res))
         figures(st, cfg, rows, envs, res)
         print(report(st, cfg, res, timing))
     return 0
+
+
+def jax_tree_stack(parts: list) -> list[np.ndarray]:
+    """The work items of this process as a flat list of stacked arrays ``[items, ...]``:
+    the Outcome fields, then the lane seconds."""
+    return [np.stack([np.asarray(p[0][f]) for p in parts]) for f in range(len(parts[0][0]))] \
+        + [np.asarray([p[1] for p in parts], np.float64)]
+
+
+def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict) -> None:
+    for i in ids:
+        rec = {"env": i, "rows": [r for r in rows if r["env"] == i]}
+        st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
+        have[i] = json.loads(json.dumps(rec))  # the rows as stored
