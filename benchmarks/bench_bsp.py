@@ -2,27 +2,36 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_bsp.py            # 256 environments, depth 2
-    .venv/bin/python benchmarks/bench_bsp.py --quick    # smoke run (32 environments)
+    .venv/bin/python benchmarks/bench_bsp.py                  # 128 and 1024 environments
+    .venv/bin/python benchmarks/bench_bsp.py --envs 128 1024  # the same, explicit
+    .venv/bin/python benchmarks/bench_bsp.py --quick          # smoke run (32 environments)
 
-Both sides run the same jitted planner (:func:`pqrm_jax.bsp.plan`) on the same frozen beliefs
-of random study environments (with compositions, cost 1): the batched side ``vmap``s it over
-all environments in one call; the reference loops over the environments calling the jitted
-single-environment planner. Both are compiled before timing; the plans must agree exactly.
-Writes ``benchmarks/results/bsp.json``.
+Both sides run the same planner (:func:`pqrm_jax.bsp.plan`, depth 2, cost 1) on the same
+frozen beliefs of distinct random study environments (with compositions). The reference calls
+the jitted single-environment planner once per environment in a Python loop (arguments sliced
+before timing, so the loop pays only the planner's own dispatch). The batched side is one
+jitted call over all environments: ``lax.map`` over chunks of ``chunk`` environments, each
+chunk ``vmap``-ed; several chunk widths are timed. Both are compiled before timing and the
+plans must agree (same first actions; values to float32 rounding).
+
+To explain the ratio it also records, per plan, XLA's cost analysis of the compiled
+single-environment planner (flops, bytes accessed) and the dispatch cost of a jitted function
+that takes the same arguments and does nothing: the loop can lose to batching at most that
+overhead, unless batching makes each plan's own arithmetic cheaper. Writes
+``benchmarks/results/bsp.json`` (docs/bsp.md §benchmark).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from _env import device_info  # benchmarks/_env.py
+from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
 from pqrm_jax.bsp import env as E
@@ -31,66 +40,94 @@ from pqrm_jax.bsp import models as M
 from pqrm_jax.bsp import planner as P
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--envs", type=int)
-    ap.add_argument("--depth", type=int, default=2)
-    ap.add_argument("--samples", type=int, default=600, help="model samples per cell")
-    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "bsp.json"))
-    a = ap.parse_args()
-    n_env = a.envs or (32 if a.quick else 256)
-    models = M.load_models(M.ModelParams(samples=a.samples, pool=1 << 18, seed=3))
-    D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
+def _instances(models, n_env: int):
     bels, fgs, goals = [], [], []
     for e in range(n_env):
         rng = np.random.default_rng([1, e])
         env = E.generate(rng, int(rng.integers(8, 13)), 2.5)
-        b = E.initial_belief(models, env, jax.random.key(e), compositions=True)
+        b = E.initial_belief(models, env, jax.random.key(e), compositions=True, samples=64)
         goal = jnp.asarray(env.goal, jnp.int32)
         fgs.append(G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, 0.2))
         bels.append(b)
         goals.append(goal)
-    stack = lambda xs: jax.tree.map(lambda *x: jnp.stack(x), *xs)  # noqa: E731
-    B, F, Gl = stack(bels), stack(fgs), jnp.stack(goals)
+    return bels, fgs, goals
+
+
+def bench(models, D1, bels, fgs, goals, pp, chunks, reps: int = 3) -> dict:
+    """Loop vs batched (one ``lax.map`` over ``vmap``-ed chunks) on these instances."""
+    n_env = len(bels)
     keys = jax.random.split(jax.random.key(0), n_env)
-    pp = P.PlannerParams(depth=a.depth)
+    key_list = [keys[e] for e in range(n_env)]
+    args = [(bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame, bels[e].robot,
+             key_list[e]) for e in range(n_env)]
+    stack = lambda xs: jax.tree.map(lambda *x: jnp.stack(x), *xs)  # noqa: E731
+    xs = stack(args)
 
-    batched = jax.jit(jax.vmap(lambda t, s, f, g, fr, r, k: P.plan(models, D1, t, s, f, g, fr,
-                                                                     r, k, pp)))
-
-    def run_batched():
-        out = batched(B.trip, B.scale, F, Gl, B.frame, B.robot, keys)
-        return jax.block_until_ready(out)
+    def one(a):
+        return P.plan(models, D1, *a, pp)
 
     def run_loop():
-        outs = []
-        for e in range(n_env):
-            outs.append(P.plan(models, D1, bels[e].trip, bels[e].scale, fgs[e], goals[e],
-                               bels[e].frame, bels[e].robot, keys[e], pp))
-        return jax.block_until_ready(outs)
+        return [one(a) for a in args]
 
-    ob = run_batched()
-    ol = run_loop()  # compile both
-    same = all(int(ob.action[e]) == int(ol[e].action) for e in range(n_env))
-    close = float(np.max(np.abs(np.asarray(ob.value) - np.array([float(o.value) for o in ol]))))
-    tb = min(_time(run_batched) for _ in range(3))
-    tl = min(_time(run_loop) for _ in range(2))
-    res = {"envs": n_env, "depth": a.depth, "n_actions": pp.n_actions, "n_beta": pp.n_beta,
-           "batched_s": tb, "loop_s": tl, "ratio": tl / tb, "ms_per_plan_batched": 1e3 * tb / n_env,
-           "ms_per_plan_loop": 1e3 * tl / n_env, "same_actions": same, "max_value_diff": close,
-           "devices": [str(d) for d in jax.devices()], "cpu_threads_note": "shared 2-core host"}
-    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
+    t_loop, ol = best_of(run_loop, reps)
+    ref_act = np.array([int(o.action) for o in ol])
+    ref_val = np.array([float(o.value) for o in ol])
+    out = {"envs": n_env, "loop_s": t_loop, "ms_per_plan_loop": 1e3 * t_loop / n_env,
+           "batched": {}}
+    for c in chunks:
+        if c > n_env or n_env % c:
+            continue
+        f = jax.jit(lambda xs, c=c: jax.lax.map(one, xs, batch_size=c))
+        jax.block_until_ready(f(xs))  # compile
+        t_b, ob = best_of(lambda f=f: f(xs), reps)
+        out["batched"][str(c)] = {
+            "batched_s": t_b, "ms_per_plan": 1e3 * t_b / n_env, "ratio": t_loop / t_b,
+            "same_actions": bool(np.array_equal(np.asarray(ob.action), ref_act)),
+            "max_value_diff": float(np.max(np.abs(np.asarray(ob.value) - ref_val)))}
+    best = max(out["batched"].items(), key=lambda kv: kv[1]["ratio"])
+    out["best_chunk"], out["best_ratio"] = int(best[0]), best[1]["ratio"]
+    return out
+
+
+def overheads(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
+    """Per-call dispatch cost of a do-nothing jit with the planner's arguments, and XLA's
+    cost analysis of one compiled plan."""
+    n = len(bels)
+    key = jax.random.key(0)
+    args = [(models, D1, bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
+             bels[e].robot, key) for e in range(n)]
+    nothing = jax.jit(lambda *a: a[6].sum())
+    jax.block_until_ready(nothing(*args[0]))
+    t, _ = best_of(lambda: [nothing(*a) for a in args], reps)
+    ca = P.plan.lower(*args[0], pp).compile().cost_analysis()
+    ca = ca[0] if isinstance(ca, list) else (ca or {})
+    return {"dispatch_ms_per_call": 1e3 * t / n, "flops_per_plan": ca.get("flops"),
+            "bytes_accessed_per_plan": ca.get("bytes accessed")}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--envs", type=int, nargs="+")
+    ap.add_argument("--chunks", type=int, nargs="+", default=[1, 4, 16, 64, 128])
+    ap.add_argument("--depth", type=int, default=2)
+    ap.add_argument("--samples", type=int, default=600, help="model samples per cell")
+    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "bsp.json"))
+    a = ap.parse_args()
+    sizes = a.envs or ([32] if a.quick else [128, 1024])
+    models = M.load_models(M.ModelParams(samples=a.samples, pool=1 << 18, seed=3))
+    D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
+    pp = P.PlannerParams(depth=a.depth)
+    bels, fgs, goals = _instances(models, max(sizes))
+    res = {"depth": a.depth, "n_actions": pp.n_actions, "n_beta": pp.n_beta,
+           "overheads": overheads(models, D1, bels[:64], fgs[:64], goals[:64], pp),
+           "runs": [bench(models, D1, bels[:n], fgs[:n], goals[:n], pp, a.chunks)
+                    for n in sizes]}
+    res["env"] = device_info()  # backend, device kind, load average (benchmarks/_env.py)
     print(json.dumps(res, indent=1))
     Path(a.json).parent.mkdir(parents=True, exist_ok=True)
     Path(a.json).write_text(json.dumps(res, indent=1))
     return 0
-
-
-def _time(f) -> float:
-    t = time.perf_counter()
-    f()
-    return time.perf_counter() - t
 
 
 if __name__ == "__main__":

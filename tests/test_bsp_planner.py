@@ -87,10 +87,15 @@ def _small_envs(n_env, n=6, size=1.6, seed=0):
 
 @pytest.mark.slow
 def test_pruned_vs_full_tree(mod):
-    """Action pruning alone (4 of 20 actions) keeps the full tree's plan; truncating β to the
-    3 likeliest candidates (renormalised, docs/bsp.md §Z-24) changes values more (measured:
-    median 13 %)."""
-    agree, rel, agree3, rel3 = [], [], [], []
+    """Action pruning alone (4 of 20 actions) keeps the full tree's plan up to near ties;
+    truncating β to the 3 likeliest candidates (renormalised, docs/bsp.md §Z-24) shifts the
+    value (an expectation over another distribution) more than the decision.
+
+    Regret = the full tree's value of the pruned tree's first action, relative to the full
+    tree's value. Measured on 60 instances (docs/bsp.md §Z-18): actions 93 % same, regret
+    < 1 % in 97 %, max 2 %; β truncation value change median 15 %, regret max 5 %.
+    """
+    agree, rel, reg, agree3, rel3, reg3 = [], [], [], [], [], []
     for e, env in enumerate(_small_envs(12)):
         b, fg = _graph(mod, env, True, key=e)
         args = (mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal), b.frame, b.robot,
@@ -101,12 +106,19 @@ def test_pruned_vs_full_tree(mod):
         assert bool(full.exists) == bool(pa.exists) == bool(pr.exists) == bool(
             G.plan_exists(fg, b.frame))
         fv = float(full.value)
+        qf = dict(zip(np.asarray(full.actions).tolist(), np.asarray(full.q).tolist(),
+                      strict=True))
+        assert set(qf) == set(range(20)) and min(qf.values()) == pytest.approx(fv)
         agree.append(int(full.action) == int(pa.action))
         rel.append(abs(float(pa.value) - fv) / fv)
+        reg.append((qf[int(pa.action)] - fv) / fv)
         agree3.append(int(full.action) == int(pr.action))
         rel3.append(abs(float(pr.value) - fv) / fv)
+        reg3.append((qf[int(pr.action)] - fv) / fv)
     assert np.mean(agree) >= 0.8 and np.median(rel) < 0.01 and max(rel) < 0.05, (agree, rel)
+    assert min(reg) >= 0 and np.median(reg) < 1e-6 and max(reg) < 0.03, reg
     assert np.mean(agree3) >= 0.5 and np.median(rel3) < 0.2, (agree3, rel3)
+    assert min(reg3) >= 0 and np.median(reg3) < 0.01 and max(reg3) < 0.1, reg3
 
 
 @pytest.mark.slow

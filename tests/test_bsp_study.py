@@ -125,3 +125,36 @@ def test_results_independent_of_device_count(tmp_path, request):
             {k: v for k, v in y.items() if k not in floats}
         for k in floats:
             assert abs(float(x[k]) - float(y[k])) <= 1e-4 * max(1.0, abs(float(x[k])))
+
+
+@pytest.mark.slow
+def test_two_processes_equal_one(tmp_path, request):
+    """The tiny study as 2 processes on jax.distributed (calibration, lanes and their gather
+    split over the processes; process 0 alone writes) gives the 1-process files bit for bit."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    models = str(request.config.cache.mkdir("bsp-models"))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code = "import sys; from pqrm_jax.studies import qbsp; sys.exit(qbsp.main(sys.argv[1:]))"
+    args = ["--tiny", "--no-progress", "--envs", "4", "--chunk", "2", "--models-dir", models]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    runs = [[sys.executable, "-c", code, "--out", str(tmp_path / "one"), *args]] + [
+        [sys.executable, "-c", code, "--out", str(tmp_path / "two"), *args,
+         "--coordinator", f"127.0.0.1:{port}", "--processes", "2", "--process-id", str(i)]
+        for i in (1, 0)]
+    procs = [subprocess.Popen(r, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=env) for r in runs]
+    for p in procs:
+        _, err = p.communicate(timeout=900)
+        assert p.returncode == 0, err[-2000:]
+    one, two = tmp_path / "one", tmp_path / "two"
+    for f in ("tests.csv", "calibration.json", "sweep.json", "environments.jsonl"):
+        assert (one / f).read_text() == (two / f).read_text(), f
+    assert sorted(p.name for p in one.iterdir()) == sorted(p.name for p in two.iterdir())
+    timing = json.loads((two / "results.json").read_text())["timing"]
+    assert timing["processes"] == 2 and timing["devices_per_process"] == 1

@@ -138,11 +138,18 @@ class Models(NamedTuple):
     bin_edges: jax.Array
     mid: jax.Array
     counts: dict
+    A: jax.Array | None = None
+    AZ_by_z: jax.Array | None = None
 
-    @property
-    def A(self) -> jax.Array:
-        """(Q, Q, nb) association model P(β visible | s_x, s_τ, b) (Z eq. 4.12)."""
-        return self.AZ.sum(-1)
+    def with_derived(self) -> Models:
+        """These tables with the derived fields filled (done by every constructor here).
+
+        ``A`` (Q, Q, nb) = ``AZ.sum(-1)``, the association model P(β visible | s_x, s_τ, b)
+        (Z eq. 4.12); ``AZ_by_z`` (Q², Q, Q, nb) = ``AZ`` with the measurement axis first, so
+        that the planner's ``AZ[..., ẑ]`` is one contiguous slice instead of a gather with
+        stride Q² (a strided gather per tree branch was the largest single cost of a plan).
+        """
+        return self._replace(A=self.AZ.sum(-1), AZ_by_z=jnp.moveaxis(self.AZ, -1, 0))
 
     @property
     def num_states(self) -> int:
@@ -364,7 +371,7 @@ def build_models(params: ModelParams | None = None) -> Models:
     return Models(**{k: jnp.asarray(out[k], jnp.float32) for k in TABLES},
                   targets=jnp.asarray(targets, jnp.float32),
                   bin_edges=jnp.asarray(edges, jnp.float32), mid=jnp.asarray(mid, jnp.float32),
-                  counts=counts)
+                  counts=counts).with_derived()
 
 
 # ------------------------------------------------------------------------------ cache
@@ -415,7 +422,7 @@ def read_models(path: Path, params: ModelParams) -> Models:
         raise CacheError(f"BSP model cache {path} fails its checksum (corrupt); {fix}")
     counts = {k[2:]: data.pop(k) for k in list(data) if k.startswith("n_")}
     return Models(**{k: jnp.asarray(data[k]) for k in (*TABLES, "targets", "bin_edges", "mid")},
-                  counts=counts)
+                  counts=counts).with_derived()
 
 
 def load_models(params: ModelParams | None = None, *, directory: Path | None = None,

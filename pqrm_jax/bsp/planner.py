@@ -134,13 +134,11 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
         kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
         k1, k2 = jax.random.split(kk)
         jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
-        flat = jw.reshape(-1)
-        cell = jax.random.categorical(k1, jnp.log(jnp.maximum(flat, 1e-30)))
+        cell = sample_index(k1, jw.reshape(-1))
         x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
             cell % models.num_bins
-        zrow = models.AZ[x, t, b]
-        z = jax.random.categorical(k2, jnp.log(jnp.maximum(zrow, 1e-30)))
-        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ[..., z])
+        z = sample_index(k2, models.AZ[x, t, b])
+        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
         s = J.sum()
         J = J / jnp.where(s > 0, s, 1.0)
         stay = J.sum(1)
@@ -152,6 +150,23 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
     return _Level(cost=costs[acts], acts=acts, ks=ks, w=w,
                   goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs, frames=fr, robots=rb)
+
+
+def sample_index(key, weights) -> jax.Array:
+    """One index drawn with probability ∝ ``weights`` [n] (≥ 0) by the inverse CDF.
+
+    One uniform per draw: ``jax.random.categorical`` draws a Gumbel variate (a threefry block
+    and two logs) for every cell, which made sampling ẑ over the Q²·nb cells of the joint the
+    largest cost of a plan on CPU (docs/bsp.md §benchmark). Zero-weight cells are never drawn
+    unless all weights are 0 (then index 0: that branch has weight 0 in the tree).
+
+    >>> int(sample_index(jax.random.key(0), jnp.array([0.0, 0.0, 1.0, 0.0])))
+    2
+    """
+    c = jnp.cumsum(weights)
+    u = jax.random.uniform(key, dtype=c.dtype) * c[-1]
+    idx = jnp.searchsorted(c, u, side="right")
+    return jnp.clip(jnp.where(c[-1] > 0, idx, 0), 0, weights.shape[0] - 1)
 
 
 def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array:

@@ -34,17 +34,25 @@ match/mismatch), figures ``*.png``. Discrete outcomes do not depend on ``--chunk
 count, but float costs may differ at rounding, so both are part of the stored config (a resume
 with another layout is refused). A model or table cache that cannot be read fails the study
 with a :class:`~pqrm_jax.studies.store.StudyError`.
+
+As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
+environment or Slurm; :mod:`pqrm_jax.studies.distributed`) process ``p`` computes the
+calibration environments and the environment chunks ``≡ p (mod N)`` whole, on its own devices;
+the answers are gathered and process 0 alone reads and writes the store, so the files are
+bit-identical to one process (which is why the process count is not part of the config).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import distributed
 from .store import Store, StudyError, flatten_metrics, tidy_rows
 
 NAME = "qbsp"
@@ -64,16 +72,17 @@ DECISIONS = {
     "Z-7": "eta divides (normalisation)",
     "Z-8": "association and measurement condition on the scale of F_{t-1}",
     "Z-9": "frame scale = reference scale x |X1 - X2| (tables G2, GA, GB)",
-    "Z-10": "reference = F_1's measured scale bin; fallback uniform over observable bins for "
-            "pairs in a known triplet, over all bins otherwise; pairs derivable from measured "
-            "rows or inside a measured triplet keep their measured-only scale in both modes "
-            "(compositions serve only the other pairs: plan existence is monotone)",
+    "Z-10": "reference = F_1's true scale bin (one-hot); fallback uniform over observable "
+            "bins for pairs in a known triplet, over all bins otherwise; pairs derivable from "
+            "measured rows or inside a measured triplet keep their measured-only scale in "
+            "both modes (compositions serve only the other pairs: plan existence is monotone)",
     "Z-11": "expectimax tree: min over actions, expectation over beta and z, min over links; "
             "goal branch terminal; leaf h = cbar (1 + rho) (hops + 1) with rho = 10 (each "
-           "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
-           "the cost-1 planner dither), lambda = 1e5 cbar without a path",
+            "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
+            "the cost-1 planner dither), lambda = 1e5 cbar without a path",
     "Z-12": "map frozen during lookahead",
-    "Z-13": "cost 1 uses neighbour distance with edges and corners (SPEC 2.1)",
+    "Z-13": "cost 1 uses the EDC neighbour distance with edges and corners as neighbours "
+            "(P §2.3.1; docs/decisions.md §2.1)",
     "Z-14": "cost 2 literal: D2[s,s] > 0; mid(last bin) = 2R",
     "Z-15": "comparable = plan exists in both modes and both executions reach the goal; "
             "different = executed (frame, action) sequences differ; share of all tests, "
@@ -119,6 +128,11 @@ def config_for(args) -> dict:
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
                       "pqrm_samples": 64, "eps_obs": 0.01},
         "initial_measurement_samples": 256,
+        # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
+        "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
+                   "depths": [1, 2]} if args.tiny else
+                  {"seed": args.seed + 20_000, "envs": 60 if args.reduced else 200,
+                   "sizes": [1.5, 2.5, 3.5, 5.0], "depths": [1, 2, 3]}),
         "chunk": base["chunk"],
         "decisions": DECISIONS,
         "published": PUBLISHED,
@@ -137,8 +151,12 @@ def make_env(cfg: dict, seed: int, e: int, size: float):
     return E.generate(rng, n, size, r_min=cfg["r_min"], R=cfg["R"])
 
 
-def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
-    """Choose eps_obs on the calibration seed (with-composition plan-exists rate vs 81.6 %)."""
+def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, dict]:
+    """Choose eps_obs on the calibration seed (with-composition plan-exists rate vs 81.6 %).
+
+    With a multi-process ``cluster`` process ``p`` of ``K`` computes the environments
+    ``e ≡ p (mod K)`` and the answers are gathered: the same result on every process.
+    """
     import jax
     import jax.numpy as jnp
     from tqdm.auto import tqdm
@@ -146,19 +164,82 @@ def calibrate(cfg: dict, models, progress: bool) -> tuple[float, dict]:
     from ..bsp import env as E
     from ..bsp import graph as G
 
-    ok = {x: [] for x in cfg["eps_grid"]}
-    for e in tqdm(range(cfg["calib_envs"]), desc="qbsp calibration", disable=not progress):
+    cluster = cluster or distributed.Cluster(0, 1, None)
+    n, grid = cfg["calib_envs"], cfg["eps_grid"]
+    mine = distributed.share(n, cluster)
+    per = -(-n // cluster.num_processes)
+    todo = mine + [mine[-1] if mine else 0] * (per - len(mine))
+    ok = np.zeros((per, len(grid)), np.int8)
+    for r, e in enumerate(tqdm(todo, desc="qbsp calibration", disable=not progress)):
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
         b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
                              samples=cfg["initial_measurement_samples"])
-        for x in cfg["eps_grid"]:
+        for c, x in enumerate(grid):
             fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
                                jnp.asarray(env.goal), float(x))
-            ok[x].append(bool(G.plan_exists(fg, b.frame)))
-    rates = {str(x): float(np.mean(v)) for x, v in ok.items()}
+            ok[r, c] = bool(G.plan_exists(fg, b.frame))
+    if cluster.distributed:
+        every = distributed.gather(ok, cluster)  # [K, per, grid]
+        ok = np.stack([every[e % cluster.num_processes, e // cluster.num_processes]
+                       for e in range(n)])
+    rates = {str(x): float(np.mean(ok[:n, c])) for c, x in enumerate(grid)}
     best = min(cfg["eps_grid"], key=lambda x: abs(rates[str(x)] - PUBLISHED["exists_with"]))
     return float(best), rates
+
+
+def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
+    """Plan exists vs S/R (frame graph) and vs the depth L (tree root < λ), both modes.
+
+    Environments on the sweep seed (``cfg["sweep"]``), ``eps_obs`` = the study's. Existence
+    by the frame graph does not involve L; the tree's existence is measured at each depth on
+    the ``cfg["size"]`` environments (it equals the graph's by construction, §plan-exists: a
+    figure of the check, not of a dependence).
+    """
+    import jax
+    import jax.numpy as jnp
+    from tqdm.auto import tqdm
+
+    from ..bsp import env as E
+    from ..bsp import graph as G
+    from ..bsp import planner as P
+
+    sw = cfg["sweep"]
+    sizes = sorted(set(sw["sizes"]) | {cfg["size"]})
+    out = {"sizes": sizes, "depths": sw["depths"], "eps_obs": eps, "envs": sw["envs"],
+           "exists": {m: {} for m in ("without", "with")},
+           "tree_exists": {m: {} for m in ("without", "with")}}
+    pps = {d: P.PlannerParams(depth=d, n_actions=cfg["planner"]["n_actions"],
+                              n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
+                              rho=cfg["planner"]["rho"]) for d in sw["depths"]}
+    bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
+    for size in sizes:
+        ex = {m: [] for m in ("without", "with")}
+        tex = {m: {d: [] for d in sw["depths"]} for m in ("without", "with")}
+        for e in range(sw["envs"]):
+            env = make_env(cfg, sw["seed"], e, size)
+            goal = jnp.asarray(env.goal)
+            for mode in ("without", "with"):
+                b = E.initial_belief(models, env, jax.random.key(e),
+                                     compositions=mode == "with", L_max=cfg["L_max"],
+                                     sigma_z=cfg["execution"]["sigma_z"],
+                                     samples=cfg["initial_measurement_samples"])
+                fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
+                                   float(eps))
+                ex[mode].append(bool(G.plan_exists(fg, b.frame)))
+                if size == cfg["size"]:
+                    for d, pp in pps.items():
+                        pl = P.plan(models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
+                                    jax.random.key(e), pp, 1)
+                        tex[mode][d].append(bool(pl.exists))
+            bar.update(1)
+        for mode in ("without", "with"):
+            out["exists"][mode][str(size)] = float(np.mean(ex[mode]))
+            if size == cfg["size"]:
+                out["tree_exists"][mode] = {str(d): float(np.mean(v))
+                                            for d, v in tex[mode].items()}
+    bar.close()
+    return out
 
 
 def shard_lanes(tree):
@@ -170,7 +251,7 @@ def shard_lanes(tree):
     import jax
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    devs = jax.devices()
+    devs = jax.local_devices()  # per process: a multi-process run splits whole chunks
     n = jax.tree.leaves(tree)[0].shape[0]
     if lane_devices(n) < 2:
         return tree
@@ -182,12 +263,22 @@ def lane_devices(n_lanes: int) -> int:
     """How many devices :func:`shard_lanes` spreads ``n_lanes`` lanes over (1: not sharded)."""
     import jax
 
-    d = len(jax.devices())
+    d = len(jax.local_devices())
     return 1 if d < 2 or n_lanes % d else d
+
+
+COMBO_ORDER = [(m, c) for m in ("without", "with") for c in (1, 2)]  # lane blocks of a chunk
 
 
 def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) -> list[dict]:
     """Run the four tests of each environment in ``envs`` (padded to the chunk width)."""
+    out, dt = run_chunk_arrays(cfg, models, D1, envs, ids)
+    return chunk_rows(out, dt, envs, ids)
+
+
+def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
+    """The batched :func:`~pqrm_jax.bsp.execute.run_lanes` of the four tests of each
+    environment in ``envs`` (padded to the chunk width): (numpy Outcome, seconds)."""
     import jax
     import jax.numpy as jnp
 
@@ -218,7 +309,7 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
                 for e, i in zip(pad, pid, strict=True)]
         beliefs[mode] = jax.tree.map(lambda *x: jnp.stack(x), *bels)
     # all four tests of every environment in one batched call: lanes = (mode, cost, env)
-    combos = [(m, c) for m in ("without", "with") for c in (1, 2)]
+    combos = COMBO_ORDER
     B = jax.tree.map(lambda *x: jnp.concatenate(x), *[beliefs[m] for m, _ in combos])
     rep = lambda x: jnp.concatenate([x] * len(combos))  # noqa: E731
     costs = jnp.asarray(np.repeat([c for _, c in combos], width), jnp.int32)
@@ -230,6 +321,16 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
     t0 = time.perf_counter()
     out = jax.device_get(X.run_lanes(models, D1, *lanes, pp, ep))
     dt = time.perf_counter() - t0
+    return tuple(np.asarray(x) for x in out), dt
+
+
+def chunk_rows(out, dt: float, envs: list, ids: list[int]) -> list[dict]:
+    """The per-test rows of one chunk from :func:`run_chunk_arrays`'s outcome fields."""
+    from ..bsp import execute as X
+
+    out = X.Outcome(*out)
+    width = out.exists.shape[0] // len(COMBO_ORDER)
+    combos = COMBO_ORDER
     rows = []
     for c_i, (mode, cost) in enumerate(combos):
         for r, i in enumerate(ids):
@@ -313,6 +414,24 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
             m: float(np.mean([by[e, m, cost]["reached"] for e in range(n_env)
                               if by[e, m, cost]["plan_exists"]] or [np.nan]))
             for m in ("without", "with")}
+        # execution success split by population (docs/bsp.md §execution-failures): the
+        # environments where a plan exists in both modes, and those where only compositions
+        # give one; failures that never left the initial frame
+        only = [e for e in range(n_env) if by[e, "with", cost]["plan_exists"]
+                and not by[e, "without", cost]["plan_exists"]]
+        mean = lambda v: float(np.mean(v)) if v else float("nan")  # noqa: E731
+        res[f"reached_split_{cost}"] = {
+            "both_exist_n": len(both_exist),
+            "both_exist_without": mean([by[e, "without", cost]["reached"] for e in both_exist]),
+            "both_exist_with": mean([by[e, "with", cost]["reached"] for e in both_exist]),
+            "only_with_n": len(only),
+            "only_with": mean([by[e, "with", cost]["reached"] for e in only])}
+        for m in ("without", "with"):
+            fail = [by[e, m, cost] for e in range(n_env)
+                    if by[e, m, cost]["plan_exists"] and not by[e, m, cost]["reached"]]
+            res[f"reached_split_{cost}"][f"failures_{m}"] = len(fail)
+            res[f"reached_split_{cost}"][f"failures_never_linked_{m}"] = sum(
+                len({tuple(f) for f in r["frames"]}) <= 1 for r in fail)
     res["tree_vs_graph_agreement"] = float(np.mean([r["tree_exists"] == r["plan_exists"]
                                                     for r in rows]))
     res["conflicts_total"] = int(sum(r["conflicts"] for r in rows))
@@ -372,12 +491,34 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
                      f"different as share of comparable {res[f'cost{cost}_cd_of_comparable']:.3f}"
                      f"; paired bootstrap (without − with) {d:.3f} [{lo:.3f}, {hi:.3f}]; "
                      f"reached | plan exists {res[f'reached_given_exists_{cost}']}")
+    lines += ["", "## Execution success by population", "",
+              "| cost | both exist: n, reached without / with | only with compositions: n, "
+              "reached | failures never leaving the first frame, without / with |",
+              "|---|---|---|---|"]
+    for cost in (1, 2):
+        q = res[f"reached_split_{cost}"]
+        lines.append(f"| {cost} | {q['both_exist_n']}: {q['both_exist_without']:.3f} / "
+                     f"{q['both_exist_with']:.3f} | {q['only_with_n']}: {q['only_with']:.3f} | "
+                     f"{q['failures_never_linked_without']}/{q['failures_without']} / "
+                     f"{q['failures_never_linked_with']}/{q['failures_with']} |")
+    sw = res.get("sweep")
+    if sw:
+        lines += ["", "## Plan exists vs S/R and vs L", "",
+                  f"{sw['envs']} environments per size (sweep seed), eps_obs = {sw['eps_obs']}.",
+                  "", "| S/R | without | with |", "|---|---|---|"]
+        lines += [f"| {x} | {sw['exists']['without'][str(x)]:.3f} | "
+                  f"{sw['exists']['with'][str(x)]:.3f} |" for x in sw["sizes"]]
+        lines += ["", f"Tree root < λ at S/R = {cfg['size']}:", "", "| L | without | with |",
+                  "|---|---|---|"]
+        lines += [f"| {d} | {sw['tree_exists']['without'][str(d)]:.3f} | "
+                  f"{sw['tree_exists']['with'][str(d)]:.3f} |" for d in sw["depths"]]
     lines += ["", "## Calibration", "", f"knob: {cfg['calibration']['knob'] or 'none'}; "
               f"grid rates (with compositions, calibration seed): {cfg['calibration']['rates']}",
               "", "## Time", "", f"{json.dumps(timing)}", "",
               "Verdict = the published value lies inside our 95 % interval (Wilson for shares, "
               "bootstrap for ratios). Figures: fig45_plan_exists.png, cost_hist.png, "
-              "plan_exists_vs_n.png, plan_exists_vs_eps.png, fig46_*.png."]
+              "plan_exists_vs_n.png, plan_exists_vs_eps.png, "
+              "plan_exists_vs_size_and_depth.png, fig46_*.png."]
     text = "\n".join(lines) + "\n"
     st.write_text("report.md", text)
     return text
@@ -426,6 +567,29 @@ def figures(st: Store, cfg: dict, rows: list[dict], envs: list, res: dict) -> No
     fig.tight_layout()
     st.savefig("plan_exists_vs_n.png", fig, dpi=120)
     plt.close(fig)
+
+    sw = res.get("sweep")
+    if sw:
+        fig, axs = plt.subplots(1, 2, figsize=(8, 3.2))
+        for mode, c in (("without", "tab:gray"), ("with", "tab:blue")):
+            xs = sw["sizes"]
+            axs[0].plot(xs, [sw["exists"][mode][str(x)] for x in xs], "o-", color=c,
+                        label=mode)
+            ds = sw["depths"]
+            axs[1].plot(ds, [sw["tree_exists"][mode][str(d)] for d in ds], "o-", color=c,
+                        label=mode)
+        axs[0].set_xlabel("environment size S/R")
+        axs[1].set_xlabel("planner depth L")
+        axs[1].set_xticks(sw["depths"])
+        for ax in axs:
+            ax.set_ylabel("plan exists")
+            ax.set_ylim(-0.02, 1.02)
+            ax.legend()
+        axs[0].set_title(f"frame graph, {sw['envs']} environments per size", fontsize=8)
+        axs[1].set_title(f"tree root < λ, S/R = {cfg['size']}", fontsize=8)
+        fig.tight_layout()
+        st.savefig("plan_exists_vs_size_and_depth.png", fig, dpi=120)
+        plt.close(fig)
 
     rates = cfg["calibration"]["rates"]
     if rates:
@@ -499,6 +663,7 @@ ROW_FIELDS = ("env", "n", "mode", "cost", "plan_exists", "tree_exists", "reached
               "actions", "path", "lane_seconds")
 COMBOS = {(m, c) for m in ("without", "with") for c in (1, 2)}
 CALIBRATION_FIELDS = ("knob", "how", "rates", "eps_obs")
+SWEEP_FIELDS = ("sizes", "depths", "eps_obs", "envs", "exists", "tree_exists")
 
 
 def _write_tests_csv(st: Store, rows: list[dict]) -> None:
@@ -561,6 +726,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seed", type=int, default=2022)
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
+    distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
     if cfg["envs"] < 1 or cfg["chunk"] < 1:
@@ -573,36 +739,88 @@ def main(argv: list[str]) -> int:
     from ..bsp import models as M
 
     t_start = time.perf_counter()
+    cluster = distributed.initialize_from(a)  # before any JAX computation
     chunk = cfg.pop("chunk")
     cfg["models_key"] = M.ModelParams(**cfg["models"]).key()
     # the calibrated threshold is a result (calibration.json), not a setting
     del cfg["execution"]["eps_obs"]
-    # lane layout: batch width and devices change float bits of the costs at rounding
+    # lane layout: batch width and devices (per process) change float bits of the costs at
+    # rounding; the process count does not (each chunk is computed whole on one process)
     cfg["layout"] = {"chunk": chunk, "devices": lane_devices(4 * chunk)}
-    with Store.open(a.out, NAME, cfg, selection=("envs",),
-                    legacy=("config.json", "calibration.json", "environments.jsonl", "chunks",
-                            "tests.csv", "results.json", "report.md", "*.png")) as st:
-        cfg = st.config
+    distributed.agree(cluster, cfg, "qbsp config")
+    main_ = cluster.is_main
+    progress = main_ and not a.no_progress
+    ctx = (Store.open(a.out, NAME, cfg, selection=("envs",),
+                      legacy=("config.json", "calibration.json", "environments.jsonl",
+                              "chunks", "tests.csv", "results.json", "report.md", "*.png"))
+           if main_ else contextlib.nullcontext(None))
+    with ctx as st:
+        cfg = st.config if main_ else json.loads(json.dumps(cfg))
         _, models, D1 = _dependencies(cfg, a.models_dir)
         t_models = time.perf_counter() - t_start
         t0 = time.perf_counter()
-        if a.eps is not None:
-            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": a.eps}
-        else:
-            cal = st.read_json("calibration.json", CALIBRATION_FIELDS)
-            if cal is None:
-                eps, rates = calibrate(cfg, models, not a.no_progress)
-                cal = {"knob": "eps_obs", "how": "calibrated: with-composition plan-exists "
-                       "rate closest to 81.6 % on the calibration seed", "rates": rates,
-                       "eps_obs": eps, "target": PUBLISHED["exists_with"]}
-                st.write_json("calibration.json", cal)
-        t_calib = time.perf_counter() - t0
-        cfg["calibration"] = cal
-        cfg["execution"]["eps_obs"] = cal["eps_obs"]
-        cfg["chunk"] = chunk
         n_env = cfg["envs"] if a.envs is None else a.envs
         n_env = min(n_env, cfg["envs"])
+        # process 0 reads what is stored; everyone learns it (one process: no collective)
+        cal = None
+        if a.eps is not None:
+            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": a.eps}
+        elif main_:
+            cal = st.read_json("calibration.json", CALIBRATION_FIELDS)
+        have_cal = distributed.broadcast(np.asarray([cal is not None], np.int8), cluster)[0]
+        if not have_cal:
+            eps, rates = calibrate(cfg, models, progress, cluster)
+            cal = {"knob": "eps_obs", "how": "calibrated: with-composition plan-exists "
+                   "rate closest to 81.6 % on the calibration seed", "rates": rates,
+                   "eps_obs": eps, "target": PUBLISHED["exists_with"]}
+            if main_:
+                st.write_json("calibration.json", cal)
+        eps_obs = float(distributed.broadcast(np.asarray([cal["eps_obs"] if cal else 0.0],
+                                                         np.float64), cluster)[0])
+        t_calib = time.perf_counter() - t0
+        cfg["execution"]["eps_obs"] = eps_obs
+        cfg["chunk"] = chunk
         envs = [make_env(cfg, cfg["seed"], e, cfg["size"]) for e in range(n_env)]
+        # one checked record per environment id, so any chunking resumes correctly and a
+        # torn or garbage record is recomputed alone; process 0 decides what is left
+        have: dict[int, dict | None] = {}
+        if main_:
+            have = {i: st.read_json(f"chunks/env{i:05d}.json", ("env", "rows"),
+                                    check=lambda r, i=i: env_record_ok(r, i))
+                    for i in range(n_env)}
+        left = distributed.broadcast(np.asarray([have.get(i) is None for i in range(n_env)],
+                                                np.int8), cluster)
+        work = [ids for s0 in range(0, n_env, chunk)
+                if (ids := [i for i in range(s0, min(s0 + chunk, n_env)) if left[i]])]
+        t0 = time.perf_counter()
+        mine = distributed.share(len(work), cluster)
+        per_process = -(-len(work) // cluster.num_processes)
+        # equal shapes for the gather: pad with a repeat of a work item (computed, dropped)
+        todo = mine + [mine[-1] if mine else 0] * (per_process - len(mine)) if work else []
+        bar = tqdm(total=sum(map(len, work)), desc="qbsp lanes", unit="env",
+                   disable=not progress)
+        parts = []
+        for n_done, w in enumerate(todo):
+            parts.append(run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w]))
+            if n_done < len(mine):
+                bar.update(len(work[w]) * cluster.num_processes)
+            if not cluster.distributed and main_:  # write as we go (resume unit)
+                _store_rows(st, work[w], chunk_rows(*parts[-1], [envs[i] for i in work[w]],
+                                                    work[w]), have)
+        bar.close()
+        if cluster.distributed and work:
+            stacked = jax_tree_stack(parts)
+            every = distributed.gather(stacked, cluster)  # leaves [K, per_process, ...]
+            if main_:
+                K = cluster.num_processes
+                for w, ids in enumerate(work):
+                    part = [np.asarray(x)[w % K, w // K] for x in every]
+                    out, dt = tuple(part[:-1]), float(part[-1])
+                    _store_rows(st, ids, chunk_rows(out, dt, [envs[i] for i in ids], ids),
+                                have)
+        t_lanes = time.perf_counter() - t0
+        if not main_:
+            return 0
         env_lines = [json.dumps({"env": e, "pos": np.round(v.pos, 6).tolist(),
                                  "triplets": [list(map(int, t)) for t in v.triplets],
                                  "frame": list(map(int, v.frame)),
@@ -610,35 +828,43 @@ def main(argv: list[str]) -> int:
                                  "start": np.round(v.start, 6).tolist()})
                      for e, v in enumerate(envs)]
         st.write_text("environments.jsonl", "\n".join(env_lines) + "\n")
-        rows: list[dict] = []
-        t0 = time.perf_counter()
-        starts = list(range(0, n_env, chunk))
-        for s in tqdm(starts, desc="qbsp lanes", disable=a.no_progress):
-            ids = list(range(s, min(s + chunk, n_env)))
-            # one checked record per environment id, so any chunking resumes correctly and a
-            # torn or garbage record is recomputed alone
-            have = {i: st.read_json(f"chunks/env{i:05d}.json", ("env", "rows"),
-                                    check=lambda r, i=i: env_record_ok(r, i)) for i in ids}
-            todo = [i for i in ids if have[i] is None]
-            if todo:
-                new = run_chunk(cfg, models, D1, [envs[i] for i in todo], todo, cfg["size"])
-                for i in todo:
-                    rec = {"env": i, "rows": [r for r in new if r["env"] == i]}
-                    st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
-                    have[i] = json.loads(json.dumps(rec))  # the rows as stored
-            for i in ids:
-                rows += have[i]["rows"]
-        t_lanes = time.perf_counter() - t0
+        cfg["calibration"] = cal
+        rows = [r for i in range(n_env) for r in have[i]["rows"]]
         _write_tests_csv(st, rows)
         res = analyse(rows, n_env)
+        t0 = time.perf_counter()
+        sw = st.read_json("sweep.json", SWEEP_FIELDS)
+        if sw is None:
+            sw = sweep(cfg, models, D1, eps_obs, progress)
+            st.write_json("sweep.json", sw)
+        res["sweep"] = sw
+        t_sweep = time.perf_counter() - t0
+        import jax
+
         timing = {"models_s": round(t_models, 1), "calibration_s": round(t_calib, 1),
-                  "lanes_s": round(t_lanes, 1),
+                  "lanes_s": round(t_lanes, 1), "sweep_s": round(t_sweep, 1),
                   "total_s": round(time.perf_counter() - t_start, 1),
                   "lane_seconds_mean": float(np.mean([r["lane_seconds"] for r in rows])),
-                  "devices": len(__import__("jax").devices())}
+                  "processes": cluster.num_processes,
+                  "devices_per_process": len(jax.local_devices()),
+                  "devices": len(jax.devices())}
         st.write_text("results.json", json.dumps({"results": res, "timing": timing},
                                                  indent=1, default=float))
         st.write_results_csv(results_table(rows, res))
         figures(st, cfg, rows, envs, res)
         print(report(st, cfg, res, timing))
     return 0
+
+
+def jax_tree_stack(parts: list) -> list[np.ndarray]:
+    """The work items of this process as a flat list of stacked arrays ``[items, ...]``:
+    the Outcome fields, then the lane seconds."""
+    return [np.stack([np.asarray(p[0][f]) for p in parts]) for f in range(len(parts[0][0]))] \
+        + [np.asarray([p[1] for p in parts], np.float64)]
+
+
+def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict) -> None:
+    for i in ids:
+        rec = {"env": i, "rows": [r for r in rows if r["env"] == i]}
+        st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
+        have[i] = json.loads(json.dumps(rec))  # the rows as stored
