@@ -30,6 +30,9 @@ from pqrm_jax.qrm.camera_oracle import oracle_sets
 from pqrm_jax.qrm.spec import popcount, qrm_spec
 
 SPREADS = (0.05, 0.3, 1.0, 2.0, 2 * np.pi)
+#: seed of each spread bucket (0.3–2π keep the seeds of the first version of this benchmark,
+#: so results/camera_exact_old_kernel.json compares the same triples)
+SEEDS = {0.05: 99, 0.3: 100, 1.0: 101, 2.0: 102, 2 * np.pi: 103}
 
 
 def triples(spread: float, count: int, seed: int) -> np.ndarray:
@@ -45,8 +48,8 @@ def main() -> None:
     a = ap.parse_args()
     spec = qrm_spec("edc")
     res = {"per_bucket": a.per_bucket, "buckets": {}}
-    for i, s in enumerate(SPREADS):
-        b = triples(s, a.per_bucket, 100 + i).astype(np.float32)
+    for s in SPREADS:
+        b = triples(s, a.per_bucket, SEEDS[s]).astype(np.float32)
         t0 = time.perf_counter()
         exact = np.stack([oracle_sets(row, spec) for row in b])
         t_or = time.perf_counter() - t0
