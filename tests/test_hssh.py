@@ -116,7 +116,8 @@ def test_zhang_suen_equals_paper_rules_and_tracks_scikit_image():
         assert (ours[k] & ~near).sum() <= 0.05 * max(ours[k].sum(), 1)
 
 
-@pytest.mark.parametrize("width", [7, 31, 32, 33, 64, 70])
+@pytest.mark.parametrize("width", [32, 65] + [pytest.param(w, marks=pytest.mark.slow)
+                                               for w in (7, 31, 33, 64, 70)])
 def test_bit_packed_thinning_equals_paper_rules_at_word_edges(width):
     # the thinning runs on uint32 words of 32 columns: widths around word boundaries, both
     # border values and protected cells against the NumPy transcription
