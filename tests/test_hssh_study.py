@@ -31,7 +31,9 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
         assert knob in cfg
     report = (tmp_path / "report.md").read_text()
     assert "5751/6270" in report and "partial corpus" in report
-    for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png"):
+    assert "## Per rotation" in report and "| 30° | 2 |" in report
+    for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png",
+                "accuracy_per_rotation.png"):
         assert (tmp_path / fig).stat().st_size > 0
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new

@@ -259,6 +259,15 @@ def summarise(rows: list[dict], cfg: dict) -> dict:
             key = "robot cell not in free space" if "not in free space" in key else key
             reasons[key] = reasons.get(key, 0) + 1
     s["reasons"] = dict(sorted(reasons.items(), key=lambda kv: -kv[1]))
+    per_rot = []
+    for a in sorted({r["rotation"] for r in rows}):
+        ra = [r for r in rows if r["rotation"] == a]
+        k1, n1, _ = _frac(ra, lambda r: r["side"] >= 200 and r["noise"] <= 0.35 + 1e-9)
+        k2, n2, _ = _frac(ra, lambda r: r["side"] >= 39 and r["noise"] <= 0.50 + 1e-9)
+        per_rot.append({"rotation": a, "images": len(ra),
+                        "accuracy": float(np.mean([r["success"] for r in ra])),
+                        "big_low_noise": (k1, n1), "mid": (k2, n2)})
+    s["per_rotation"] = per_rot
     s["n_images"] = len(rows)
     s["seconds"] = float(sum(r["seconds"] for r in rows))
     return s
@@ -325,6 +334,32 @@ def _figures(rows, cfg, out: Path) -> None:
     atomic_savefig(fig, out / "accuracy_rotation_size_noise.png", dpi=110)
     plt.close(fig)
 
+    # one size x noise accuracy map per rotation (cf. B Figs. 6.31-6.32)
+    ncol = min(5, len(rots))
+    nrow = -(-len(rots) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 3.0 * nrow), squeeze=False)
+    sizes = sorted({r["side"] for r in rows})
+    noise = sorted({r["noise"] for r in rows})
+    for ax in axes.ravel()[len(rots):]:
+        ax.axis("off")
+    for ax, a in zip(axes.ravel(), rots, strict=False):
+        m = np.full((len(sizes), len(noise)), np.nan)
+        for r in rows:
+            if r["rotation"] == a:
+                m[sizes.index(r["side"]), noise.index(r["noise"])] = float(r["success"])
+        ax.imshow(m, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis",
+                  extent=(-0.5, len(noise) - 0.5, -0.5, len(sizes) - 0.5))
+        ax.set_title(f"{a:g}°", fontsize=9)
+        ax.set_xticks(range(0, len(noise), 4), [f"{int(round(100 * noise[i]))}"
+                                                for i in range(0, len(noise), 4)], fontsize=7)
+        step = max(1, len(sizes) // 6)
+        ax.set_yticks(range(0, len(sizes), step), [str(x) for x in sizes[::step]], fontsize=7)
+    fig.supxlabel("free-cell noise (%)")
+    fig.supylabel("LPM side (cells)")
+    fig.tight_layout()
+    atomic_savefig(fig, out / "accuracy_per_rotation.png", dpi=100)
+    plt.close(fig)
+
     errs = [e for r in rows for e in r.get("orientation_errors", [])]
     if errs:
         fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -382,6 +417,17 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
                      f"signed: mean {o['mean']:.2f}, median {o['median']:.2f}, sd {o['sd']:.2f}; "
                      f"|err|: mean {o['mean_abs']:.2f}, median {o['median_abs']:.2f} (n={o['n']})"
                      " | reference only (skeleton-dependent) |")
+    if s.get("per_rotation"):
+        lines += ["", "## Per rotation (B Fig. 6.30: flat across rotations)", "",
+                  "| rotation | images | all | side >= 200, noise <= 35 % | "
+                  "side >= 39, noise <= 50 % |", "|---|---|---|---|---|"]
+        for pr in s["per_rotation"]:
+            cells = []
+            for key in ("big_low_noise", "mid"):
+                k, n = pr[key]
+                cells.append(f"{100 * k / n:.2f} % ({k}/{n})" if n else "—")
+            lines.append(f"| {pr['rotation']:g}° | {pr['images']} | "
+                         f"{100 * pr['accuracy']:.1f} % | {cells[0]} | {cells[1]} |")
     lines += ["", "## Failures by reason", ""]
     for reason, cnt in s["reasons"].items():
         lines.append(f"- {cnt}: {reason}")
@@ -402,6 +448,6 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
               "from EVG-Thin in details (tangent smoothing over +-2 nodes, Alg. 6.3 averaging), "
               "so they are a reference, not a target.",
               "", "Figures: `accuracy_size_noise.png`, `accuracy_rotation_size_noise.png`, "
-              "`gateway_orientation.png`."]
+              "`accuracy_per_rotation.png`, `gateway_orientation.png`."]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     atomic_write_json(out / "summary.json", s)
