@@ -22,6 +22,11 @@ recomputed) and a different configuration in the same ``--out`` is refused; ``re
 is the tidy table. ``--sizes`` / ``--rotations``
 choose a subset of units (merged into ``config.json``); ``--reduced`` is a small corpus for the
 tests. The run ends with ``report.md`` (measured vs published) and figures.
+
+Multi-process (:mod:`pqrm_jax.studies.distributed`, ``--coordinator HOST:PORT --processes K
+--process-id P`` or the environment / Slurm): process ``P`` computes the units ``i = P mod
+K`` of process 0's to-do list, process 0 alone reads and writes the store; the records equal a
+one-process run's (the measured ``seconds`` aside).
 """
 
 from __future__ import annotations
@@ -68,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=4,
                    help="area samples per cell and axis when drawing the +")
     p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    from . import distributed
+
+    distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
 
 
@@ -180,8 +188,57 @@ def _unit_name(side: int, rot: float) -> str:
     return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
 
 
-def main(argv: list[str] | None = None) -> int:
+def _shared_todo(todo: list | None, cluster) -> list:
+    """Process 0's list of (size, rotation) units to compute, on every process."""
+    from . import distributed
+
+    if not cluster.distributed:
+        return todo
+    n = int(distributed.broadcast(np.array([len(todo) if cluster.is_main else 0]),
+                                  cluster)[0])
+    if n == 0:
+        return []
+    arr = (np.array([[s, round(r * 1000)] for s, r in todo], np.int32) if cluster.is_main
+           else np.zeros((n, 2), np.int32))
+    arr = distributed.broadcast(arr, cluster)
+    return [(int(s), r / 1000.0) for s, r in arr.tolist()]
+
+
+def _compute(todo: list, cfg: dict, cluster, st) -> None:
+    """Run the units; with ``K`` processes process ``p`` computes units ``i = p mod K`` and
+    process 0 alone writes them (records gathered as JSON bytes, one round of ``K`` units at a
+    time). Units are deterministic, so the stored records equal a one-process run's (except
+    the measured ``seconds``)."""
+    import json
+
     from tqdm import tqdm
+
+    from . import distributed
+
+    if not cluster.distributed:
+        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        return
+    k, p = cluster.num_processes, cluster.process_id
+    rounds = range(-(-len(todo) // k))
+    for rnd in tqdm(rounds, desc=f"hssh-plus x{k}", unit="round", disable=not cluster.is_main):
+        i = rnd * k + p
+        mine = json.dumps(run_unit(*todo[i], cfg)).encode() if i < len(todo) else b""
+        lens = distributed.gather(np.array([len(mine)], np.int32), cluster)[:, 0]
+        buf = np.zeros(max(int(lens.max()), 1), np.uint8)
+        buf[:len(mine)] = np.frombuffer(mine, np.uint8)
+        every = distributed.gather(buf, cluster)
+        if cluster.is_main:
+            for q in range(k):
+                j = rnd * k + q
+                if j < len(todo):
+                    recs = json.loads(every[q, :int(lens[q])].tobytes().decode())
+                    st.write_json(_unit_name(*todo[j]), {"records": recs})
+
+
+def main(argv: list[str] | None = None) -> int:
+    from . import distributed
 
     args = _parser().parse_args(argv or [])
     out = Path(args.out)
@@ -189,6 +246,11 @@ def main(argv: list[str] | None = None) -> int:
     sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
     rots = _pick(args.rotations, cfg["corpus_rotations"], float)
     cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
+    cluster = distributed.initialize_from(args)  # before any JAX computation
+    distributed.agree(cluster, cfg_all, "hssh-plus configuration")
+    if not cluster.is_main:  # a helper process: compute its share, write nothing
+        _compute(_shared_todo(None, cluster), cfg, cluster, None)
+        return 0
     with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
                     legacy=("units", "units/*", "config.json", "report.md", "summary.json",
                             "*.png")) as st:
@@ -197,10 +259,9 @@ def main(argv: list[str] | None = None) -> int:
 
         todo = [(s, r) for s in sizes for r in rots
                 if st.read_json(_unit_name(s, r), ("records",), check) is None]
+        todo = _shared_todo(todo, cluster)
         t_start = time.perf_counter()
-        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
-            # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        _compute(todo, cfg, cluster, st)
         wall = time.perf_counter() - t_start
         rows = []
         for path in sorted((out / "units").glob("s*_r*.json")):
