@@ -355,7 +355,7 @@ def _chunking(b: int, h: int, w: int) -> tuple[int, int]:
 
     The stages sweep their arrays tens of times; past a few MB (an int16 distance map of 16
     grids of 300 x 300 is 2.9 MB) the sweeps fall out of the per-core cache and the time per
-    grid grows (``benchmarks/bench_hssh.py``: 2.8 ms/grid at 16, 4.6 at 32, 5.0 at 64 before
+    grid grows (measured on a loaded machine: 2.8 ms/grid at 16, 4.6 at 32, 5.0 at 64 before
     chunking). Chunks are as equal as possible; the last is padded with empty grids.
     """
     per = max(1, _CHUNK_CELLS // max(h * w, 1))
