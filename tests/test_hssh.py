@@ -50,9 +50,26 @@ def test_distance_transform_equals_scipy_exactly():
         assert np.all(capped[k][~near] > 16)
 
 
-def _zs_reference(img):
-    """Straight transcription of Zhang & Suen (1984), parallel sub-iterations, zero border."""
-    x = np.pad(np.asarray(img, bool), 1).astype(int)
+@pytest.mark.parametrize("cap", [0, 1, 15, 16, 17, 124, 125])
+def test_capped_distance_transform_exact_below_cap(cap):
+    # caps around the 16-offset chunks and the int16 / int32 switch (2 (cap + 2)**2 < 32000)
+    rng = np.random.default_rng(cap)
+    occ = rng.random((2, 270, 37)) < np.array([0.0004, 0.05])[:, None, None]
+    occ[0, 0, 0] = True
+    d2 = np.asarray(hssh.squared_distance_transform(jnp.asarray(occ), cap=cap))
+    assert d2.dtype == np.int32
+    for k in range(2):
+        ref = np.rint(ndimage.distance_transform_edt(~occ[k]) ** 2).astype(int)
+        near = ref <= cap * cap
+        np.testing.assert_array_equal(d2[k][near], ref[near])
+        assert np.all(d2[k][~near] > cap * cap)
+
+
+def _zs_reference(img, protect=None, pad=False):
+    """Straight transcription of Zhang & Suen (1984), parallel sub-iterations; ``pad`` is the
+    value beyond the border, ``protect`` cells are never deleted."""
+    x = np.pad(np.asarray(img, bool), 1, constant_values=pad).astype(int)
+    keep = np.zeros(np.shape(img), bool) if protect is None else np.asarray(protect, bool)
     while True:
         changed = False
         for first in (True, False):
@@ -72,7 +89,7 @@ def _zs_reference(img):
             else:
                 c1 = p["P2"] * p["P4"] * p["P8"] == 0
                 c2 = p["P2"] * p["P6"] * p["P8"] == 0
-            delete = (c == 1) & (b >= 2) & (b <= 6) & (a == 1) & c1 & c2
+            delete = (c == 1) & (b >= 2) & (b <= 6) & (a == 1) & c1 & c2 & ~keep
             if delete.any():
                 changed = True
                 x[1:-1, 1:-1] = np.where(delete, 0, c)
@@ -99,6 +116,22 @@ def test_zhang_suen_equals_paper_rules_and_tracks_scikit_image():
         assert (ours[k] & ~near).sum() <= 0.05 * max(ours[k].sum(), 1)
 
 
+@pytest.mark.parametrize("width", [32, 65] + [pytest.param(w, marks=pytest.mark.slow)
+                                               for w in (7, 31, 33, 64, 70)])
+def test_bit_packed_thinning_equals_paper_rules_at_word_edges(width):
+    # the thinning runs on uint32 words of 32 columns: widths around word boundaries, both
+    # border values and protected cells against the NumPy transcription
+    rng = np.random.default_rng(width)
+    imgs = rng.random((4, 23, width)) < 0.7
+    imgs[1] = ndimage.binary_opening(imgs[1])
+    imgs[3] = True
+    prot = rng.random(imgs.shape) < 0.02
+    for pad in (False, True):
+        ours = np.asarray(hssh.zhang_suen_thin(jnp.asarray(imgs), jnp.asarray(prot), pad=pad))
+        for k in range(len(imgs)):
+            np.testing.assert_array_equal(ours[k], _zs_reference(imgs[k], prot[k], pad))
+
+
 def test_protected_cells_survive_thinning():
     img = np.zeros((1, 9, 9), bool)
     img[0, 2:7, 2:7] = True
@@ -109,10 +142,12 @@ def test_protected_cells_survive_thinning():
     assert ndimage.label(out[0], np.ones((3, 3)))[1] == 1
 
 
-def test_island_removal_matches_connected_components():
+@pytest.mark.parametrize("shape", [(30, 30), (41, 32), (17, 65)])
+def test_island_removal_matches_connected_components(shape):
     rng = np.random.default_rng(2)
-    occ = rng.random((3, 30, 30)) < 0.45
-    unk = rng.random((3, 30, 30)) < 0.05
+    occ = rng.random((3, *shape)) < 0.45
+    occ[2] = rng.random(shape) < 0.58  # near the percolation threshold: long winding floods
+    unk = rng.random((3, *shape)) < 0.05
     o, u = hssh.remove_islands(jnp.asarray(occ), jnp.asarray(unk))
     for k in range(3):
         lab, _ = ndimage.label(occ[k] | unk[k])  # 4-connectivity

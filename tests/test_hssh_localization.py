@@ -57,3 +57,73 @@ def test_reduced_localization_study(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "Published orderings" in report and "not available" in report
     assert len(list((tmp_path / "units").glob("*.json"))) == 6
+
+
+# ---------------------------------------------------------------- KLD-sampling (Fox 2003)
+
+def _fox_reference(poses, bins, eps, conf, n_min):
+    """Fox's loop: draw one particle at a time, stop once n >= max(n_min, n_chi(k))."""
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(conf)
+    seen = set()
+    for n, p in enumerate(np.asarray(poses, float), start=1):
+        seen.add(tuple(np.floor(p / np.asarray(bins, np.float32)).astype(int)))
+        k = len(seen)
+        chi = 0.0 if k <= 1 else (k - 1) / (2 * eps) * (
+            1 - 2 / (9 * (k - 1)) + np.sqrt(2 / (9 * (k - 1))) * z) ** 3
+        if n >= max(n_min, chi):
+            return n
+    return len(poses)
+
+
+@pytest.mark.parametrize("spread", [0.001, 0.02, 0.05, 0.2])
+def test_kld_mask_equals_fox_loop(spread):
+    from pqrm_jax.hssh.localization import KLDParams, kld_mask
+
+    rng = np.random.default_rng(int(spread * 1000))
+    poses = (rng.normal(size=(200, 3)) * np.array([spread, spread, spread / 10])
+             + np.array([3.0, -2.0, 0.4])).astype(np.float32)
+    prm = KLDParams()
+    mask, n = kld_mask(jnp.asarray(poses), prm)
+    want = _fox_reference(poses, prm.bin_size, prm.epsilon, prm.confidence, prm.n_min)
+    assert int(n) == want
+    assert np.array_equal(np.asarray(mask), np.arange(200) < want)
+
+
+def test_kld_bound_matches_fox_formula():
+    from pqrm_jax.hssh.localization import kld_bound
+
+    # k = 10, eps = 0.5, z_0.95 = 1.6449: 9 (1 - 2/81 + sqrt(2/81) 1.6449)**3 = 16.89
+    assert abs(float(kld_bound(jnp.array(10), 0.5, 0.95)) - 16.89) < 0.02
+    assert float(kld_bound(jnp.array(1), 0.5, 0.95)) == 0.0
+    # a smaller error asks for more particles
+    assert float(kld_bound(jnp.array(50), 0.1, 0.95)) > float(kld_bound(jnp.array(50), 0.5,
+                                                                        0.95))
+
+
+@pytest.mark.slow
+def test_kld_sampling_sizes_the_proposal():
+    from pqrm_jax.hssh.localization import KLDParams, LocalizeParams, localize_with_count
+
+    world = _room()
+    d2 = squared_distance_transform(world[None], cap=20)[0]
+    # poses mid-bin (bins 5 cm, 0.006 rad), so a tight proposal stays in few bins
+    prior, true = jnp.array([2.02, 3.02, 0.003]), jnp.array([2.32, 3.02, 0.003])
+    odom0, odom1 = jnp.zeros(3), jnp.array([0.3, 0.0, 0.0])
+    z = lidar_scan(jax.random.key(1), true, world, 0.1, params=LidarParams(n_beams=90,
+                                                                           max_range=8.0))
+    prm = LocalizeParams(kld=KLDParams())
+    n = {}
+    for model in ("small", "large"):
+        c = jnp.asarray(ACTION_MODELS[model])
+        for m in ("pf", "shrink_and_grow"):
+            pose, lk, cnt = localize_with_count(jax.random.key(2), prior, odom0, odom1, z, d2,
+                                                jnp.zeros(2), 0.1, c, method=m, params=prm)
+            n[model, m] = int(cnt)
+            assert 0.0 < float(lk) <= 1.0
+    # a 1 mm proposal fills a few 5 cm bins: KLD stops at or near n_min; a 10 cm one needs
+    # hundreds
+    assert KLDParams().n_min <= n["small", "pf"] <= 2 * KLDParams().n_min
+    assert n["large", "pf"] > 100
+    assert all(v <= 500 for v in n.values())

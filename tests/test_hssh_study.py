@@ -31,7 +31,9 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
         assert knob in cfg
     report = (tmp_path / "report.md").read_text()
     assert "5751/6270" in report and "partial corpus" in report
-    for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png"):
+    assert "## Per rotation" in report and "| 30° | 2 |" in report
+    for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png",
+                "accuracy_per_rotation.png"):
         assert (tmp_path / fig).stat().st_size > 0
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new
@@ -59,3 +61,50 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
             study.main(argv)
     with pytest.raises(StoreError, match="different config"):
         study.main(argv + ["--supersample", "2"])
+
+
+@pytest.mark.slow
+def test_two_processes_equal_one(tmp_path):
+    """hssh-plus on jax.distributed: 2 local processes store the 1-process records."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    def launch(argvs):
+        env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+        procs = [subprocess.Popen(a, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                  env=env) for a in argvs]
+        out = []
+        for p in procs:
+            try:
+                so, se = p.communicate(timeout=600)
+            except subprocess.TimeoutExpired:
+                for q in procs:
+                    q.kill()
+                raise
+            out.append((p.returncode, so, se))
+        return out
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    py = [sys.executable, "-m", "pqrm_jax.cli", "study", "hssh-plus", "--reduced",
+          "--sizes", "29,49"]
+    two = [*py, "--out", str(tmp_path / "two"), "--coordinator", f"127.0.0.1:{port}",
+           "--processes", "2"]
+    runs = launch([[*py, "--out", str(tmp_path / "one")], [*two, "--process-id", "1"],
+                   [*two, "--process-id", "0"]])
+    for rc, _, err in runs:
+        assert rc == 0, err[-2000:]
+
+    def records(d):
+        out = {}
+        for u in sorted((d / "units").glob("*.json")):
+            out[u.name] = [{k: v for k, v in r.items() if k != "seconds"}
+                           for r in json.loads(u.read_text())["records"]]
+        return out
+
+    one, two_r = records(tmp_path / "one"), records(tmp_path / "two")
+    assert len(one) == 4 and one == two_r                  # 2 sizes x 2 rotations
+    assert (tmp_path / "two" / "report.md").exists()

@@ -15,7 +15,11 @@
 * :mod:`~pqrm_jax.hssh.motion` -- the 21-parameter turn--travel--turn action model with the
   Table 4.1 presets (B §4.3.1).
 * :mod:`~pqrm_jax.hssh.localization` -- raw odometry, PF, shrink, grow and shrink-and-grow
-  proposals as fixed particle blocks with masks, likelihood-field scan likelihood (B §4.3.2).
+  proposals as fixed particle blocks with masks, KLD-sampling (Fox 2003) as a mask on each
+  block, likelihood-field scan likelihood (B §4.3.2).
+* :mod:`~pqrm_jax.hssh.tracking` -- localizing in the LPM while it is being built: each scan
+  localized against the LPM so far, then added at the localized pose, one ``lax.scan``
+  (B §4.1, §4.3).
 """
 
 from pqrm_jax.hssh import (
@@ -27,6 +31,7 @@ from pqrm_jax.hssh import (
     skeleton,
     star,
     topology,
+    tracking,
 )
 from pqrm_jax.hssh.cellular import (
     CellularMaps,
@@ -37,7 +42,16 @@ from pqrm_jax.hssh.cellular import (
     zhang_suen_thin,
 )
 from pqrm_jax.hssh.gateways import Core, Gateway, core, find_gateways, search_spaces
-from pqrm_jax.hssh.localization import METHODS, LocalizeParams, localize, scan_likelihood
+from pqrm_jax.hssh.localization import (
+    METHODS,
+    KLDParams,
+    LocalizeParams,
+    kld_bound,
+    kld_mask,
+    localize,
+    localize_with_count,
+    scan_likelihood,
+)
 from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
 from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
@@ -59,11 +73,14 @@ from pqrm_jax.hssh.topology import (
     resolution_bound,
     topology_from_maps,
 )
+from pqrm_jax.hssh.tracking import Tracker, TrackState, TrackStep, lpm_tracker, track_run
 
 __all__ = [
     "cellular", "skeleton", "gateways", "star", "topology", "lpm", "motion",
     "ACTION_MODELS", "decompose", "sample_motion", "localization",
     "METHODS", "LocalizeParams", "localize", "scan_likelihood",
+    "KLDParams", "kld_bound", "kld_mask", "localize_with_count",
+    "tracking", "Tracker", "TrackState", "TrackStep", "lpm_tracker", "track_run",
     "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
     "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",
     "zhang_suen_thin", "evg_skeleton",

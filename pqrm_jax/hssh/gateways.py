@@ -201,28 +201,81 @@ def _tangents(nodes: np.ndarray, k: int = 2) -> np.ndarray:
     return t.astype(float)
 
 
+_K_NEAR = (32, 256)  # neighbours fetched per point by the rounds of _closest_sides
+
+
+def _pick_sides(n, pid, cid, pts, tan, cells):
+    """Per (point, side): the candidate with the least (distance, row, col); -1 if none.
+    Also returns each pick's squared distance (-1 where none)."""
+    left, right = np.full(n, -1), np.full(n, -1)
+    dl, dr = np.full(n, -1), np.full(n, -1)
+    v = cells[cid] - pts[pid]
+    # screen frame: x = col, y = -row; cross > 0 means counter-clockwise (left)
+    cross = tan[pid, 1] * (-v[:, 0]) - (-tan[pid, 0]) * v[:, 1]
+    d2 = (v**2).sum(axis=1)
+    side = np.where(cross > 0, 0, np.where(cross < 0, 1, -1))
+    ok = side >= 0
+    pid, cid, side, d2 = pid[ok], cid[ok], side[ok], d2[ok]
+    order = np.lexsort((cells[cid, 1], cells[cid, 0], d2, side, pid))
+    pid, cid, side, d2 = pid[order], cid[order], side[order], d2[order]
+    first = np.ones(len(pid), bool)
+    first[1:] = (pid[1:] != pid[:-1]) | (side[1:] != side[:-1])
+    for out, dist, sd in ((left, dl, 0), (right, dr, 1)):
+        sel = first & (side == sd)
+        out[pid[sel]] = cid[sel]
+        dist[pid[sel]] = d2[sel]
+    return left, right, dl, dr
+
+
 def _closest_sides(points, tangents, radii, kd, cells, slack):
     """Closest left and right obstacle (index into ``cells`` or -1) of each point, searched
-    within ``r (1 + slack) + sqrt 2``."""
-    left = np.full(len(points), -1)
-    right = np.full(len(points), -1)
-    if kd is None:
+    within ``R = r (1 + slack) + sqrt 2``; ties to the lowest (row, col).
+
+    Rounds of ``k`` nearest obstacle cells (``_K_NEAR``; one vectorised KD query per round). A
+    side's pick among them is the answer when every cell at least as close is in the list: the
+    list's farthest cell is strictly farther, or the list holds the whole ball (fewer than
+    ``k`` cells within ``R``). Points left after the last round take the exhaustive ball
+    query (:func:`_closest_sides_ball`); the result is the same as the ball query for all.
+    """
+    n = len(points)
+    left, right = np.full(n, -1), np.full(n, -1)
+    if kd is None or n == 0:
         return left, right
-    for i, (p, t, r) in enumerate(zip(points, tangents, radii, strict=True)):
-        cand = kd.query_ball_point(p, r * (1.0 + slack) + _SQRT2 + 1e-9)
-        if not cand:
-            continue
-        cand = np.array(sorted(cand))
-        v = cells[cand] - p
-        # screen frame: x = col, y = -row; cross > 0 means counter-clockwise (left)
-        cross = t[1] * (-v[:, 0]) - (-t[0]) * v[:, 1]
-        d2 = (v**2).sum(axis=1)
-        for side, mask in ((left, cross > 0), (right, cross < 0)):
-            if mask.any():
-                sel = cand[mask]
-                dd = d2[mask]
-                key = np.lexsort((cells[sel, 1], cells[sel, 0], dd))
-                side[i] = sel[key[0]]
+    pts = np.asarray(points)
+    tan = np.asarray(tangents, float)
+    reach = np.asarray(radii, float) * (1.0 + slack) + _SQRT2 + 1e-9
+    todo = np.arange(n)
+    for k in _K_NEAR:
+        k = min(k, len(cells))
+        m = len(todo)
+        _, idx = kd.query(pts[todo], k=k, distance_upper_bound=float(reach[todo].max()))
+        idx = np.asarray(idx).reshape(m, k)
+        have = idx < len(cells)
+        cid = np.where(have, idx, 0)
+        dd = ((cells[cid] - pts[todo][:, None, :]) ** 2).sum(axis=-1)
+        inside = have & (np.sqrt(dd) <= reach[todo][:, None])
+        pid = np.broadcast_to(np.arange(m)[:, None], (m, k))
+        lt, rt, dl, dr = _pick_sides(m, pid[inside], cid[inside], pts[todo], tan[todo], cells)
+        whole_ball = inside.sum(axis=1) < k
+        far = np.where(inside[:, -1], dd[:, -1], -1)  # the list's farthest in-ball cell
+        exact = whole_ball | ((dl >= 0) & (dr >= 0) & (far > dl) & (far > dr))
+        left[todo[exact]], right[todo[exact]] = lt[exact], rt[exact]
+        todo = todo[~exact]
+        if len(todo) == 0:
+            return left, right
+    left[todo], right[todo] = _closest_sides_ball(pts[todo], tan[todo], reach[todo], kd, cells)
+    return left, right
+
+
+def _closest_sides_ball(pts, tan, reach, kd, cells):
+    """Exhaustive form of :func:`_closest_sides`: every obstacle cell within ``reach``
+    (one vectorised ball query, one sort of all candidates)."""
+    n = len(pts)
+    cand = kd.query_ball_point(pts, reach)
+    lens = np.fromiter((len(c) for c in cand), int, count=n)
+    pid = np.repeat(np.arange(n), lens)
+    cid = np.fromiter((k for c in cand for k in c), int, count=int(lens.sum()))
+    left, right, _, _ = _pick_sides(n, pid, cid, pts, tan, cells)
     return left, right
 
 

@@ -20,9 +20,18 @@ point are masked out (no Python loop over particles or stages).
 
 Scan likelihood (:func:`scan_likelihood`): the likelihood-field model, the mean over hit
 beams of ``exp(-d**2 / (2 sigma**2))`` with ``d`` the distance from the beam end to the nearest
-occupied cell (in ``(0, 1]``; 0 without a usable beam). B used KLD-sampling with at most 500
-particles (100 per stage x 5) and Konolige's likelihood; the fixed blocks and the likelihood
-field are this library's choices.
+occupied cell (in ``(0, 1]``; 0 without a usable beam). B used Konolige's likelihood; the
+likelihood field is this library's choice.
+
+KLD-sampling (Fox 2003, as B §4.3.2 uses it in every filter; :class:`KLDParams`, off by
+default): each proposal is drawn as a full block and only its first ``n`` particles are kept,
+``n`` the first count at which Fox's bound is met, ``n >= max(n_min, n_chi(k_n))`` with
+``k_n`` the number of occupied pose bins among the first ``n`` particles and
+``n_chi(k) = (k - 1) / (2 eps) (1 - 2 / (9 (k - 1)) + sqrt(2 / (9 (k - 1))) z)**3``
+(``z`` the standard normal ``confidence`` quantile) -- a mask on the fixed block
+(:func:`kld_mask`), so a small proposal uses few particles and a wide one up to the block.
+B's budget: at most 100 per stage x 5 stages = 500; confidence 0.95, error 0.5, bins
+(0.05, 0.05, 0.006) (m, m, rad).
 """
 
 from __future__ import annotations
@@ -36,20 +45,34 @@ import jax.numpy as jnp
 from pqrm_jax.hssh.motion import sample_motion
 from pqrm_jax.sim.lidar import LidarScan
 
-__all__ = ["METHODS", "LocalizeParams", "DEFAULT_PARAMS", "scan_likelihood", "localize"]
+__all__ = ["METHODS", "KLDParams", "LocalizeParams", "DEFAULT_PARAMS", "kld_bound", "kld_mask",
+           "scan_likelihood", "localize", "localize_with_count"]
 
 METHODS = ("raw", "pf", "shrink", "grow", "shrink_and_grow")
 
 
+class KLDParams(NamedTuple):
+    """KLD-sampling settings (Fox 2003; B §4.3.2's values): bound error ``epsilon``,
+    ``confidence`` (1 - delta), pose ``bin_size`` (x, y, theta) and the least count ``n_min``
+    (Fox's lower bound; not given by B -- this library's choice)."""
+
+    epsilon: float = 0.5
+    confidence: float = 0.95
+    bin_size: tuple[float, float, float] = (0.05, 0.05, 0.006)
+    n_min: int = 10
+
+
 class LocalizeParams(NamedTuple):
     """blocks x block particles; likelihood-field sigma (world units); stopping threshold and
-    its per-stage annealing factor (grow, shrink-and-grow)."""
+    its per-stage annealing factor (grow, shrink-and-grow); ``kld``: :class:`KLDParams` to
+    size every proposal by KLD-sampling, or None for full blocks."""
 
     blocks: int = 5
     block: int = 100
     sigma: float = 0.1
     threshold: float = 0.8
     anneal: float = 0.9
+    kld: KLDParams | None = None
 
 
 DEFAULT_PARAMS = LocalizeParams()
@@ -86,6 +109,52 @@ def scan_likelihood(poses: jax.Array, scan: LidarScan, dist2: jax.Array, origin:
     return jnp.where(ok, lik, 0.0).sum(axis=1) / n
 
 
+def kld_bound(k: jax.Array, epsilon: float, confidence: float) -> jax.Array:
+    """Fox's (2003) sample count ``n_chi(k)`` for ``k`` occupied bins (0 for ``k <= 1``).
+
+    >>> [round(float(kld_bound(jnp.array(k), 0.5, 0.95)), 1) for k in (1, 2, 10, 100)]
+    [0.0, 3.7, 16.9, 123.2]
+    """
+    from jax.scipy.special import ndtri
+
+    z = ndtri(confidence)
+    km1 = jnp.maximum(jnp.asarray(k, jnp.float32) - 1.0, 1.0)
+    a = 2.0 / (9.0 * km1)
+    n = km1 / (2.0 * epsilon) * (1.0 - a + jnp.sqrt(a) * z) ** 3
+    return jnp.where(k > 1, n, 0.0)
+
+
+def kld_mask(poses: jax.Array, params: KLDParams | None = None) -> tuple[jax.Array, jax.Array]:
+    """KLD-sampling on a drawn block: keep the first ``n`` particles of ``poses`` ``[N, 3]``.
+
+    ``n`` is the first count with ``n >= max(n_min, n_chi(k_n))``, ``k_n`` the number of
+    distinct pose bins among the first ``n`` particles (``N`` if the bound is never met).
+    Distinct-bin counts of all prefixes come from one sort (first occurrence of each bin).
+
+    Returns:
+        ``(mask [N] bool, n)``.
+
+    >>> tight = jnp.zeros((100, 3))                      # one bin: n_min particles
+    >>> wide = jnp.arange(300.0).reshape(100, 3)          # every particle its own bin
+    >>> int(kld_mask(tight)[1]), int(kld_mask(wide)[1])
+    (10, 100)
+    """
+    params = KLDParams() if params is None else params
+    n_all = poses.shape[0]
+    b = jnp.floor(poses / jnp.asarray(params.bin_size, poses.dtype)).astype(jnp.int32)
+    idx = jnp.arange(n_all)
+    order = jnp.lexsort((idx, b[:, 2], b[:, 1], b[:, 0]))
+    sb = b[order]
+    first = jnp.concatenate([jnp.ones(1, bool), jnp.any(sb[1:] != sb[:-1], axis=1)])
+    new = jnp.zeros(n_all, bool).at[order].set(first)
+    k = jnp.cumsum(new)
+    n = idx + 1
+    need = jnp.maximum(kld_bound(k, params.epsilon, params.confidence), params.n_min)
+    done = n >= need
+    stop = jnp.where(done.any(), jnp.argmax(done) + 1, n_all)
+    return idx < stop, stop
+
+
 def _fit(x, wts, prior):
     """Weighted Gaussian of poses ``[N, 3]`` (headings relative to the prior's)."""
     rel = x.at[:, 2].set((x[:, 2] - prior[2] + jnp.pi) % (2 * jnp.pi) - jnp.pi)
@@ -103,7 +172,6 @@ def _draw(key, mu, cov, n, prior):
     return z.at[:, 2].set(z[:, 2] + prior[2])
 
 
-@partial(jax.jit, static_argnames=("method", "params"))
 def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.Array,
              scan: LidarScan, dist2: jax.Array, origin: jax.Array, resolution: float,
              c: jax.Array, method: str = "shrink_and_grow",
@@ -120,6 +188,23 @@ def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.A
         method: one of :data:`METHODS`.
         params: static :class:`LocalizeParams`.
     """
+    pose, lik, _ = localize_with_count(key, prior, prev_odom, odom, scan, dist2, origin,
+                                       resolution, c, method=method, params=params)
+    return pose, lik
+
+
+@partial(jax.jit, static_argnames=("method", "params"))
+def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
+                        odom: jax.Array, scan: LidarScan, dist2: jax.Array, origin: jax.Array,
+                        resolution: float, c: jax.Array, method: str = "shrink_and_grow",
+                        params: LocalizeParams = DEFAULT_PARAMS
+                        ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """:func:`localize` that also returns the number of particles scored (int32 scalar).
+
+    Without ``params.kld`` the count is the fixed budget the method used (all blocks for
+    PF and shrink, the stages up to the stopping one for grow, ...); with it, each proposal
+    is cut by :func:`kld_mask`.
+    """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     kb, b = params.blocks, params.block
@@ -129,40 +214,49 @@ def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.A
     def lik(p):
         return scan_likelihood(p, scan, dist2, origin, resolution, params.sigma)
 
+    def kmask(p):
+        if params.kld is None:
+            return jnp.ones(p.shape[0], bool)
+        return kld_mask(p, params.kld)[0]
+
     def best(p, lk, mask):
         lk = jnp.where(mask, lk, -1.0)
         k = jnp.argmax(lk)
-        return p[k], lk[k]
+        return p[k], lk[k], mask.sum().astype(jnp.int32)
 
     if method == "raw":
         p = sample_motion(keys[0], prior[None, :], prev_odom, odom, c, 0.0)
-        return p[0], lik(p)[0]
+        return p[0], lik(p)[0], jnp.int32(1)
     if method == "pf":
         p = jnp.concatenate([sample_motion(keys[k], seed, prev_odom, odom, c)
                              for k in range(kb)])
-        lk = lik(p)
-        return best(p, lk, jnp.ones_like(lk, bool))
+        return best(p, lik(p), kmask(p))
     if method == "shrink":
         p0 = sample_motion(keys[0], seed, prev_odom, odom, c)
-        l0 = lik(p0)
-        mu, cov = _fit(p0, l0, prior)
+        l0, m0 = lik(p0), kmask(p0)
+        mu, cov = _fit(p0, l0 if params.kld is None else l0 * m0, prior)
         p1 = _draw(keys[1], mu, cov, (kb - 1) * b, prior)
         p = jnp.concatenate([p0, p1])
         lk = jnp.concatenate([l0, lik(p1)])
-        return best(p, lk, jnp.ones_like(lk, bool))
+        return best(p, lk, jnp.concatenate([m0, kmask(p1)]))
     blocks = [sample_motion(keys[k], seed, prev_odom, odom, c, 2.0**k) for k in range(kb)]
+    bmask = jnp.stack([kmask(p) for p in blocks])          # [K, B] KLD cut of each stage
     lk = jnp.stack([lik(p) for p in blocks])               # [K, B] grown proposals
-    good = lk.max(axis=1) >= params.threshold * params.anneal ** jnp.arange(kb)
+    stage_best = jnp.where(bmask, lk, -1.0).max(axis=1)
+    good = stage_best >= params.threshold * params.anneal ** jnp.arange(kb)
     first = jnp.where(good.any(), jnp.argmax(good), kb - 1)
-    used = jnp.arange(kb) <= first
+    used = (jnp.arange(kb) <= first)[:, None] & bmask
     props = jnp.concatenate(blocks)
     if method == "grow":
-        return best(props, lk.reshape(-1), jnp.repeat(used, b))
+        return best(props, lk.reshape(-1), used.reshape(-1))
     # shrink-and-grow: the stage that found a good particle is shrunk with the budget left
     stage = jnp.stack(blocks)[first]
-    mu, cov = _fit(stage, lk[first], prior)
+    wts = lk[first] if params.kld is None else lk[first] * bmask[first]
+    mu, cov = _fit(stage, wts, prior)
     extra = _draw(keys[kb], mu, cov, (kb - 1) * b, prior)
     left = jnp.arange((kb - 1) * b) < (kb - 1 - first) * b
+    if params.kld is not None:
+        left = left & kmask(extra)
     p = jnp.concatenate([props, extra])
-    mask = jnp.concatenate([jnp.repeat(used, b), left & good.any()])
+    mask = jnp.concatenate([used.reshape(-1), left & good.any()])
     return best(p, jnp.concatenate([lk.reshape(-1), lik(extra)]), mask)

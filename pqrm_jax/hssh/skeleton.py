@@ -129,12 +129,13 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     mst = csgraph.minimum_spanning_tree(
         sparse.coo_matrix((wgt[keep], (u[keep], v[keep])), shape=(n, n)).tocsr())
     mst = mst.tocoo()
-    seen_idx = np.nonzero(seen_mask)[0]
-    nbrs: dict[int, set[int]] = {int(k): set() for k in seen_idx}
+    seen_idx = np.nonzero(seen_mask)[0].tolist()
+    nbrs: dict[int, set[int]] = {k: set() for k in seen_idx}
     for a, b in zip(mst.row.tolist(), mst.col.tolist(), strict=True):
         nbrs[a].add(b)
         nbrs[b].add(a)
-    exit_idx = {int(k) for k in seen_idx if is_exit[k]}
+    exit_list = is_exit.tolist()
+    exit_idx = {k for k in seen_idx if exit_list[k]}
     if len(nbrs) > 1:  # guard: keep the part holding c
         comp, stack = {ci}, [ci]
         while stack:

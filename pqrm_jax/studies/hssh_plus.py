@@ -22,6 +22,11 @@ recomputed) and a different configuration in the same ``--out`` is refused; ``re
 is the tidy table. ``--sizes`` / ``--rotations``
 choose a subset of units (merged into ``config.json``); ``--reduced`` is a small corpus for the
 tests. The run ends with ``report.md`` (measured vs published) and figures.
+
+Multi-process (:mod:`pqrm_jax.studies.distributed`, ``--coordinator HOST:PORT --processes K
+--process-id P`` or the environment / Slurm): process ``P`` computes the units ``i = P mod
+K`` of process 0's to-do list, process 0 alone reads and writes the store; the records equal a
+one-process run's (the measured ``seconds`` aside).
 """
 
 from __future__ import annotations
@@ -68,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=4,
                    help="area samples per cell and axis when drawing the +")
     p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    from . import distributed
+
+    distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
 
 
@@ -180,8 +188,57 @@ def _unit_name(side: int, rot: float) -> str:
     return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
 
 
-def main(argv: list[str] | None = None) -> int:
+def _shared_todo(todo: list | None, cluster) -> list:
+    """Process 0's list of (size, rotation) units to compute, on every process."""
+    from . import distributed
+
+    if not cluster.distributed:
+        return todo
+    n = int(distributed.broadcast(np.array([len(todo) if cluster.is_main else 0]),
+                                  cluster)[0])
+    if n == 0:
+        return []
+    arr = (np.array([[s, round(r * 1000)] for s, r in todo], np.int32) if cluster.is_main
+           else np.zeros((n, 2), np.int32))
+    arr = distributed.broadcast(arr, cluster)
+    return [(int(s), r / 1000.0) for s, r in arr.tolist()]
+
+
+def _compute(todo: list, cfg: dict, cluster, st) -> None:
+    """Run the units; with ``K`` processes process ``p`` computes units ``i = p mod K`` and
+    process 0 alone writes them (records gathered as JSON bytes, one round of ``K`` units at a
+    time). Units are deterministic, so the stored records equal a one-process run's (except
+    the measured ``seconds``)."""
+    import json
+
     from tqdm import tqdm
+
+    from . import distributed
+
+    if not cluster.distributed:
+        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        return
+    k, p = cluster.num_processes, cluster.process_id
+    rounds = range(-(-len(todo) // k))
+    for rnd in tqdm(rounds, desc=f"hssh-plus x{k}", unit="round", disable=not cluster.is_main):
+        i = rnd * k + p
+        mine = json.dumps(run_unit(*todo[i], cfg)).encode() if i < len(todo) else b""
+        lens = distributed.gather(np.array([len(mine)], np.int32), cluster)[:, 0]
+        buf = np.zeros(max(int(lens.max()), 1), np.uint8)
+        buf[:len(mine)] = np.frombuffer(mine, np.uint8)
+        every = distributed.gather(buf, cluster)
+        if cluster.is_main:
+            for q in range(k):
+                j = rnd * k + q
+                if j < len(todo):
+                    recs = json.loads(every[q, :int(lens[q])].tobytes().decode())
+                    st.write_json(_unit_name(*todo[j]), {"records": recs})
+
+
+def main(argv: list[str] | None = None) -> int:
+    from . import distributed
 
     args = _parser().parse_args(argv or [])
     out = Path(args.out)
@@ -189,6 +246,11 @@ def main(argv: list[str] | None = None) -> int:
     sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
     rots = _pick(args.rotations, cfg["corpus_rotations"], float)
     cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
+    cluster = distributed.initialize_from(args)  # before any JAX computation
+    distributed.agree(cluster, cfg_all, "hssh-plus configuration")
+    if not cluster.is_main:  # a helper process: compute its share, write nothing
+        _compute(_shared_todo(None, cluster), cfg, cluster, None)
+        return 0
     with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
                     legacy=("units", "units/*", "config.json", "report.md", "summary.json",
                             "*.png")) as st:
@@ -197,10 +259,9 @@ def main(argv: list[str] | None = None) -> int:
 
         todo = [(s, r) for s in sizes for r in rots
                 if st.read_json(_unit_name(s, r), ("records",), check) is None]
+        todo = _shared_todo(todo, cluster)
         t_start = time.perf_counter()
-        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
-            # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
+        _compute(todo, cfg, cluster, st)
         wall = time.perf_counter() - t_start
         rows = []
         for path in sorted((out / "units").glob("s*_r*.json")):
@@ -259,6 +320,15 @@ def summarise(rows: list[dict], cfg: dict) -> dict:
             key = "robot cell not in free space" if "not in free space" in key else key
             reasons[key] = reasons.get(key, 0) + 1
     s["reasons"] = dict(sorted(reasons.items(), key=lambda kv: -kv[1]))
+    per_rot = []
+    for a in sorted({r["rotation"] for r in rows}):
+        ra = [r for r in rows if r["rotation"] == a]
+        k1, n1, _ = _frac(ra, lambda r: r["side"] >= 200 and r["noise"] <= 0.35 + 1e-9)
+        k2, n2, _ = _frac(ra, lambda r: r["side"] >= 39 and r["noise"] <= 0.50 + 1e-9)
+        per_rot.append({"rotation": a, "images": len(ra),
+                        "accuracy": float(np.mean([r["success"] for r in ra])),
+                        "big_low_noise": (k1, n1), "mid": (k2, n2)})
+    s["per_rotation"] = per_rot
     s["n_images"] = len(rows)
     s["seconds"] = float(sum(r["seconds"] for r in rows))
     return s
@@ -325,6 +395,32 @@ def _figures(rows, cfg, out: Path) -> None:
     atomic_savefig(fig, out / "accuracy_rotation_size_noise.png", dpi=110)
     plt.close(fig)
 
+    # one size x noise accuracy map per rotation (cf. B Figs. 6.31-6.32)
+    ncol = min(5, len(rots))
+    nrow = -(-len(rots) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 3.0 * nrow), squeeze=False)
+    sizes = sorted({r["side"] for r in rows})
+    noise = sorted({r["noise"] for r in rows})
+    for ax in axes.ravel()[len(rots):]:
+        ax.axis("off")
+    for ax, a in zip(axes.ravel(), rots, strict=False):
+        m = np.full((len(sizes), len(noise)), np.nan)
+        for r in rows:
+            if r["rotation"] == a:
+                m[sizes.index(r["side"]), noise.index(r["noise"])] = float(r["success"])
+        ax.imshow(m, origin="lower", aspect="auto", vmin=0, vmax=1, cmap="viridis",
+                  extent=(-0.5, len(noise) - 0.5, -0.5, len(sizes) - 0.5))
+        ax.set_title(f"{a:g}°", fontsize=9)
+        ax.set_xticks(range(0, len(noise), 4), [f"{int(round(100 * noise[i]))}"
+                                                for i in range(0, len(noise), 4)], fontsize=7)
+        step = max(1, len(sizes) // 6)
+        ax.set_yticks(range(0, len(sizes), step), [str(x) for x in sizes[::step]], fontsize=7)
+    fig.supxlabel("free-cell noise (%)")
+    fig.supylabel("LPM side (cells)")
+    fig.tight_layout()
+    atomic_savefig(fig, out / "accuracy_per_rotation.png", dpi=100)
+    plt.close(fig)
+
     errs = [e for r in rows for e in r.get("orientation_errors", [])]
     if errs:
         fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -382,6 +478,17 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
                      f"signed: mean {o['mean']:.2f}, median {o['median']:.2f}, sd {o['sd']:.2f}; "
                      f"|err|: mean {o['mean_abs']:.2f}, median {o['median_abs']:.2f} (n={o['n']})"
                      " | reference only (skeleton-dependent) |")
+    if s.get("per_rotation"):
+        lines += ["", "## Per rotation (B Fig. 6.30: flat across rotations)", "",
+                  "| rotation | images | all | side >= 200, noise <= 35 % | "
+                  "side >= 39, noise <= 50 % |", "|---|---|---|---|---|"]
+        for pr in s["per_rotation"]:
+            cells = []
+            for key in ("big_low_noise", "mid"):
+                k, n = pr[key]
+                cells.append(f"{100 * k / n:.2f} % ({k}/{n})" if n else "—")
+            lines.append(f"| {pr['rotation']:g}° | {pr['images']} | "
+                         f"{100 * pr['accuracy']:.1f} % | {cells[0]} | {cells[1]} |")
     lines += ["", "## Failures by reason", ""]
     for reason, cnt in s["reasons"].items():
         lines.append(f"- {cnt}: {reason}")
@@ -402,6 +509,6 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
               "from EVG-Thin in details (tangent smoothing over +-2 nodes, Alg. 6.3 averaging), "
               "so they are a reference, not a target.",
               "", "Figures: `accuracy_size_noise.png`, `accuracy_rotation_size_noise.png`, "
-              "`gateway_orientation.png`."]
+              "`accuracy_per_rotation.png`, `gateway_orientation.png`."]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     atomic_write_json(out / "summary.json", s)
