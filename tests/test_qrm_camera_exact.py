@@ -113,3 +113,22 @@ def test_documented_bad_input():
         exact_vectors([0.0, np.nan, 1.0])
     w = exact_vectors([0.3, 3.1, -2.0])
     assert all(x * x + y * y == 1 for x, y in w)
+
+
+def test_float64_pipeline_leaves_nothing_undecided():
+    """float64 input runs the whole pipeline in float64 (with x64 on): same sound map, and
+    no state left undecided in any image."""
+    import jax
+
+    from pqrm_jax import sim
+    from pqrm_jax.qrm import pipeline as P
+
+    lm = np.asarray(sim.uniform_landmarks(jax.random.key(3), 10), np.float64)
+    poses = np.asarray(sim.random_imaging_points(jax.random.key(4), 4), np.float64)
+    with jax.enable_x64(True):
+        m64, met64 = P.run_sequence(lm, poses, 10)
+        assert m64.rel.dtype == np.uint32 and bool(met64.truth_kept.all())
+        assert int(np.asarray(met64.undecided).sum()) == 0
+    m32, met32 = P.run_sequence(lm.astype(np.float32), poses.astype(np.float32), 10)
+    a, b = np.asarray(m64.rel), np.asarray(m32.rel)
+    assert ((a & ~b) == 0).all()  # float32 keeps at most its counted undecided states more

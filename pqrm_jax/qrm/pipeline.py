@@ -103,6 +103,12 @@ def _map_step(spec, m, pose, landmarks, truth, sensor, *, n):
     return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n)
 
 
+def _real(x):
+    """float32, or float64 when the input is float64 (with ``jax_enable_x64`` on)."""
+    x = jnp.asarray(x)
+    return x.astype(jnp.float64 if x.dtype == jnp.float64 else jnp.float32)
+
+
 def resolve_sensor(sensor):
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     return sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))
@@ -112,9 +118,9 @@ def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec 
              sensor: sim.SensorParams | None = None, truth=None) -> tuple[QRMMap, Metrics]:
     """One image: camera at ``pose``, measurement of the ``n`` nearest, update, metrics."""
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
-    landmarks = jnp.asarray(landmarks, jnp.float32)
+    landmarks = _real(landmarks)
     truth = true_relations(landmarks, spec) if truth is None else truth
-    return _map_step(spec, m, jnp.asarray(pose, jnp.float32), landmarks, truth,
+    return _map_step(spec, m, _real(pose), landmarks, truth,
                      resolve_sensor(sensor), n=n)
 
 
@@ -137,6 +143,10 @@ def run_sequence(
 ) -> tuple[QRMMap, Metrics]:
     """Map a layout from a sequence of imaging poses [T, 3]; per-image metrics [T, ...].
 
+    float32 by default; float64 ``landmarks`` and ``poses`` (with ``jax_enable_x64`` on) run
+    the simulator and the measurement in float64, where the camera measurement leaves no
+    state undecided (docs/qrm.md §camera).
+
     >>> import jax
     >>> from pqrm_jax import sim
     >>> lm = sim.uniform_landmarks(jax.random.key(0), 8)
@@ -148,10 +158,10 @@ def run_sequence(
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     if not isinstance(n, int) or n < 3:
         raise ValueError(f"n must be an int >= 3, got {n!r}")
-    landmarks = jnp.asarray(landmarks, jnp.float32)
+    landmarks = _real(landmarks)
     if landmarks.ndim != 2 or landmarks.shape[1] != 2 or landmarks.shape[0] < 3:
         raise ValueError(f"landmarks must have shape (N >= 3, 2), got {landmarks.shape}")
-    poses = jnp.asarray(poses, jnp.float32)
+    poses = _real(poses)
     if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 1:
         raise ValueError(f"poses must have shape (T >= 1, 3), got {poses.shape}")
     for nm, x in (("landmarks", landmarks), ("poses", poses)):
@@ -160,5 +170,5 @@ def run_sequence(
             raise ValueError(f"run_sequence: {nm} contain NaN or inf")
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
-    return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, resolve_sensor(sensor),
+    return _run(spec, poses, landmarks, truth, resolve_sensor(sensor),
                 n=n)
