@@ -336,3 +336,45 @@ def test_fdc_design_and_compositions_heldout_two_processes_equal_one(tmp_path):
         "study", "compositions-heldout", "--landmarks", "6", "--runs", "2", "--samples", "32",
         "--fractions", "0.25", "0.5", "--sigmas", "5", "--rounds", "1"])
     assert _same_study_files(one, two) == 4  # results.json, config, marker, results.csv
+
+
+_MCC_DRIVER = """
+import sys
+from pathlib import Path
+from pqrm_jax.studies import distributed, mcclelland_mc as M
+out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=5)
+cfg = M.Config(runs=4, images=5, ns=(6, 8), timed_runs=0, exact_sample=0)
+M.run_study(cfg, Path(out), progress=False, cluster=cluster)
+print("done", cluster.process_id)
+"""
+
+
+@pytest.mark.slow
+def test_mcclelland_mc_killed_process_then_resume(tmp_path):
+    """Kill process 1 once the first round is written: process 0 stops within the heartbeat
+    (no hang); re-running both resumes from the written units and ends with the 1-process
+    records (measured times excepted)."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=_env(), cwd=ROOT) for i in (1, 0)]
+    deadline = time.monotonic() + 300
+    while not list(two.glob("runs/n*_r*.npz")):
+        assert time.monotonic() < deadline and procs[1].poll() is None
+        time.sleep(0.2)
+    procs[0].kill()
+    t_kill = time.monotonic()
+    procs[1].communicate(timeout=120)
+    procs[0].communicate()
+    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
+    assert 1 <= len(written) < 8
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _MCC_DRIVER, str(one), "1", "0", "0"]]
+                 + [[sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port]
+                    for i in (1, 0)])
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_study_files(one, two) == 10  # 8 runs, config, marker

@@ -192,7 +192,12 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
             f"coordinator {coordinator} within {timeout_s} s (is process 0 running and the "
             f"port reachable? all N processes started?): {first[:300]}") from exc
     _STARTED["coordinator"] = coordinator
-    return current()
+    cluster = current()
+    # the first collective builds the collectives' context (gloo gives it 30 s to find every
+    # peer; later collectives wait as long as needed): build it now, while every process is
+    # here, not when one process is still compiling or reading the store
+    gather(np.zeros(1, np.int32), cluster)
+    return cluster
 
 
 def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
