@@ -378,3 +378,33 @@ def test_mcclelland_mc_killed_process_then_resume(tmp_path):
     for r in rs:
         assert r.returncode == 0, r.stderr[-2000:]
     assert _same_study_files(one, two) == 10  # 8 runs, config, marker
+
+
+_FAIL_DRIVER = """
+import sys
+from pqrm_jax.studies import distributed as d
+pid, port = int(sys.argv[1]), sys.argv[2]
+c = d.initialize(f"127.0.0.1:{port}", 2, pid, timeout_s=60)
+
+def fn(x):
+    if x == 3:
+        raise ValueError("bad unit 3")
+    return {"x": x}
+
+try:
+    print([r["x"] for _, r in d.map_units(fn, [0, 1, 2, 3, 4], c)])
+except d.DistributedError as exc:
+    print("refused:", exc)
+"""
+
+
+def test_map_units_failure_on_one_process_is_raised_on_every_process():
+    """Item 3 fails on process 1 (round 2): both processes stop with its error, none waits
+    for a result that never comes."""
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _FAIL_DRIVER, str(i), port] for i in (1, 0)],
+                 timeout=120)
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert r.stdout.strip().splitlines()[-1] == (
+            "refused: process 1 failed on item 3: ValueError: bad unit 3")
