@@ -6,6 +6,9 @@
     pqrm-jax tables --rebuild [NAME ...]    regenerate cached tables (progress bar)
     pqrm-jax tables --plot DIR              table figures and a report (the main job's first part)
     pqrm-jax study NAME [args...]           run a study (``pqrm-jax study --list``)
+    pqrm-jax study NAME --sweep KEY=V1,V2 [--sweep ...] [args...]
+                                            one study per grid cell of Config fields, and a
+                                            sensitivity report (docs/studies.md §sweeps)
 
 A user error (a bad argument, an unusable ``--out``, a locked or foreign study directory, a
 corrupt table cache, an unknown calculus, an unwritable path) prints one line
@@ -47,6 +50,10 @@ def _study(argv: list[str]) -> int:
     if name not in studies:
         print(f"unknown study {name!r}; known: {', '.join(sorted(studies))}", file=sys.stderr)
         return 2
+    if any(a == "--sweep" or a.startswith("--sweep=") for a in rest):
+        from .studies import sweep
+
+        return sweep.main(studies[name], rest)
     return int(studies[name].main(rest) or 0)
 
 

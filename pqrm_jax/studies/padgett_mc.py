@@ -600,7 +600,7 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
             st.close()
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runs", type=int, help="Monte Carlo runs per noise level (paper: 1000)")
@@ -620,16 +620,19 @@ def main(argv: list[str] | None = None) -> int:
     from . import distributed
 
     distributed.add_arguments(p)
-    args = p.parse_args(argv)
-    out = Path(args.out)
-    from ._padgett_report import write_report
-    from .store import Store
+    return p
 
-    if args.report_only:
-        with Store.open(out, NAME, None, legacy=LEGACY):
-            path = write_report(out)
-        print(f"report: {path}")
-        return 0
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The :class:`Config` and parsed flags of ``argv``, with ``overrides`` applied last.
+
+    ``overrides`` maps Config fields to values (one cell of ``--sweep``,
+    :mod:`pqrm_jax.studies.sweep`); the bounds are checked on the final config, naming the
+    flag or the overridden field.
+    """
+    p = _parser()
+    args = p.parse_args(argv)
     cfg = Config()
     if args.reduced:
         cfg.runs = 100
@@ -638,13 +641,46 @@ def main(argv: list[str] | None = None) -> int:
               ("--samples", "num_samples", 1, ""),
               ("--landmarks", "num_landmarks", 3, " (a triplet needs 3 landmarks)"),
               ("--levels", "levels", 2, " (the report compares σ_R = 0 with the next level)"))
-    for flag, attr, lo, why in bounds:
+    for flag, attr, _, _ in bounds:
         val = getattr(args, flag[2:].replace("-", "_"))
         if val is not None:
-            if val < lo:
-                p.error(f"{flag} must be ≥ {lo}{why}, got {val}")
             setattr(cfg, attr, val)
     cfg.seed = args.seed
+    overrides = dict(overrides or {})
+    cfg = dataclasses.replace(cfg, **overrides)
+    for flag, attr, lo, why in bounds:
+        if getattr(cfg, attr) is not None and getattr(cfg, attr) < lo:  # chunk_runs: None=auto
+            p.error(f"{attr if attr in overrides else flag} must be ≥ {lo}{why}, "
+                    f"got {getattr(cfg, attr)}")
+    for attr in ("max_range", "dtheta_deg", "world_size", "loop_radius", "max_sigma_r"):
+        if not getattr(cfg, attr) > 0:
+            p.error(f"{attr} must be > 0, got {getattr(cfg, attr)}")
+    unknown = [r for r in cfg.representations if r not in REPS]
+    if unknown or not cfg.representations:
+        p.error(f"representations must be a non-empty subset of {', '.join(REPS)}, got "
+                f"{'+'.join(cfg.representations) or 'none'}")
+    return cfg, args
+
+
+def sweep_summary(out: Path) -> dict:
+    """Headline numbers and claim verdicts of a finished study directory (for ``--sweep``)."""
+    from ._padgett_sweep import sweep_summary as summary
+
+    return summary(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    cfg, args = configure(list(sys.argv[1:] if argv is None else argv))
+    out = Path(args.out)
+    from . import distributed
+    from ._padgett_report import write_report
+    from .store import Store
+
+    if args.report_only:
+        with Store.open(out, NAME, None, legacy=LEGACY):
+            path = write_report(out)
+        print(f"report: {path}")
+        return 0
     cluster = distributed.initialize_from(args)  # before any JAX computation
     if cluster.distributed:
         run_study(cfg, out, quiet=args.quiet, fresh=args.fresh, cluster=cluster)
@@ -665,6 +701,6 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "run_study", "run_level", "auto_chunk_runs", "resolve_chunk",
-           "chunk_program", "summarise_level", "memory_error", "load_results",
+__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk_runs",
+           "resolve_chunk", "chunk_program", "summarise_level", "memory_error", "load_results",
            "main", "boundary_distance"]
