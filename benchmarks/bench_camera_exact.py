@@ -6,7 +6,10 @@ number of states kept per cyclic relation by :func:`pqrm_jax.qrm.camera.measure_
 beside the exact count of :func:`pqrm_jax.qrm.camera_oracle.oracle_sets`, the share of
 relations whose measured set equals the exact set, the share of triples keeping all 20, the
 share of relations whose first measurement removes at least half the states (≤ 10 kept), and
-the exact path (``measure_triples(exact=True)``: sweep-seeded kernel + z3) against the oracle.
+the exact path (``measure_triples(exact=True)``: kernel + z3 on its undecided states) against
+the oracle. The kernel alone runs in float32 (the default) and in float64. Without the
+oracle, 4096 triples per spread give the share of relations with undecided states and the
+kernel's time per triple (float32 and float64, same process).
 
     .venv/bin/python benchmarks/bench_camera_exact.py [--per-bucket 40] [--out FILE]
 """
@@ -18,13 +21,15 @@ import json
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 
 from pqrm_jax.qrm import camera as C
 from pqrm_jax.qrm.camera_oracle import oracle_sets
 from pqrm_jax.qrm.spec import popcount, qrm_spec
 
-SPREADS = (0.3, 1.0, 2.0, 2 * np.pi)
+SPREADS = (0.05, 0.3, 1.0, 2.0, 2 * np.pi)
 
 
 def triples(spread: float, count: int, seed: int) -> np.ndarray:
@@ -58,6 +63,12 @@ def main() -> None:
                "first_half_removed_share_kernel": float((kept <= 10).mean()),
                "first_half_removed_share_exact": float((ex <= 10).mean()),
                "oracle_s": t_or, "kernel_s_incl_compile": t_k}
+        with jax.enable_x64(True):
+            k64 = C.measure_triples(b.astype(np.float64), spec, exact=False)
+        m64, u64 = np.asarray(k64.sets), np.asarray(k64.undecided)
+        out["float64_equal_share"] = float((m64 == exact).mean())
+        out["float64_mean_undecided"] = float(popcount(u64).mean())
+        out["float64_sound"] = bool(np.all((exact & ~m64) == 0))
         if hasattr(kern, "exact_decisions"):
             t0 = time.perf_counter()
             em = C.measure_triples(b, spec, exact=True)
@@ -70,11 +81,43 @@ def main() -> None:
               f"{out['all20_triple_share']:.1%}, sound {out['sound']}, first >= half removed "
               f"{out['first_half_removed_share_kernel']:.1%} (exact "
               f"{out['first_half_removed_share_exact']:.1%})"
+              + f"; float64 kernel equal {out['float64_equal_share']:.1%}"
               + (f"; exact path equal {out['exact_path_equal_share']:.1%}, "
                  f"{out['exact_path_z3_decisions_per_relation']:.2f} z3 decisions/relation, "
                  f"{out['exact_path_s']:.1f} s" if "exact_path_s" in out else ""))
+    res["undecided_rates"] = undecided_rates()
+    res["env"] = device_info()
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(res, indent=1))
+
+
+def undecided_rates(count: int = 4096) -> dict:
+    """Share of relations with undecided states and µs per triple, float32 vs float64."""
+    import jax.numpy as jnp
+
+    spec = qrm_spec("edc")
+    out = {}
+    for i, s in enumerate(SPREADS):
+        b = triples(s, count, 300 + i)
+        row = {}
+        for name, dt in (("float32", jnp.float32), ("float64", jnp.float64)):
+            with jax.enable_x64(dt == jnp.float64):
+                x = jnp.asarray(b, dt)
+                jax.block_until_ready(C.measure_triples(x, spec, exact=False).sets)
+                t0 = time.perf_counter()
+                m = C.measure_triples(x, spec, exact=False)
+                und = np.asarray(m.undecided)
+                dt_s = time.perf_counter() - t0
+            row[name] = {"relations_with_undecided": float((und != 0).mean()),
+                         "undecided_per_relation": float(popcount(und).mean()),
+                         "kept_per_relation": float(popcount(np.asarray(m.sets)).mean()),
+                         "us_per_triple": dt_s / count * 1e6}
+        out[f"{s:.3f}"] = row
+        print(f"spread {s:5.3f}: relations with undecided states float32 "
+              f"{row['float32']['relations_with_undecided']:.2%}, float64 "
+              f"{row['float64']['relations_with_undecided']:.2%}; µs/triple "
+              f"{row['float32']['us_per_triple']:.1f} / {row['float64']['us_per_triple']:.1f}")
+    return out
 
 
 if __name__ == "__main__":

@@ -2,8 +2,10 @@
 
 The same Levenberg–Marquardt spring relaxation (:func:`pqrm_jax.hssh_global.relax`, ``vmap``
 over the leaves of the tree of maps) against :func:`pqrm_jax.hssh_global.relax_loop` (the same
-jitted function called once per hypothesis, compiled once). Compile time is excluded (one
-warm-up call each). Costs agree (checked). Writes ``benchmarks/results/hssh_global.json``.
+jitted function called once per hypothesis, compiled once), for the block-sparse Jacobian (the
+default) and the dense ``jacfwd`` one (``jacobian="dense"``, the earlier implementation); also
+dense over sparse, both batched. Compile time is excluded (one warm-up call each). Costs agree
+(checked, also sparse against dense). Writes ``benchmarks/results/hssh_global.json``.
 
     .venv/bin/python benchmarks/bench_hssh_global.py [--quick]
 """
@@ -17,6 +19,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _env import device_info  # benchmarks/_env.py
 from _timing import best_of
 
 from pqrm_jax import hssh_global as hg
@@ -35,17 +38,26 @@ def main() -> None:
         e = hg.explore(w, n, seed=es)
         leaves = hg.build_tree(e).leaves
         prob = hg.pack(leaves, e.odometry)
-        hg.relax(prob)
-        hg.relax_loop(LayoutSlice(prob, 1))
-        tb, (_, cb) = best_of(lambda prob=prob: hg.relax(prob))
-        tl, (_, cl) = best_of(lambda prob=prob: hg.relax_loop(prob), n=2)
-        np.testing.assert_allclose(np.asarray(cb), np.asarray(cl), rtol=1e-3, atol=1e-3)
-        rows.append({"world": f"{nx_}x{ny}", "travels": n, "hypotheses": len(leaves),
-                     "places_max": int(prob.init.shape[1]), "batched_s": tb, "loop_s": tl,
-                     "loop_over_batched": tl / tb})
+        row = {"world": f"{nx_}x{ny}", "travels": n, "hypotheses": len(leaves),
+               "places_max": int(prob.init.shape[1])}
+        costs = {}
+        for jac in ("sparse", "dense"):
+            hg.relax(prob, jacobian=jac)
+            hg.relax_loop(LayoutSlice(prob, 1), jacobian=jac)
+            tb, (_, cb) = best_of(lambda prob=prob, jac=jac: hg.relax(prob, jacobian=jac))
+            tl, (_, cl) = best_of(lambda prob=prob, jac=jac: hg.relax_loop(prob, jacobian=jac),
+                                  n=2)
+            np.testing.assert_allclose(np.asarray(cb), np.asarray(cl), rtol=1e-3, atol=1e-3)
+            costs[jac] = np.asarray(cb)
+            row.update({f"{jac}_batched_s": tb, f"{jac}_loop_s": tl,
+                        f"{jac}_loop_over_batched": tl / tb})
+        np.testing.assert_allclose(costs["sparse"], costs["dense"], rtol=1e-3, atol=1e-3)
+        row["dense_over_sparse_batched"] = row["dense_batched_s"] / row["sparse_batched_s"]
+        rows.append(row)
         print(rows[-1])
     out = {"benchmark": "hssh_global layout relaxation", "backend": jax.default_backend(),
-           "devices": str(jax.devices()), "cpu_count": os.cpu_count(), "rows": rows}
+           "devices": str(jax.devices()), "cpu_count": os.cpu_count(), "env": device_info(),
+           "rows": rows}
     path = Path(__file__).parent / "results" / "hssh_global.json"
     path.write_text(json.dumps(out, indent=2))
     print("wrote", path)

@@ -1,11 +1,12 @@
 """Q-Link batched navigation vs one pair at a time (issue 15, docs/decisions.md §10).
 
 The same executive (:func:`pqrm_jax.qlink.navigate_pairs`: localise, plan, drive) on the
-same trials of one world: all B trials as ``vmap``-ped compiled batches of 32 lanes (a
-vmapped ``while_loop`` runs until its longest lane ends, so moderate chunks of trials sorted by
-|P| beat one huge batch on CPU) against a Python loop that drives one trial per call
-(``chunk = 1``, compiled once for one trial). Compile time is excluded (one warm-up call
-each). Both give identical outcomes (checked). Writes ``benchmarks/results/qlink.json``.
+same trials of one world: all B trials queued on a pool of 128 ``vmap``-ped lanes (a lane takes
+the next trial as soon as its own ends) against a Python loop that drives one trial per call
+(``chunk = 1``: one lane, compiled once). Compile time is excluded (one warm-up call
+each). Both give identical outcomes (checked). Wall and process CPU time are both reported (the
+CPU ratio is the one to read on a shared, loaded machine), with the load average. Writes
+``benchmarks/results/qlink.json``.
 
     .venv/bin/python benchmarks/bench_qlink.py [--quick]
 """
@@ -29,14 +30,14 @@ from pqrm_jax.qlink import linkgraph as lg
 from pqrm_jax.qlink import navigate as nav
 from pqrm_jax.qlink import pomdp
 
-CHUNK = 32
+CHUNK = 128
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args()
-    n_batch, n_loop = (64, 8) if a.quick else (256, 24)
+    n_batch, n_loop = (128, 8) if a.quick else (512, 24)
     r = 20.0
     size = (100.0, 100.0)
     lm = sim.uniform_landmarks(jax.random.key(0), 50, size=size)
@@ -67,12 +68,12 @@ def main() -> None:
     nav.navigate_pairs(keys[:1], *args, pairs[:1, 0], pairs[:1, 1], p, chunk=1,
                        plans=plans)                                                  # compile
     batched()                                                                        # compile
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res_b = batched()
-    t_b = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t_b, c_b = time.perf_counter() - t0, time.process_time() - c0
+    t0, c0 = time.perf_counter(), time.process_time()
     res_l = one_at_a_time()
-    t_l = time.perf_counter() - t0
+    t_l, c_l = time.perf_counter() - t0, time.process_time() - c0
     same = all(int(res_l[i].status[0]) == int(res_b.status[i]) and
                abs(float(res_l[i].length[0]) - float(res_b.length[i])) < 1e-3 * (
                    1 + float(res_b.length[i])) for i in range(n_loop))
@@ -102,6 +103,10 @@ def main() -> None:
            "loop_s": round(t_l, 3), "per_trial_batched_ms": round(1e3 * per_b, 2),
            "per_trial_loop_ms": round(1e3 * per_l, 2), "ratio": round(per_l / per_b, 1),
            "outcomes_identical": bool(same),
+           "per_trial_batched_cpu_ms": round(1e3 * c_b / n_batch, 2),
+           "per_trial_loop_cpu_ms": round(1e3 * c_l / n_loop, 2),
+           "cpu_ratio": round((c_l / n_loop) / (c_b / n_batch), 1),
+           "load_average": [round(x, 2) for x in os.getloadavg()],
            "drive_only_per_trial_batched_ms": round(1e3 * td_b, 2),
            "drive_only_per_trial_loop_ms": round(1e3 * td_l, 2),
            "drive_only_ratio": round(td_l / td_b, 1), "cpu_count": os.cpu_count(),

@@ -111,11 +111,10 @@ def test_camera_kernel_compiles_once():
     sensor = sim.SensorParams(max_range=1e6)
     cam0 = sim.camera(jnp.array([50.0, 50.0, 0.0]), lm, sensor)
     cam1 = sim.camera(jnp.array([20.0, 70.0, 1.0]), lm, sensor)
-    jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
-                                            pool=8, depth=6))
+    jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6))
     with count_compiles() as again:
         jax.block_until_ready(qrm.measure_image(cam1.bearings, cam1.range_rank, cam1.visible,
-                                                n=6, pool=8, depth=6))
+                                                n=6))
     assert again == []
 
 
@@ -128,10 +127,10 @@ def test_camera_kernel_with_target_map_compiles_once():
     target = qrm.true_map(lm).rel
     target1 = jax.block_until_ready(target ^ 1)
     jax.block_until_ready(qrm.measure_image(cam0.bearings, cam0.range_rank, cam0.visible, n=6,
-                                            target_map=target, pool=8, depth=6))
+                                            target_map=target))
     with count_compiles() as again:
         jax.block_until_ready(qrm.measure_image(cam1.bearings, cam1.range_rank, cam1.visible,
-                                                n=6, target_map=target1, pool=8, depth=6))
+                                                n=6, target_map=target1))
     assert again == []
 
 

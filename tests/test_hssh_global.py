@@ -137,6 +137,23 @@ def test_batched_relaxation_equals_loop_and_ranks_the_true_map():
     assert hg.is_true_map(log.leaves[order[0]], e)
 
 
+def test_sparse_jacobian_equals_dense():
+    """The block-sparse normal equations give the dense-jacfwd iterates, also for a spring
+    whose two ends are the same place (a corridor that loops back)."""
+    w = hg.grid_world(3, 3, loop_prob=0.6, seed=5)
+    e = hg.explore(w, 16, seed=1)
+    prob = hg.pack(hg.build_tree(e).leaves, e.odometry)
+    src = np.asarray(prob.src).copy()
+    src[:, 3] = np.asarray(prob.dst)[:, 3]                  # a self-loop spring
+    prob = prob._replace(src=src)
+    chi_s, cost_s = hg.relax(prob)
+    chi_d, cost_d = hg.relax(prob, jacobian="dense")
+    np.testing.assert_allclose(np.asarray(cost_s), np.asarray(cost_d), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(chi_s), np.asarray(chi_d), atol=1e-4)
+    with pytest.raises(ValueError, match="jacobian"):
+        hg.relax(prob, jacobian="qr")
+
+
 def test_nan_odometry_is_refused():
     w = hg.grid_world(3, 3, seed=0)
     e = hg.explore(w, 6, seed=0)

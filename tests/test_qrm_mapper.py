@@ -18,11 +18,11 @@ def world():
 
 def test_scan_over_update_equals_run_sequence_and_eager_updates(world):
     lm, poses = world
-    qm = qrm.mapper("edc", N_LM, n=N, pool=8, depth=6)  # small B&B: fast to compile
+    qm = qrm.mapper("edc", N_LM, n=N)  # small B&B: fast to compile
     sensor = sim.SensorParams(max_range=1e6)  # run_sequence's default sensor
     images = jax.vmap(lambda p: sim.camera(p, lm, sensor))(poses)
     m_scan, reports = jax.lax.scan(qm.update, qm.init(), images)
-    m_ref, met = qrm.run_sequence(lm, poses, n=N, pool=8, depth=6)
+    m_ref, met = qrm.run_sequence(lm, poses, n=N)
     np.testing.assert_array_equal(np.asarray(m_scan.rel), np.asarray(m_ref.rel))
     np.testing.assert_array_equal(np.asarray(m_scan.known), np.asarray(m_ref.known))
     assert reports.inconsistent.shape == (N_POSES,) and not bool(reports.inconsistent.any())

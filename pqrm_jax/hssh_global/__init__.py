@@ -5,6 +5,8 @@
 * :mod:`~pqrm_jax.hssh_global.tree` — the tree of topological map hypotheses (B Alg. 8.1).
 * :mod:`~pqrm_jax.hssh_global.layout` — SE(2) compounding, LM spring relaxation (B ch. 9).
 * :mod:`~pqrm_jax.hssh_global.navigation` — routes and turn commands (B §7.1.3).
+* :mod:`~pqrm_jax.hssh_global.simulation` — exploration, navigation and the global occupancy
+  map driven by the simulator and the local levels (lidar → LPM → gateways → star views).
 """
 
 from .layout import (
@@ -27,6 +29,20 @@ from .navigation import (
     map_graph,
     plan_route,
     shortest_distance,
+)
+from .simulation import (
+    SimExperience,
+    SimParams,
+    SimulationError,
+    SimWorld,
+    evaluate_navigation_sim,
+    explore_sim,
+    global_occupancy,
+    map_agreement,
+    navigate_sim,
+    revisit_jitter,
+    sim_world,
+    true_layout_sim,
 )
 from .star import Star, isomorphisms, match_matrix, pad_views, view_from_local_star, view_match
 from .tree import (
@@ -64,4 +80,7 @@ __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "scale_trajectory",
            "score_hypotheses", "true_layout",
            "NavigationError", "apply_command", "command", "evaluate_navigation", "execute",
-           "map_graph", "plan_route", "shortest_distance"]
+           "map_graph", "plan_route", "shortest_distance",
+           "SimParams", "SimWorld", "SimExperience", "SimulationError", "sim_world",
+           "explore_sim", "navigate_sim", "evaluate_navigation_sim", "global_occupancy",
+           "map_agreement", "true_layout_sim", "revisit_jitter"]

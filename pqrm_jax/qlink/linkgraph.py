@@ -32,7 +32,7 @@ from .elements import MapElements, check_elements, incidence
 
 __all__ = ["LinkGraph", "Plan", "link_graph", "shared_counts", "bfs_distances",
            "shortest_costs", "plan_pairs", "to_networkx", "path_cost", "goal_distances",
-           "plan_from"]
+           "plan_from", "neighbour_table"]
 
 
 class LinkGraph(NamedTuple):
@@ -297,8 +297,33 @@ def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> jax.Array:
     return shortest_costs(jnp.asarray(graph.cost.T, jnp.float32), tgt)
 
 
+def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
+    """The Link Graph as padded adjacency lists: ``(nbr [E, D] int32, cost [E, D] float32)``.
+
+    Row u holds the heads of u's out-edges in increasing index order (``-1`` padded, cost
+    ``inf``), ``D`` the largest out-degree rounded up to a multiple of 8. :func:`plan_from`
+    walks it instead of the dense ``[E, E]`` matrix (the same argmin, ties to the smaller
+    index); compute it once per graph and pass it to every call.
+
+    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
+    >>> nbr, c = neighbour_table(link_graph(el, 2))
+    >>> nbr[:, :2].tolist(), c[1, :2].tolist()
+    ([[1, -1], [0, 2], [1, -1]], [1.0, 1.0])
+    """
+    adj = graph.adjacency
+    deg = adj.sum(1)
+    width = max(8, -(-int(deg.max(initial=0)) // 8) * 8)
+    nbr = np.full((adj.shape[0], width), -1, np.int32)
+    cost = np.full((adj.shape[0], width), np.inf, np.float32)
+    src, dst = np.nonzero(adj)                     # row-major: heads ascending per row
+    col = np.arange(len(src)) - np.concatenate([[0], np.cumsum(deg)[:-1]])[src]
+    nbr[src, col] = dst
+    cost[src, col] = graph.cost[src, dst].astype(np.float32)
+    return jnp.asarray(nbr), jnp.asarray(cost)
+
+
 @partial(jax.jit, static_argnames=("max_len",))
-def _forward(to_go, cost, rows, cands, *, max_len):
+def _forward(to_go, nbr, ncost, rows, cands, *, max_len):
     def one(row, cand):
         d = to_go[row]
         ds = jnp.where(cand >= 0, d[jnp.maximum(cand, 0)], jnp.inf)
@@ -310,8 +335,9 @@ def _forward(to_go, cost, rows, cands, *, max_len):
             path, u, done = c
             path = path.at[k].set(jnp.where(done, -1, u))
             at_goal = d[u] <= 0
-            cand_cost = cost[u] + d
-            v = jnp.argmin(jnp.where(jnp.arange(d.shape[0]) == u, jnp.inf, cand_cost))
+            heads = nbr[u]
+            cand_cost = jnp.where(heads >= 0, ncost[u] + d[jnp.maximum(heads, 0)], jnp.inf)
+            v = jnp.maximum(heads[jnp.argmin(cand_cost)], 0)
             return path, jnp.where(done | at_goal, u, v).astype(jnp.int32), done | at_goal
 
         path, _, _ = jax.lax.fori_loop(0, max_len, body,
@@ -321,7 +347,8 @@ def _forward(to_go, cost, rows, cands, *, max_len):
     return jax.vmap(one)(rows, cands)
 
 
-def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int) -> Plan:
+def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int,
+              neighbours: tuple[jax.Array, jax.Array] | None = None) -> Plan:
     """Paths from per-trial candidate start elements down a cost-to-go table.
 
     Args:
@@ -331,6 +358,8 @@ def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int) -> Plan:
         candidates: ``[B, C]`` element indices the robot may start from (``-1`` padded); the
             one with the least cost-to-go is ``M_1``.
         max_len: path array width (≥ the longest path).
+        neighbours: :func:`neighbour_table` of ``graph`` (computed when not given; pass it
+            when planning many batches on one graph).
 
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
     >>> g = link_graph(el, 2)
@@ -338,8 +367,8 @@ def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int) -> Plan:
     >>> p.n_elements.tolist(), p.path.tolist()
     ([3], [[0, 1, 2, -1]])
     """
-    cost = np.where(graph.adjacency, graph.cost, np.inf).astype(np.float32)
-    ok, n, path, best = _forward(jnp.asarray(to_go, jnp.float32), jnp.asarray(cost),
+    nbr, ncost = neighbour_table(graph) if neighbours is None else neighbours
+    ok, n, path, best = _forward(jnp.asarray(to_go, jnp.float32), nbr, ncost,
                                  jnp.asarray(rows, jnp.int32), jnp.asarray(candidates, jnp.int32),
                                  max_len=int(max_len))
     return Plan(ok, jnp.where(ok, n, 0), path, best)

@@ -143,39 +143,76 @@ def step_budget(n_elements, params: NavParams, factor: float = 5.0, turns: int =
             + turns * n).astype(np.int32)
 
 
-def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, plans, model,
-           params: NavParams, record: int = 0):
+def _sense(pos, landmarks, targets, occ_tab, params: NavParams, occlusion: bool):
+    """Visibility ``[K]`` of ``targets`` from ``pos``: range only, or range + partial disc
+    occlusion by the candidate occluders of :func:`pqrm_jax.sim.occluder_table` (the same
+    result as testing every landmark; ``occlusion`` is static, one compile each)."""
+    if occlusion:
+        return _sim.local_target_visibility(pos, landmarks, targets,
+                                            occ_tab[jnp.maximum(targets, 0)],
+                                            params.nav_range, params.occluder_radius)
+    d = jnp.linalg.norm(landmarks[jnp.maximum(targets, 0)] - pos, axis=-1)
+    return (targets >= 0) & (d <= params.nav_range)
+
+
+def _occ_inputs(landmarks, params: NavParams):
+    """``(occluder table, occlusion flag)`` for :func:`_sense` (a dummy table without)."""
+    if params.occluder_radius > 0:
+        tab = _sim.occluder_table(np.asarray(landmarks), params.nav_range,
+                                  params.occluder_radius)
+        return jnp.asarray(tab), True
+    return jnp.full((1, 1), -1, jnp.int32), False
+
+
+class _Trial(NamedTuple):
+    """One trial's inputs (a lane of the pool loads them when it takes the trial)."""
+
+    key: jax.Array          # the noise key, ``fold_in(trial key, 1)``
+    start: jax.Array
+    goal: jax.Array
+    path: jax.Array         # [L]
+    n: jax.Array
+    budget: jax.Array
+    start_pose: jax.Array   # [3]
+
+
+def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion: bool,
+             record: int = 0):
+    """``(init, body)`` of one trial's state machine: ``init(t) -> _S`` and
+    ``body(s, t) -> _S`` (one sensing + decision + rover step); a trial is ``body`` applied
+    from ``init(t)`` while ``status == RUNNING``."""
     quad = calculi.get("quadrant")
     dt = 1.0
     v_max, w_max = params.ds, params.turn_per_step
     tau = int(model.horizon)
     fdt = landmarks.dtype
-    key_noise = jax.random.fold_in(key, 1)
 
-    def noisy(lm_id, step):
+    def noisy(key_noise, lm_id, step):
         z = jax.random.normal(jax.random.fold_in(jax.random.fold_in(key_noise, step), lm_id),
                               (2,), fdt)
         return landmarks[lm_id] + params.sigma * z
 
-    s_xy = noisy(start, 1 << 30)
-    pos0 = start_pose[:2]
-    init = _S(pose=start_pose, length=jnp.zeros((), fdt), steps=jnp.int32(0),
-              k=jnp.int32(-1), refs=jnp.full(2, -1, jnp.int32),
-              refs_xy=jnp.zeros((2, 2), fdt), phase=jnp.int32(CIRCLE),
-              seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
-              e_xy=s_xy,
-              motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
-              status=jnp.int32(RUNNING), hops=jnp.int32(0),
-              trace=jnp.full((record, 2), jnp.nan, fdt))
+    def init(t: _Trial) -> _S:
+        start, start_pose = t.start, t.start_pose
+        s_xy = noisy(t.key, start, 1 << 30)
+        pos0 = start_pose[:2]
+        return _S(pose=start_pose, length=jnp.zeros((), fdt), steps=jnp.int32(0),
+                  k=jnp.int32(-1), refs=jnp.full(2, -1, jnp.int32),
+                  refs_xy=jnp.zeros((2, 2), fdt), phase=jnp.int32(CIRCLE),
+                  seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
+                  e_xy=s_xy,
+                  motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
+                  status=jnp.int32(RUNNING), hops=jnp.int32(0),
+                  trace=jnp.full((record, 2), jnp.nan, fdt))
 
-    def body(s: _S) -> _S:
+    def body(s: _S, t: _Trial) -> _S:
+        key_noise, goal, path, n, budget = t.key, t.goal, t.path, t.n, t.budget
         pos = s.pose[:2]
         goal_stage = s.k == n - 1
         nxt = path[jnp.clip(s.k + 1, 0, path.shape[0] - 1)]
         members = jnp.where(goal_stage, -1, ids[jnp.maximum(nxt, 0)])       # [3]
         targets = jnp.concatenate([members, jnp.stack([goal, s.e])])
-        vis = _sim.target_visibility(pos, landmarks, targets, params.nav_range,
-                                     params.occluder_radius)
+        vis = _sense(pos, landmarks, targets, occ_tab, params, occlusion)
         vm, g_vis, e_vis = vis[:3], vis[3], vis[4]
         # --- event A: goal reached
         done_goal = goal_stage & g_vis
@@ -187,12 +224,13 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, plans,
         other_mask = vm & (jnp.arange(3) != first)
         second = jnp.argmax(other_mask)
         new_refs = jnp.stack([members[first], members[second]]).astype(jnp.int32)
-        new_xy = jnp.stack([noisy(new_refs[0], s.steps), noisy(new_refs[1], s.steps)])
+        new_xy = jnp.stack([noisy(key_noise, new_refs[0], s.steps),
+                            noisy(key_noise, new_refs[1], s.steps)])
         s_trans = s._replace(k=s.k + 1, refs=new_refs, refs_xy=new_xy, phase=jnp.int32(PLAN),
                              hops=s.hops + 1)
         # --- event C: link seen during the QSR search -> circle of radius R' about it
         see_e = (s.phase == ARC) & e_vis
-        e_xy = noisy(s.e, s.steps)
+        e_xy = noisy(key_noise, s.e, s.steps)
         s_circ = s._replace(phase=jnp.int32(CIRCLE), e_xy=e_xy,
                             motion=tr.circle_motion(pos, e_xy,
                                                     params.circle_margin * params.nav_range))
@@ -254,18 +292,79 @@ def _trial(key, start, goal, path, n, budget, start_pose, landmarks, ids, plans,
         over = (out.status == RUNNING) & (out.steps >= budget)
         return out._replace(status=jnp.where(over, BUDGET, out.status))
 
-    final = jax.lax.while_loop(lambda s: s.status == RUNNING, body, init)
-    return NavResult(final.status, final.length, final.steps, final.hops, final.k, final.pose,
-                     final.refs, final.trace)
+    return init, body
 
 
-@partial(jax.jit, static_argnames=("horizon", "record"))
-def _navigate(keys, starts, goals, paths, n, budget, start_poses, landmarks, ids, plans,
-              feasible, detect, params, *, horizon, record=0):
+def _result(s: _S) -> NavResult:
+    return NavResult(s.status, s.length, s.steps, s.hops, s.k, s.pose, s.refs, s.trace)
+
+
+def _lane_sel(mask, a, b):
+    """Per lane (leading axis) ``mask ? a : b`` over two pytrees of lane arrays."""
+    return jax.tree.map(lambda x, y: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 1)),
+                                               x, y), a, b)
+
+
+def _pool(trials: _Trial, n_valid, init, body, width: int, refill_at: int) -> NavResult:
+    """Run the trials ``[Q]`` (the first ``n_valid``) on ``width`` lanes that refill.
+
+    One ``while_loop`` steps every lane (``vmap`` of ``body``); a lane whose trial has ended
+    idles until at least ``refill_at`` lanes have ended (or every lane that is still busy has),
+    then every ended lane writes its result and takes the next trial of the queue. So no lane
+    waits for the slowest trial of a fixed batch; each trial still runs ``init`` then ``body``
+    until it ends, exactly as alone (results do not depend on ``width`` or the order).
+    """
+    q = trials.start.shape[0]
+    lanes = jnp.arange(width)
+
+    def load(idx):
+        t = jax.tree.map(lambda x: x[idx], trials)
+        return t, jax.vmap(init)(t)
+
+    idx0 = jnp.minimum(lanes, q - 1)
+    act0 = lanes < n_valid
+    t0, s0 = load(idx0)
+    s0 = s0._replace(status=jnp.where(act0, s0.status, SUCCESS))       # empty lanes idle
+    out0 = jax.tree.map(lambda x: jnp.zeros((q,) + x.shape[1:], x.dtype), _result(s0))
+
+    def step_lane(s, t):
+        return _sel(s.status == RUNNING, body(s, t), s)
+
+    def refill(c):
+        t, s, idx, act, nxt, out = c
+        fin = act & (s.status != RUNNING)
+        dest = jnp.where(fin, idx, q)                                   # q: dropped
+        out = jax.tree.map(lambda o, r: o.at[dest].set(r, mode="drop"), out, _result(s))
+        new = nxt + jnp.cumsum(fin) - 1
+        has = fin & (new < n_valid)
+        tn, sn = load(jnp.minimum(new, q - 1))
+        t, s = _lane_sel(has, tn, t), _lane_sel(has, sn, s)
+        return (t, s, jnp.where(has, new, idx), (act & ~fin) | has,
+                nxt + jnp.sum(has).astype(nxt.dtype), out)
+
+    def loop(c):
+        t, s, idx, act, nxt, out = c
+        s = jax.vmap(step_lane)(s, t)
+        fin = act & (s.status != RUNNING)
+        nfin = jnp.sum(fin)
+        go = (nfin >= refill_at) | ((nfin > 0) & (nfin == jnp.sum(act)))
+        return jax.lax.cond(go, refill, lambda c: c, (t, s, idx, act, nxt, out))
+
+    c = jax.lax.while_loop(lambda c: jnp.any(c[3]), loop,
+                           (t0, s0, idx0, act0, jnp.minimum(n_valid, width).astype(jnp.int32),
+                            out0))
+    return c[5]
+
+
+@partial(jax.jit, static_argnames=("horizon", "record", "occlusion", "width"))
+def _navigate(keys, starts, goals, paths, n, budget, start_poses, n_valid, landmarks, ids,
+              plans, feasible, detect, params, occ_tab, *, horizon, occlusion, width,
+              record=0):
     model = _pomdp.SearchPOMDP(feasible, detect, 1.0, horizon)
-    return jax.vmap(lambda k, s, g, p, nn, b, sp: _trial(
-        k, s, g, p, nn, b, sp, landmarks, ids, plans, model, params, record))(
-        keys, starts, goals, paths, n, budget, start_poses)
+    init, body = _machine(landmarks, ids, plans, model, params, occ_tab, occlusion, record)
+    noise_keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+    trials = _Trial(noise_keys, starts, goals, paths, n, budget, start_poses)
+    return _pool(trials, n_valid, init, body, width, max(1, width // 8))
 
 
 def start_poses(keys, landmarks, starts, offset):
@@ -296,7 +395,8 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
         model: the search POMDP (``p_move = 1``); default :func:`pomdp.search_model`.
         poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
         budget: optional ``[B]`` step budgets (default :func:`step_budget`).
-        chunk: trials per compiled batch (``vmap`` width); results do not depend on it.
+        chunk: lanes of the pool (``vmap`` width; a lane takes the next trial as soon as its
+            own ends); results do not depend on it.
         record: keep the first ``record`` positions of every trial (for plots).
         plans: optional :func:`qsr_plans` table (computed when not given).
 
@@ -330,20 +430,30 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     paths = np.asarray(paths, np.int32)
     width = max(16, -(-paths.shape[1] // 16) * 16)        # fixed widths: fewer recompiles
     paths = np.pad(paths, ((0, 0), (0, width - paths.shape[1])), constant_values=-1)
-    # similar trials share a chunk (a vmapped while_loop runs until its longest lane ends);
-    # the order is undone below, so results do not depend on it
-    order = np.argsort(n_elements, kind="stable")
+    # longest plans first, so the pool's last lanes to finish hold short trials; the order is
+    # undone below, and no result depends on it
+    order = np.argsort(-n_elements, kind="stable")
     inv = np.argsort(order)
+    b = len(order)
+    q = max(4 * chunk, 1 << int(np.ceil(np.log2(max(b, 1)))))   # queue: few compiles
+    pad = np.concatenate([order, np.full(q - b, order[0] if b else 0)])
     args = [keys, jnp.asarray(starts, jnp.int32), jnp.asarray(goals, jnp.int32),
             jnp.asarray(paths), jnp.asarray(n_elements), jnp.asarray(budget, jnp.int32), poses]
-    args = [x[jnp.asarray(order)] for x in args]
+    args = _take(args, jnp.asarray(pad, jnp.int32))
     if plans is None:
         plans = qsr_plans(elements, model)
-    const = (landmarks, jnp.asarray(elements.ids), jnp.asarray(plans),
-             model.feasible, model.detect, p)
-    res = _chunked(lambda *a: _navigate(*a, *const, horizon=int(model.horizon),
-                                        record=int(record)), args, chunk)
-    return jax.tree.map(lambda x: x[jnp.asarray(inv)], res)
+    occ_tab, occlusion = _occ_inputs(landmarks, p)
+    res = _navigate(*args, jnp.int32(b), landmarks, jnp.asarray(elements.ids),
+                    jnp.asarray(plans), model.feasible, model.detect, p, occ_tab,
+                    horizon=int(model.horizon), occlusion=occlusion, width=int(chunk),
+                    record=int(record))
+    return _take(res, jnp.asarray(inv, jnp.int32))
+
+
+@jax.jit
+def _take(tree, idx):
+    """Every leaf's rows ``idx`` (one compiled gather per tree layout, not one per leaf)."""
+    return jax.tree.map(lambda x: x[idx], tree)
 
 
 def _chunked(fn, args, chunk):
@@ -430,7 +540,8 @@ def start_tables(elements: MapElements) -> tuple[np.ndarray, np.ndarray, np.ndar
     return cand, nbrs, memb
 
 
-def _localize_one(key, start, pose0, nbrs, memb, budget, landmarks, params: NavParams):
+def _localize_one(key, start, pose0, nbrs, memb, budget, landmarks, params: NavParams, occ_tab,
+                  occlusion: bool):
     fdt = landmarks.dtype
     z = jax.random.normal(jax.random.fold_in(key, 3), (2,), fdt)
     s_xy = landmarks[start] + params.sigma * z
@@ -438,8 +549,7 @@ def _localize_one(key, start, pose0, nbrs, memb, budget, landmarks, params: NavP
     rp = _sim.RoverParams(dt=1.0, max_speed=params.ds, max_turn_rate=params.turn_per_step)
 
     def seen(pose):
-        vis = _sim.target_visibility(pose[:2], landmarks, nbrs, params.nav_range,
-                                     params.occluder_radius)
+        vis = _sense(pose[:2], landmarks, nbrs, occ_tab, params, occlusion)
         return (memb.astype(fdt) @ vis.astype(fdt)) >= 2
 
     def body(c):
@@ -460,10 +570,11 @@ def _localize_one(key, start, pose0, nbrs, memb, budget, landmarks, params: NavP
     return pose, length, steps, status, seen(pose)
 
 
-@jax.jit
-def _localize(keys, starts, poses, nbrs, memb, budget, landmarks, params):
+@partial(jax.jit, static_argnames=("occlusion",))
+def _localize(keys, starts, poses, nbrs, memb, budget, landmarks, params, occ_tab, *,
+              occlusion):
     return jax.vmap(lambda k, s, p, nb, m, b: _localize_one(k, s, p, nb, m, b, landmarks,
-                                                            params))(
+                                                            params, occ_tab, occlusion))(
         keys, starts, poses, nbrs, memb, budget)
 
 
@@ -485,7 +596,8 @@ def localize(keys, landmarks, starts, poses, tables, params: NavParams, budget=N
     lm = jnp.asarray(landmarks)
     args = [jnp.asarray(keys), jnp.asarray(starts, jnp.int32), jnp.asarray(poses),
             jnp.asarray(nbrs[starts]), jnp.asarray(memb[starts]), jnp.asarray(budget, jnp.int32)]
-    return _chunked(lambda *a: _localize(*a, lm, p), args, chunk)
+    occ_tab, occlusion = _occ_inputs(lm, p)
+    return _chunked(lambda *a: _localize(*a, lm, p, occ_tab, occlusion=occlusion), args, chunk)
 
 
 class PairResult(NamedTuple):
@@ -508,7 +620,7 @@ class PairResult(NamedTuple):
 def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
                    starts, goals, params: NavParams,
                    model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
-                   record: int = 0, plans=None) -> PairResult:
+                   record: int = 0, plans=None, neighbours=None) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
     Args:
@@ -516,7 +628,10 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
             Link Graph. to_go: ``[G, E]`` :func:`~pqrm_jax.qlink.linkgraph.goal_distances`.
         goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
         tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
-        params: :class:`NavParams`; model: the search POMDP; chunk: trials per compiled batch.
+        params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
+        plans: optional :func:`qsr_plans` table; neighbours: optional
+            :func:`~pqrm_jax.qlink.linkgraph.neighbour_table` of ``graph`` (both computed when
+            not given; pass them when driving many batches on one map).
     """
     from .linkgraph import plan_from
 
@@ -535,7 +650,7 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
                                             chunk=chunk)
     cands = np.where(np.asarray(in_view), cand[starts], -1)
     max_len = int(np.nanmax(np.where(np.isfinite(np.asarray(to_go)), np.asarray(to_go), 0))) + 2
-    plan = plan_from(graph, to_go, goal_row[goals], cands, max_len)
+    plan = plan_from(graph, to_go, goal_row[goals], cands, max_len, neighbours)
     st1 = np.asarray(st1)
     reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
     n = np.where(reach, np.asarray(plan.n_elements), 1)

@@ -2,10 +2,11 @@
 
 Decisions: docs/decisions.md §4; how it works: docs/qrm.md.
 
-* :mod:`~pqrm_jax.qrm.camera` — camera measurement (M§IV, Table III): batched exact
-  branch-and-bound over the range-ordering cone, every triple × state × cyclic relation.
-* :mod:`~pqrm_jax.qrm.exact_camera` — arrangement-sweep witnesses of the range-ordering
-  cone; :mod:`~pqrm_jax.qrm.camera_oracle` — exact z3 decision of every state (M§V).
+* :mod:`~pqrm_jax.qrm.camera` — camera measurement (M§IV, Table III): exact feasible sets
+  of every triple × state × cyclic relation, batched, for images and triples.
+* :mod:`~pqrm_jax.qrm.exact_camera` — the exact decision from the boundary of the
+  range-ordering cone (M§V); :mod:`~pqrm_jax.qrm.camera_oracle` — z3 decision of every
+  state (the oracle, and the exact stage for undecided states).
 * :mod:`~pqrm_jax.qrm.hypergraph` — the map (3-uniform hypergraph of state bitmasks) and its
   path-consistency update to a fixed point (M§VI.B).
 * :mod:`~pqrm_jax.qrm.association` — data-association candidate filter (M§VI.C).

@@ -23,10 +23,9 @@ from .spec import QRMSpec, qrm_spec
 __all__ = ["association_candidates"]
 
 
-@partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
-def _candidates(spec, m: QRMMap, bearings, range_rank, visible, unknown, *, n, pool, depth):
-    meas = measure_image_kernel(spec, bearings, range_rank, visible, None, n=n, pool=pool,
-                          depth=depth)
+@partial(jax.jit, static_argnames=("spec", "n"))
+def _candidates(spec, m: QRMMap, bearings, range_rank, visible, unknown, *, n):
+    meas = measure_image_kernel(spec, bearings, range_rank, visible, None, n=n)
     N = m.rel.shape[0]
     involved = meas.valid & jnp.any(meas.triples == unknown, -1)
 
@@ -48,9 +47,6 @@ def association_candidates(
     unknown: int,
     n: int,
     calc: Calculus | str | QRMSpec = "edc",
-    *,
-    pool: int = 16,
-    depth: int = 12,
 ) -> jax.Array:
     """[N] bool: map landmarks that the uncertain observation ``unknown`` may be (M§VI.C).
 
@@ -64,8 +60,6 @@ def association_candidates(
             indices are their (trusted) map ids.
         n: landmarks used per image.
         calc: the calculus (object, name or prepared spec).
-        pool: boxes per triple in the camera kernel.
-        depth: refinement rounds of the camera kernel.
 
     Returns:
         [N] bool, True for every map landmark consistent with the image.
@@ -83,4 +77,4 @@ def association_candidates(
     if np.asarray(range_rank)[int(unknown)] >= n:
         raise ValueError(f"the uncertain landmark is not among the {n} nearest used")
     return _candidates(spec, m, jnp.asarray(bearings), jnp.asarray(range_rank),
-                       jnp.asarray(visible), jnp.int32(unknown), n=n, pool=pool, depth=depth)
+                       jnp.asarray(visible), jnp.int32(unknown), n=n)

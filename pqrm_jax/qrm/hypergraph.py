@@ -75,6 +75,24 @@ def _lift(table, s):
     return jax.lax.reduce(vals, np.uint32(0), jax.lax.bitwise_or, (vals.ndim - 1,))
 
 
+def _compose_chunks(spec: QRMSpec) -> jax.Array:
+    """[C, Q, 32] uint32: ``[k, i, v]`` = COMPOSE({i}, the states ``5k + bits of v``).
+
+    COMPOSE({i}, S) is the OR of these over the C = ⌈Q/5⌉ five-bit chunks of S, so the
+    lifted composition is C gathers instead of a Q × Q masked reduction.
+    """
+    ct = np.asarray(spec.compose, np.uint32)  # (Q, Q): [i, j] -> mask of k
+    q = ct.shape[0]
+    nc = -(-q // 5)
+    out = np.zeros((nc, q, 32), np.uint32)
+    for k in range(nc):
+        for v in range(32):
+            for b in range(5):
+                if v >> b & 1 and 5 * k + b < q:
+                    out[k, :, v] |= ct[:, 5 * k + b]
+    return jnp.asarray(out)
+
+
 def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     """One unary + composition sweep → (new rel, rel after the unary step).
 
@@ -86,7 +104,6 @@ def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     full = jnp.uint32(spec.full)
     q = spec.num_states
     inv, left, right = (jnp.asarray(t, jnp.uint32) for t in (spec.inverse, spec.left, spec.right))
-    ct = jnp.asarray(spec.compose, jnp.uint32)  # (Q, Q): [i, j] -> mask of k
     r = rel
     r = r & _lift(inv, jnp.transpose(r, (1, 0, 2)))
     r = r & _lift(left, jnp.transpose(r, (1, 2, 0)))  # rel[a,b,c] ∩= LEFT(rel[c,a,b])
@@ -94,18 +111,28 @@ def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     r = jnp.where(distinct, r, full)
     changed = r != prev_u
     active = first | changed.any((0, 1)) | changed.any((0, 2))  # (N,) per fourth landmark c
-    shifts = jnp.arange(q, dtype=jnp.uint32)
-    bits_r = ((r[..., None] >> shifts) & 1).astype(bool)  # (N,N,N,Q)
     n = r.shape[0]
     idx = jnp.arange(n)
 
+    chunks = _compose_chunks(spec)  # (C, Q, 32): COMPOSE({i}, 5-bit chunk k of a set)
+
     def through(c, acc):
-        b_ab = bits_r[:, :, c, :]  # (a, b, i): bits of rel[a,b,c]
-        # h[b,d,i] = COMPOSE({i}, rel[b,c,d])
-        h = jax.lax.reduce(jnp.where(bits_r[:, c, :, None, :], ct, jnp.uint32(0)),
-                           np.uint32(0), jax.lax.bitwise_or, (3,))  # (b, d, i)
-        g = jax.lax.reduce(jnp.where(b_ab[:, :, None, :], h[None], jnp.uint32(0)),
-                           np.uint32(0), jax.lax.bitwise_or, (3,))  # (a, b, d)
+        # h[b,d,i] = COMPOSE({i}, rel[b,c,d]): an OR of table lookups, one per 5-bit chunk
+        s = r[:, c, :]  # (b, d)
+        h = jnp.zeros(s.shape + (q,), jnp.uint32)
+        for k in range(chunks.shape[0]):
+            h = h | chunks[k][:, (s >> (5 * k)) & 31].transpose(1, 2, 0)
+        # g[a,b,d] = OR of h[b,d,i] over the states i of rel[a,b,c]: per 5-bit chunk of i a
+        # table of the 32 ORs of h (built by doubling), then one lookup per chunk
+        g = jnp.zeros(r.shape, jnp.uint32)
+        ab = r[:, :, c]  # (a, b)
+        bi = idx[None, :]
+        for k in range(chunks.shape[0]):
+            tab = jnp.zeros(h.shape[:2] + (1,), jnp.uint32)  # (b, d, 2^j)
+            for j in range(5):
+                col = h[:, :, 5 * k + j, None] if 5 * k + j < q else jnp.zeros_like(tab[..., :1])
+                tab = jnp.concatenate([tab, tab | col], -1)
+            g = g | tab[bi, :, (ab >> (5 * k)) & 31]  # (a, b, d)
         skip = (idx[:, None, None] == c) | (idx[None, :, None] == c) | (idx[None, None, :] == c)
         return acc & jnp.where(skip, full, g)
 

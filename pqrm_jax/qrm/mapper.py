@@ -51,24 +51,22 @@ class Mapper(NamedTuple):
     n: int
 
 
-def _update(spec: QRMSpec, m: QRMMap, image, *, n: int, pool: int, depth: int,
+def _update(spec: QRMSpec, m: QRMMap, image, *, n: int,
             max_sweeps: int):
     meas = measure_image_kernel(spec, image.bearings, image.range_rank, image.visible, m.rel,
-                                n=n, pool=pool, depth=depth)
+                                n=n)
     return apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid,
                                   max_sweeps=max_sweeps)
 
 
 def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: int = 18, *,
-           pool: int = 16, depth: int = 12, max_sweeps: int = 64) -> Mapper:
+           max_sweeps: int = 64) -> Mapper:
     """A QRM mapper over ``num_landmarks`` landmarks, ``n`` nearest measured per image (M§VI).
 
     Args:
         calc: the calculus (or a prepared :class:`~pqrm_jax.qrm.QRMSpec`).
         num_landmarks: N, the map capacity (landmark ids 0..N−1).
         n: landmarks measured per image (the nearest visible ones; capped at N).
-        pool: branch-and-bound boxes per relation and round (M§IV).
-        depth: branch-and-bound depth (M§IV).
         max_sweeps: path-consistency sweeps per update (M§VI.B).
 
     Returns:
@@ -85,7 +83,7 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
     def init() -> QRMMap:
         return empty_map(num_landmarks, spec)
 
-    update = jax.jit(partial(_update, spec, n=n, pool=int(pool), depth=int(depth),
+    update = jax.jit(partial(_update, spec, n=n,
                              max_sweeps=int(max_sweeps)))
 
     def metrics(m: QRMMap, landmarks) -> dict:

@@ -80,10 +80,9 @@ def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") ->
     return {k: float(v) for k, v in zip(keys, vals, strict=True)}
 
 
-def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
+def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n):
     cam = sim.sensors.camera_kernel(pose, landmarks, sensor)
-    meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, n=n,
-                          pool=pool, depth=depth)
+    meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, n=n)
     # histogram of open counts of relations measured for the first time
     tri = jnp.maximum(meas.triples, 0)
     first = meas.valid & ~(m.known[tri[:, 0]] & m.known[tri[:, 1]] & m.known[tri[:, 2]])
@@ -99,9 +98,9 @@ def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth):
     return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p)
 
 
-@partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
-def _map_step(spec, m, pose, landmarks, truth, sensor, *, n, pool, depth):
-    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
+@partial(jax.jit, static_argnames=("spec", "n"))
+def _map_step(spec, m, pose, landmarks, truth, sensor, *, n):
+    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n)
 
 
 def resolve_sensor(sensor):
@@ -110,22 +109,21 @@ def resolve_sensor(sensor):
 
 
 def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec = "edc",
-             sensor: sim.SensorParams | None = None, truth=None, *, pool: int = 16,
-             depth: int = 12) -> tuple[QRMMap, Metrics]:
+             sensor: sim.SensorParams | None = None, truth=None) -> tuple[QRMMap, Metrics]:
     """One image: camera at ``pose``, measurement of the ``n`` nearest, update, metrics."""
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     landmarks = jnp.asarray(landmarks, jnp.float32)
     truth = true_relations(landmarks, spec) if truth is None else truth
     return _map_step(spec, m, jnp.asarray(pose, jnp.float32), landmarks, truth,
-                     resolve_sensor(sensor), n=n, pool=pool, depth=depth)
+                     resolve_sensor(sensor), n=n)
 
 
-@partial(jax.jit, static_argnames=("spec", "n", "pool", "depth"))
-def _run(spec, poses, landmarks, truth, sensor, *, n, pool, depth):
+@partial(jax.jit, static_argnames=("spec", "n"))
+def _run(spec, poses, landmarks, truth, sensor, *, n):
     m0 = empty_map(landmarks.shape[0], spec)
 
     def body(m, pose):
-        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, pool, depth)
+        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n)
 
     return jax.lax.scan(body, m0, poses)
 
@@ -136,9 +134,6 @@ def run_sequence(
     n: int,
     calc: Calculus | str | QRMSpec = "edc",
     sensor: sim.SensorParams | None = None,
-    *,
-    pool: int = 16,
-    depth: int = 12,
 ) -> tuple[QRMMap, Metrics]:
     """Map a layout from a sequence of imaging poses [T, 3]; per-image metrics [T, ...].
 
@@ -166,4 +161,4 @@ def run_sequence(
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
     return _run(spec, jnp.asarray(poses, jnp.float32), landmarks, truth, resolve_sensor(sensor),
-                n=n, pool=pool, depth=depth)
+                n=n)

@@ -76,13 +76,16 @@ from pqrm_jax.sim import coverage, occlusion  # noqa: E402
 from pqrm_jax.sim.coverage import lawnmower  # noqa: E402
 from pqrm_jax.sim.occlusion import (  # noqa: E402
     disc_visibility,
+    local_target_visibility,
+    occluder_table,
     segment_distance,
     segment_visibility,
     target_visibility,
 )
 
 __all__ += ["coverage", "occlusion", "lawnmower", "disc_visibility", "target_visibility",
-            "segment_distance", "segment_visibility"]
+            "occluder_table", "local_target_visibility", "segment_distance",
+            "segment_visibility"]
 
 # HSSH additions (B ch. 6): corridor-network occupancy worlds.
 from pqrm_jax.sim import corridors  # noqa: E402

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-__all__ = ["disc_visibility", "target_visibility", "segment_distance", "segment_visibility"]
+__all__ = ["disc_visibility", "target_visibility", "occluder_table", "local_target_visibility",
+           "segment_distance", "segment_visibility"]
 
 
 def _half_width(d, r):
@@ -55,6 +57,81 @@ def target_visibility(pos: jax.Array, landmarks: jax.Array, targets: jax.Array,
     overlap = sep < _half_width(dt, radius)[:, None] + _half_width(d, radius)[None, :]
     nearer = d[None, :] < dt[:, None]
     hidden = jnp.any(overlap & nearer & (radius > 0), axis=1)
+    return (targets >= 0) & (dt <= max_range) & ~hidden
+
+
+def occluder_table(landmarks, max_range: float, radius: float | None = None) -> np.ndarray:
+    """``[N, M]`` for every landmark the ids of the others that can ever hide it (``-1`` padded).
+
+    A hidden target t is in range (``d_t ≤ max_range``) and its occluder k is strictly nearer
+    (``d_k < d_t``), so ``|k − t| < d_k + d_t < 2·max_range``. With the disc ``radius`` r known
+    the bound is tighter: if the bearings of t and k differ by θ ≤ 60° then
+    ``|k − t|² = d_k² + d_t² − 2 d_k d_t cos θ ≤ d_t²``; a larger θ needs
+    ``asin(r/d_t) + asin(r/d_k) > 60°``, so ``d_k < 2r`` (``|k − t| < max_range + 2r``) or
+    ``d_t < 2r`` (``|k − t| < 4r``). The landmarks within that reach of t (1e-5 relative margin)
+    are the only candidates, and :func:`local_target_visibility` over this table equals
+    :func:`target_visibility` over all landmarks. Built on the host (``O(N²)``); ``M`` is
+    padded to a multiple of 8 so that nearby settings share one compiled width.
+
+    >>> lm = np.array([[0., 0.], [3., 0.], [10., 0.]])
+    >>> tab = occluder_table(lm, 2.0)
+    >>> tab.shape, tab[:, :2].tolist()
+    ((3, 8), [[1, -1], [0, -1], [-1, -1]])
+    >>> occluder_table(lm, 2.0, radius=0.1)[:, 0].tolist()     # reach 2.2 < 3
+    [-1, -1, -1]
+    """
+    lm = np.asarray(landmarks, np.float64)
+    if lm.ndim != 2 or lm.shape[-1] != 2:
+        raise ValueError(f"landmarks must be [N, 2], got shape {lm.shape}")
+    if not (np.isfinite(max_range) and max_range > 0):
+        raise ValueError(f"max_range must be positive and finite, got {max_range}")
+    if radius is not None and not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(f"radius must be non-negative and finite, got {radius}")
+    reach = 2.0 * max_range if radius is None else min(2.0 * max_range,
+                                                       max(max_range + 2 * radius, 4 * radius))
+    d = np.linalg.norm(lm[:, None] - lm[None], axis=-1)
+    near = (d <= reach * (1 + 1e-5)) & ~np.eye(len(lm), dtype=bool)
+    width = max(8, -(-int(near.sum(1).max(initial=0)) // 8) * 8)
+    out = np.full((len(lm), width), -1, np.int32)
+    for i, row in enumerate(near):
+        ids = np.flatnonzero(row)
+        out[i, :len(ids)] = ids
+    return out
+
+
+def local_target_visibility(pos: jax.Array, landmarks: jax.Array, targets: jax.Array,
+                            occluders: jax.Array, max_range, radius) -> jax.Array:
+    """:func:`target_visibility` with the candidate occluders of each target given.
+
+    Args:
+        pos: ``[2]`` sensor position. landmarks: ``[N, 2]``.
+        targets: ``[K]`` landmark ids (``-1`` = padding, never visible).
+        occluders: ``[K, M]`` the ids that may hide each target (``-1`` padded), e.g. the rows
+            of :func:`occluder_table` for ``targets``; exact when they hold every landmark
+            that can hide the target (see there). Cost ``K·M`` instead of ``K·N``.
+        max_range: sensing range. radius: disc radius of every landmark (0 = no occlusion).
+
+    Returns:
+        ``[K]`` bool.
+
+    >>> lm = jnp.array([[10., 0.], [5., 0.2], [0., 8.]])
+    >>> occ = jnp.asarray(occluder_table(lm, 20.0))
+    >>> t = jnp.array([0, 2, -1])
+    >>> local_target_visibility(jnp.zeros(2), lm, t, occ[jnp.maximum(t, 0)], 20.0, 0.3).tolist()
+    [False, True, False]
+    """
+    t = jnp.maximum(targets, 0)
+    rt = landmarks[t] - pos                                 # [K, 2]
+    dt = jnp.linalg.norm(rt, axis=-1)                       # [K]
+    valid = occluders >= 0
+    rel = landmarks[jnp.maximum(occluders, 0)] - pos        # [K, M, 2]
+    d = jnp.linalg.norm(rel, axis=-1)                       # [K, M]
+    cross = rt[:, None, 0] * rel[..., 1] - rt[:, None, 1] * rel[..., 0]
+    dot = rt[:, None, 0] * rel[..., 0] + rt[:, None, 1] * rel[..., 1]
+    sep = jnp.arctan2(jnp.abs(cross), dot)
+    overlap = sep < _half_width(dt, radius)[:, None] + _half_width(d, radius)
+    nearer = d < dt[:, None]
+    hidden = jnp.any(overlap & nearer & valid & (radius > 0), axis=1)
     return (targets >= 0) & (dt <= max_range) & ~hidden
 
 

@@ -40,7 +40,7 @@ def search(calc: str = "double_cross", images: int = 7, candidates: int = 256,
     truth = H.true_relations(lm, spec)
     sensor = P.resolve_sensor(None)
     step = jax.jit(jax.vmap(
-        lambda m, p: P.map_step_kernel(spec, m, p, lm, truth, sensor, 4, 16, 12),
+        lambda m, p: P.map_step_kernel(spec, m, p, lm, truth, sensor, 4),
         in_axes=(None, 0)))
     m = H.empty_map(4, spec)
     key = jax.random.key(seed)

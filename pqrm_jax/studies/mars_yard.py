@@ -286,7 +286,8 @@ def _write_report(out: Path, cfg: Config, rows: list[dict], st) -> None:
             f"{r['nav_estimated']['length_ratio_median']:.2f} / "
             f"{r['nav_true']['length_ratio_median']:.2f} |")
     lines += ["", f"Whole traverse: **{np.mean(walls):.2f} s** mean wall time (compiled; "
-              f"2-core CPU shared with other jobs) vs 250 s in McClelland's C# (target ≤ 5 s).",
+              f"2-core CPU shared with other jobs) vs 250 s in McClelland's C# (target ≤ 1 s "
+              "with exact sets, issue #14).",
               "", f"Navigation over {cfg.nav_pairs} random start/goal pairs per traverse: "
               f"success {100 * np.mean([s['success_rate'] for s in ne]):.1f} % along the "
               f"estimated RNG, {100 * np.mean([s['success_rate'] for s in nt]):.1f} % along the "

@@ -189,23 +189,26 @@ def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: fl
 def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, world,
                 progress: bool = True) -> list[dict]:
     """All trials of one (world, β, setting); rows for ``trials.csv``."""
+    from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
     lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
+    nbrs = lg.neighbour_table(g)
     # static Link Graph reachability from the start landmark's elements
     cand = tables[0][pairs[:, 0]]
     tg = np.asarray(to_go)[goal_row[pairs[:, 1]]]
     static_reach = np.isfinite(np.where(cand >= 0, np.take_along_axis(
         tg, np.maximum(cand, 0), 1), np.inf).min(1))
     rows = []
-    block = max(cfg.chunk * 4, 256)
+    block = max(cfg.chunk * 32, 256)     # trials queued per call on cfg.chunk lanes
     from tqdm.auto import tqdm
     for i in tqdm(range(0, len(pairs), block), desc=f"w{w} b{beta} {name}", disable=not progress,
                   leave=False):
         sl = slice(i, i + block)
         r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                               pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans)
+                               pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans,
+                               neighbours=nbrs)
         for j in range(len(r.status)):
             k = i + j
             st = int(r.status[j])
@@ -461,4 +464,4 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
     return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
                               pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
-                              record=record, plans=plans)
+                              record=record, plans=plans)    # few lanes: the traces are big

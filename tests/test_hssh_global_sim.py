@@ -1,0 +1,113 @@
+"""HSSH global levels driven by the simulator and the real local levels (B §8.1, §7.1.3, ch. 9).
+
+One exploration of a small network with a loop (an L-L-T-L square, a T with a dead-end spur)
+is shared by the tests: lidar -> scrolling LPM -> gateways -> local topology -> star views,
+with noisy odometry, fed to the tree of maps.
+"""
+
+import numpy as np
+import pytest
+
+from pqrm_jax import hssh_global as hg
+from pqrm_jax.hssh_global import simulation as hs
+
+LOOP = {((0, 0), (1, 0)), ((1, 0), (2, 0)), ((0, 0), (0, 1)), ((1, 0), (1, 1)),
+        ((0, 1), (1, 1)), ((2, 0), (2, 1))}
+
+
+@pytest.fixture(scope="module")
+def run():
+    w = hg.world_from_lattice(LOOP)
+    sw = hs.sim_world(w)
+    se = hs.explore_sim(sw, 10, seed=1)
+    log = hg.build_tree(se.experience)
+    return w, sw, se, log
+
+
+def test_views_from_local_levels_match_truth(run):
+    w, _, se, _ = run
+    ex = se.experience
+    assert len(ex.views) == 11 and ex.turns.shape == (10,) and ex.odometry.shape == (10, 3)
+    assert len(set(ex.true_places.tolist())) >= 5          # the loop and the spur were seen
+    for v, p, a in zip(ex.views, ex.true_places, ex.true_arrivals, strict=True):
+        assert hg.view_match(v, (w.stars[int(p)], int(a)))
+    # odometry is the rover's dead reckoning: close to, but not equal to, the truth
+    err = np.abs(ex.odometry - ex.true_odometry)
+    err[:, 2] = np.abs((err[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    assert 0 < err[:, :2].max() < 0.05 and err[:, 2].max() < 0.1
+
+
+def test_true_map_among_leaves_and_loop_closed(run):
+    _, _, se, log = run
+    ex = se.experience
+    truth = [h for h in log.leaves if hg.is_true_map(h, ex)]
+    assert len(truth) == 1
+    h = truth[0]
+    assert h.n_places == len(set(ex.true_places.tolist()))
+    assert len(h.visits) > h.n_places                      # revisits were recognised
+
+
+def test_layout_and_global_occupancy(run):
+    _, sw, se, log = run
+    ex = se.experience
+    k = next(i for i, h in enumerate(log.leaves) if hg.is_true_map(h, ex))
+    prob = hg.pack([log.leaves[k]], ex.odometry, 0.02, 0.02)
+    chi, _ = hg.relax(prob)
+    gt = hs.true_layout_sim(se)
+    m = log.leaves[k].n_places
+    err = np.linalg.norm(np.asarray(chi[0, :m, :2]) - gt[:, :2], axis=1).mean()
+    assert err < 0.1                                        # lattice spacing 1
+    grid, origin, res = hs.global_occupancy(sw, se, log.leaves[k], np.asarray(chi[0]))
+    assert grid.ndim == 2 and res == pytest.approx(sw.width / hs.SimParams().cells)
+    agree = hs.map_agreement(sw, grid, origin, res, se.true_dividing[0])
+    assert agree > 0.6
+    # the same snapshots placed by a wrong frame do not agree with the walls
+    shifted = hs.map_agreement(sw, grid, origin + 0.5 * sw.width, res, se.true_dividing[0])
+    assert shifted < 0.2
+    jxy, jth = hs.revisit_jitter(se, log.leaves[k])
+    assert 0 < jxy < 0.5 * sw.width and 0 <= jth < 0.2
+
+
+def test_navigation_in_the_simulator(run):
+    w, sw, se, log = run
+    ex = se.experience
+    h = next(h for h in log.leaves if hg.is_true_map(h, ex))
+    route, cmds = hg.plan_route(h, ex.odometry, h.visits[0], h.visits[3][0])
+    places, dist, done = hs.navigate_sim(sw, (int(ex.true_places[0]),
+                                              int(ex.true_arrivals[0])), cmds, seed=3)
+    assert done and places[-1] == int(ex.true_places[3]) and len(places) == len(route)
+    sd = hg.shortest_distance(w, int(ex.true_places[0]), int(ex.true_places[3]))
+    assert 0.9 < dist / sd < 1.3
+    res = hs.evaluate_navigation_sim(sw, se, h, n_pairs=2, seed=0)
+    assert res["success"] == 1.0 and res["lost"] == 0
+
+
+def test_bad_input_and_lost_rover():
+    w = hg.world_from_lattice(LOOP)
+    with pytest.raises(ValueError, match="width"):
+        hs.sim_world(w, hs.SimParams(width=0.9))
+    sw = hs.sim_world(w)
+    with pytest.raises(ValueError, match="n_travels"):
+        hs.explore_sim(sw, -1)
+    with pytest.raises(ValueError, match="start place"):
+        hs.explore_sim(sw, 1, start=99)
+    with pytest.raises(ValueError, match="rendered with"):
+        hs.explore_sim(sw, 1, params=hs.SimParams(cells=20))
+    with pytest.raises(hs.SimulationError, match="no place reached"):
+        hs.explore_sim(sw, 1, seed=1, params=hs.SimParams(max_checks=3))
+
+
+@pytest.mark.slow
+def test_simulator_exploration_is_scale_free():
+    """The same world at lattice spacing 1 and 3: the same views and turns, and odometry that
+    scales with the world (everything in the simulator is measured in corridor widths)."""
+    runs = []
+    for scale in (1.0, 3.0):
+        lattice = hg.world_from_lattice(LOOP, scale=scale)
+        runs.append(hs.explore_sim(hs.sim_world(lattice), 6, seed=2).experience)
+    a, b = runs
+    assert [v[0] for v in a.views] == [v[0] for v in b.views]
+    assert [v[1] for v in a.views] == [v[1] for v in b.views]
+    np.testing.assert_array_equal(a.turns, b.turns)
+    np.testing.assert_allclose(b.odometry[:, :2] / 3.0, a.odometry[:, :2], atol=0.02)
+    np.testing.assert_allclose(b.odometry[:, 2], a.odometry[:, 2], atol=0.05)
