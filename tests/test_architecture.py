@@ -134,3 +134,29 @@ def test_readme_lists_every_study():
     assert line, "README has no 'pqrm-jax study --list  # names' line"
     listed = {n.strip() for n in line.group(1).split(",")}
     assert listed == set(discover()), (sorted(listed), sorted(discover()))
+
+
+HOST_CALLBACKS = {"pure_callback", "io_callback", "host_callback", "debug_callback"}
+
+
+def host_callbacks(source: str, label: str) -> list[str]:
+    """Host callbacks in ``source``: ``jax.pure_callback``, ``io_callback``, ``jax.debug.*``."""
+    out = []
+    for node in ast.walk(ast.parse(source, label)):
+        name = (node.attr if isinstance(node, ast.Attribute) else
+                node.id if isinstance(node, ast.Name) else
+                node.name if isinstance(node, ast.alias) else None)
+        debug = (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute)
+                 and node.value.attr == "debug" and node.attr in {"print", "callback"})
+        if debug or (name or "").split(".")[-1] in HOST_CALLBACKS:
+            out.append(f"{label}:{getattr(node, 'lineno', '?')}: host callback {name}")
+    return out
+
+
+def test_no_host_callback_in_the_library():
+    """Issue 19 (accelerator readiness): compiled paths never call back into Python."""
+    assert len(host_callbacks("import jax\njax.debug.print('x')\njax.pure_callback(f, s, x)\n"
+                              "from jax.experimental import io_callback\n", "bad.py")) == 3
+    found = [v for p in MODULES for v in host_callbacks(p.read_text(),
+                                                        str(p.relative_to(ROOT.parent)))]
+    assert found == []

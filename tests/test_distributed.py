@@ -218,3 +218,193 @@ def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
     for r in (r1, *rs):
         assert r.returncode == 0, r.stderr[-2000:]
     assert _same_results(one, two) == 6
+
+
+# --------------------------------------------------------------------------------------
+# the other Monte Carlo studies on distributed.map_units: 2 processes vs 1
+# --------------------------------------------------------------------------------------
+
+_TIMING = ("wall", "update_time", "seconds", "_time", "time_")  # measured, differ per run
+
+
+def _timed(name: str) -> bool:
+    return any(t in name for t in _TIMING)
+
+
+def _drop_timing(obj):
+    if isinstance(obj, dict):
+        return {k: _drop_timing(v) for k, v in obj.items() if not _timed(k)}
+    if isinstance(obj, list):
+        return [_drop_timing(v) for v in obj]
+    return obj
+
+
+def _same_study_files(a: Path, b: Path) -> int:
+    """Every stored record of ``a`` equals ``b``'s bit for bit, measured times excepted."""
+    import json
+
+    names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file()
+                   and not p.name.startswith("."))
+    assert names == sorted(str(p.relative_to(b)) for p in b.rglob("*") if p.is_file()
+                           and not p.name.startswith("."))
+    compared = 0
+    for name in names:
+        x, y = a / name, b / name
+        if name.endswith(".npz"):
+            nx, ny = np.load(x), np.load(y)
+            assert sorted(nx.files) == sorted(ny.files), name
+            for k in nx.files:
+                if not _timed(k):
+                    np.testing.assert_array_equal(nx[k], ny[k], err_msg=f"{name}:{k}")
+        elif name.endswith(".jsonl"):
+            lx, ly = x.read_text().splitlines(), y.read_text().splitlines()
+            assert [_drop_timing(json.loads(v)) for v in lx] == \
+                [_drop_timing(json.loads(v)) for v in ly], name
+        elif name.endswith(".json"):
+            assert _drop_timing(json.loads(x.read_text())) == \
+                _drop_timing(json.loads(y.read_text())), name
+        elif name.endswith(".csv"):
+            assert [r for r in x.read_text().splitlines() if not _timed(r)] == \
+                [r for r in y.read_text().splitlines() if not _timed(r)], name
+        else:
+            continue  # report.md and figures show the measured times too
+        compared += 1
+    return compared
+
+
+def _one_vs_two(tmp_path, argv: list[str], timeout: float = 600) -> tuple[Path, Path]:
+    py = [sys.executable, "-m", "pqrm_jax.cli", *argv]
+    port = str(free_port())
+    two = [*py, "--out", str(tmp_path / "two"), "--coordinator", f"127.0.0.1:{port}",
+           "--processes", "2"]
+    rs = _launch([[*py, "--out", str(tmp_path / "one")], [*two, "--process-id", "1"],
+                  [*two, "--process-id", "0"]], timeout=timeout)
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    return tmp_path / "one", tmp_path / "two"
+
+
+def test_serge_two_processes_equal_one(tmp_path):
+    one, two = _one_vs_two(tmp_path, ["study", "serge", "--reduced", "--datasets",
+                                      "well_separated", "--grid", "16", "--trials", "4"])
+    assert _same_study_files(one, two) == 4  # config, study marker, results.jsonl and .csv
+    assert len((two / "results.jsonl").read_text().splitlines()) == 18
+    assert (two / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_mcclelland_mc_two_processes_equal_one(tmp_path):
+    """3 (n, run) units per n: process 0 takes units 0 and 2 of each round pair."""
+    one, two = _one_vs_two(tmp_path, ["study", "mcclelland-mc", "--reduced", "--runs", "3",
+                                      "--images", "5", "--ns", "6", "--exact-sample", "0",
+                                      "--no-progress"])
+    assert _same_study_files(one, two) == 7  # 3 runs, config, marker, summary, results.csv
+    assert (two / "report.md").exists()
+
+
+_MARS_DRIVER = """
+import sys
+from pathlib import Path
+from pqrm_jax.studies import distributed, mars_yard as M
+out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60)
+cfg = M.Config(landmarks=10, n=6, images=30, nav_pairs=4, nav_steps=100, traverses=3,
+               snapshots=(1, 30))
+M.run_study(cfg, Path(out), no_progress=True, cluster=cluster)
+"""
+
+
+@pytest.mark.slow
+def test_mars_yard_two_processes_equal_one(tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _MARS_DRIVER, str(one), "1", "0", "0"]]
+                 + [[sys.executable, "-c", _MARS_DRIVER, str(two), "2", str(i), port]
+                    for i in (1, 0)], timeout=600)
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_study_files(one, two) == 6  # 3 traverses, config, marker, results.csv
+    assert (two / "fig11.png").exists()  # traverse 0's figures, drawn by process 0
+
+
+@pytest.mark.slow
+def test_fdc_design_and_compositions_heldout_two_processes_equal_one(tmp_path):
+    one, two = _one_vs_two(tmp_path / "fdc", ["study", "fdc-design", "--reduced",
+                                              "--no-progress"])
+    assert _same_study_files(one, two) == 4  # design.json, config, marker, results.csv
+    one, two = _one_vs_two(tmp_path / "ho", [
+        "study", "compositions-heldout", "--landmarks", "6", "--runs", "2", "--samples", "32",
+        "--fractions", "0.25", "0.5", "--sigmas", "5", "--rounds", "1"])
+    assert _same_study_files(one, two) == 4  # results.json, config, marker, results.csv
+
+
+_MCC_DRIVER = """
+import sys
+from pathlib import Path
+from pqrm_jax.studies import distributed, mcclelland_mc as M
+out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=5)
+cfg = M.Config(runs=4, images=5, ns=(6, 8), timed_runs=0, exact_sample=0)
+M.run_study(cfg, Path(out), progress=False, cluster=cluster)
+print("done", cluster.process_id)
+"""
+
+
+@pytest.mark.slow
+def test_mcclelland_mc_killed_process_then_resume(tmp_path):
+    """Kill process 1 once the first round is written: process 0 stops within the heartbeat
+    (no hang); re-running both resumes from the written units and ends with the 1-process
+    records (measured times excepted)."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    port = str(free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=_env(), cwd=ROOT) for i in (1, 0)]
+    deadline = time.monotonic() + 300
+    while not list(two.glob("runs/n*_r*.npz")):
+        assert time.monotonic() < deadline and procs[1].poll() is None
+        time.sleep(0.2)
+    procs[0].kill()
+    t_kill = time.monotonic()
+    procs[1].communicate(timeout=120)
+    procs[0].communicate()
+    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
+    assert 1 <= len(written) < 8
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _MCC_DRIVER, str(one), "1", "0", "0"]]
+                 + [[sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port]
+                    for i in (1, 0)])
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert _same_study_files(one, two) == 10  # 8 runs, config, marker
+
+
+_FAIL_DRIVER = """
+import sys
+from pqrm_jax.studies import distributed as d
+pid, port = int(sys.argv[1]), sys.argv[2]
+c = d.initialize(f"127.0.0.1:{port}", 2, pid, timeout_s=60)
+
+def fn(x):
+    if x == 3:
+        raise ValueError("bad unit 3")
+    return {"x": x}
+
+try:
+    print([r["x"] for _, r in d.map_units(fn, [0, 1, 2, 3, 4], c)])
+except d.DistributedError as exc:
+    print("refused:", exc)
+"""
+
+
+def test_map_units_failure_on_one_process_is_raised_on_every_process():
+    """Item 3 fails on process 1 (round 2): both processes stop with its error, none waits
+    for a result that never comes."""
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _FAIL_DRIVER, str(i), port] for i in (1, 0)],
+                 timeout=120)
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert r.stdout.strip().splitlines()[-1] == (
+            "refused: process 1 failed on item 3: ValueError: bad unit 3")

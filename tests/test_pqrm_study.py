@@ -93,3 +93,41 @@ def test_sparse_batched_runner_equals_dense_per_run_runner():
         for (path, a), b in zip(flat_d, flat_s, strict=True):
             np.testing.assert_array_equal(a, b, err_msg=jax.tree_util.keystr(path))
     assert np.asarray(sparse["n_updates"]).sum() > 0
+
+
+def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp_path):
+    """chunk_runs=None sizes the chunk from the device memory (here a fake figure passed as
+    ``memory_bytes``); a resume keeps the stored chunk; a chunk, given or chosen, that does
+    not fit is refused with a message naming --chunk-runs before it runs."""
+    import dataclasses
+
+    from pqrm_jax.studies import chunking
+    from pqrm_jax.studies.store import StudyError
+
+    cfg = padgett_mc.Config(runs=6, levels=1, num_samples=8, num_landmarks=4,
+                            representations=("edc",))
+    assert cfg.chunk_runs is None
+    probe, _ = padgett_mc.chunk_program(dataclasses.replace(cfg, chunk_runs=1), 1)
+    one = chunking.program_bytes(probe)  # bounds one run's bytes (1 device here)
+    assert one and one > 0
+    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=10**12) == 6  # capped at the runs
+    # room for 2.5 runs in FRACTION of the memory: the largest power of two that fits, 2
+    small = int(2.5 * one / chunking.FRACTION)
+    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=small) == 2
+    out = tmp_path / "mc"
+    padgett_mc.run_study(cfg, out, quiet=True, memory_bytes=small)
+    assert json.loads((out / "config.json").read_text())["layout"]["chunk"] == 2
+    # resumed with more memory: the stored chunk (hence the float bits) is kept, not refused
+    (out / "level_01.npz").unlink()
+    padgett_mc.run_study(cfg, out, quiet=True, memory_bytes=10**12)
+    assert json.loads((out / "config.json").read_text())["layout"]["chunk"] == 2
+    assert (out / "level_01.npz").exists()
+    # a given chunk too large for the memory, and a memory too small for one run
+    six = dataclasses.replace(cfg, chunk_runs=6)
+    need = chunking.program_bytes(padgett_mc.chunk_program(six, 6)[0])
+    with pytest.raises(StudyError, match="a chunk of 6 runs .* lower --chunk-runs"):
+        padgett_mc.run_study(six, tmp_path / "big", quiet=True,
+                             memory_bytes=int(0.9 * need / chunking.FRACTION))
+    assert not (tmp_path / "big" / "levels.jsonl").exists()
+    with pytest.raises(StudyError, match="--chunk-runs"):
+        padgett_mc.run_study(cfg, tmp_path / "tiny", quiet=True, memory_bytes=1000)

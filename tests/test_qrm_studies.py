@@ -1,5 +1,6 @@
 """The McClelland studies (M§VIII, MT ch. 1) run end to end from the CLI in reduced form:
-reports and figures written, soundness held, resume and process sharding of mcclelland-mc."""
+reports and figures written, soundness held, resume of mcclelland-mc (its multi-process run:
+tests/test_distributed.py)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ def _runs(out):
     return {p.name: dict(np.load(p)) for p in sorted((out / "runs").glob("n*_r*.npz"))}
 
 
-def test_mcclelland_mc_report_resume_and_shards(tmp_path):
+def test_mcclelland_mc_report_and_resume(tmp_path):
     a = tmp_path / "a"
     assert mcclelland_mc.main(MCC + ["--out", str(a)]) == 0
     assert (a / "report.md").exists() and (a / "fig7.png").exists()
@@ -39,18 +40,12 @@ def test_mcclelland_mc_report_resume_and_shards(tmp_path):
     (a / "runs" / "n8_r1.npz").unlink()
     assert mcclelland_mc.main(MCC + ["--out", str(a)]) == 0
     assert kept.stat().st_mtime_ns == mtime and (a / "runs" / "n8_r1.npz").exists()
-    # two processes' shards (run here one after the other) give the same runs
-    b = tmp_path / "b"
-    for shard in ("1/2", "0/2"):
-        assert mcclelland_mc.main(MCC + ["--out", str(b), "--shard", shard]) == 0
-    sharded = _runs(b)
-    assert set(sharded) == set(full)
-    for name, rec in full.items():
-        np.testing.assert_array_equal(rec["removed_pct"], sharded[name]["removed_pct"])
-    assert mcclelland_mc.main(MCC + ["--out", str(b), "--shard", "2/2"]) == 2
+    # the removed --shard is an unknown option now (multi-process: --coordinator/--processes)
+    with pytest.raises(SystemExit):
+        mcclelland_mc.main(MCC + ["--out", str(a), "--shard", "0/2"])
     # another configuration is refused rather than mixed into the stored runs
     with pytest.raises(StoreError, match="images"):
-        mcclelland_mc.main(MCC[:4] + ["7"] + MCC[5:] + ["--out", str(b)])
+        mcclelland_mc.main(MCC[:4] + ["7"] + MCC[5:] + ["--out", str(a)])
 
 
 def test_mars_yard_reduced(tmp_path):

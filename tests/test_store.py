@@ -108,16 +108,6 @@ def test_second_writer_is_refused(tmp_path):
         pass
 
 
-def test_shards_share_the_lock_but_not_a_shard(tmp_path):
-    out = tmp_path / "m"
-    with Store.open(out, "mcc", {"a": 1}, shard=(0, 2)), \
-            Store.open(out, "mcc", {"a": 1}, shard=(1, 2)):
-        with pytest.raises(StoreError, match="this shard"):
-            Store.open(out, "mcc", {"a": 1}, shard=(1, 2))
-        with pytest.raises(StoreError, match="in use"):
-            Store.open(out, "mcc", {"a": 1})
-
-
 def _warned(record) -> str:
     return " ".join(str(w.message) for w in record if w.category is CorruptRecordWarning)
 

@@ -11,6 +11,14 @@ processes write one file. A study adopts it in a few lines::
     parts = distributed.gather(local_results, cluster)  # [num_processes, ...] everywhere
     if cluster.is_main: ...write...
 
+A study whose units are independent records (one file or line each) uses the two
+higher-level helpers instead, which keep its per-unit resume::
+
+    left = distributed.decide(cluster, len(units), units_left)  # process 0 reads the store
+    for i, rec in distributed.map_units(compute, [u for u, l in zip(units, left) if l],
+                                        cluster, codec="npz"):
+        if cluster.is_main: ...write rec...                    # unit by unit, in order
+
 Where the process count, id and coordinator come from, first match wins:
 
 1. the arguments (``--coordinator HOST:PORT --processes N --process-id I``);
@@ -50,13 +58,13 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 
 __all__ = ["Cluster", "DistributedError", "add_arguments", "agree", "broadcast", "current",
-           "gather", "initialize", "initialize_from", "share"]
+           "decide", "gather", "initialize", "initialize_from", "map_units", "share"]
 
 _ADDRESS = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):(\d{1,5})$")
 
@@ -184,7 +192,12 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
             f"coordinator {coordinator} within {timeout_s} s (is process 0 running and the "
             f"port reachable? all N processes started?): {first[:300]}") from exc
     _STARTED["coordinator"] = coordinator
-    return current()
+    cluster = current()
+    # the first collective builds the collectives' context (gloo gives it 30 s to find every
+    # peer; later collectives wait as long as needed): build it now, while every process is
+    # here, not when one process is still compiling or reading the store
+    gather(np.zeros(1, np.int32), cluster)
+    return cluster
 
 
 def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
@@ -334,3 +347,95 @@ def agree(cluster: Cluster, config: Any, what: str = "configuration") -> None:
     if bad:
         raise DistributedError(f"processes {bad} were started with a different {what} than "
                                f"process 0; start every process with the same arguments")
+
+
+def decide(cluster: Cluster, n: int, fn: Callable[[], Any]) -> np.ndarray:
+    """Process 0's ``fn()`` (``n`` integers, e.g. a "unit left to do" mask) on every process.
+
+    Only process 0 calls ``fn`` (it typically opens the study store and reads what is done).
+    If ``fn`` raises there, process 0 re-raises and the other processes raise a
+    :class:`DistributedError` instead of waiting for results that never come.
+
+    >>> decide(Cluster(0, 1, None), 3, lambda: [1, 0, 1]).tolist()
+    [1, 0, 1]
+    """
+    status = np.zeros(n + 1, np.int32)  # [process 0 succeeded, values...]
+    failure = None
+    if cluster.is_main:
+        try:
+            vals = np.asarray(fn(), np.int32).reshape(-1)
+            if vals.shape != (n,):
+                raise ValueError(f"decide: expected {n} values, got {vals.shape[0]}")
+            status[0], status[1:] = 1, vals
+        except BaseException as exc:  # tell the other processes before failing
+            failure = exc
+    status = broadcast(status, cluster)
+    if failure is not None:
+        raise failure
+    if not status[0]:
+        raise DistributedError(f"process {cluster.process_id}: process 0 failed while "
+                               "preparing the study (see its error)")
+    return status[1:]
+
+
+def _encode(obj: Any, codec: str) -> bytes:
+    import io
+
+    if codec == "json":
+        return json.dumps(obj, allow_nan=True).encode()
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in obj.items()})
+    return buf.getvalue()
+
+
+def _decode(data: bytes, codec: str) -> Any:
+    import io
+
+    if codec == "json":
+        return json.loads(data.decode())
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def map_units(fn: Callable[[Any], Any], items: Sequence[Any], cluster: Cluster, *,
+              codec: str = "json") -> Iterator[tuple[int, Any]]:
+    """``(i, fn(items[i]))`` for every item in order, on every process, computed once.
+
+    Works in rounds of ``N`` items: in round ``j`` process ``p`` computes item ``j·N + p``
+    (:func:`share`'s split), then the results are exchanged over the collectives, so a study
+    can write each round before the next starts (a killed run resumes after the last written
+    round). Results travel encoded: ``codec="json"`` for JSON values (floats round-trip
+    exactly) or ``"npz"`` for a ``dict`` of numpy arrays (dtype, shape and bits kept), so the
+    results are the bits a single process computes. An error in ``fn`` on any process is
+    raised on every process as a :class:`DistributedError` naming that process and item.
+    With one process ``fn``'s own results are yielded (nothing is encoded).
+
+    >>> list(map_units(lambda x: x * x, [1, 2, 3], Cluster(0, 1, None)))
+    [(0, 1), (1, 4), (2, 9)]
+    """
+    if codec not in ("json", "npz"):
+        raise ValueError(f"codec must be 'json' or 'npz', got {codec!r}")
+    if not cluster.distributed:
+        for i, item in enumerate(items):
+            yield i, fn(item)
+        return
+    k = cluster.num_processes
+    for start in range(0, len(items), k):
+        i = start + cluster.process_id
+        ok, data = 1, b""
+        if i < len(items):
+            try:
+                data = _encode(fn(items[i]), codec)
+            except Exception as exc:  # noqa: BLE001  (reported on every process below)
+                ok, data = 0, f"{type(exc).__name__}: {exc}".encode()[:2000]
+        head = gather(np.array([ok, len(data)], np.int32), cluster)  # [N, 2]
+        width = max(int(head[:, 1].max()), 1)
+        buf = np.zeros(width, np.uint8)
+        buf[:len(data)] = np.frombuffer(data, np.uint8)
+        every = gather(buf, cluster)  # [N, width]
+        for q in range(k):
+            if start + q < len(items) and not head[q, 0]:
+                msg = every[q, :head[q, 1]].tobytes().decode(errors="replace")
+                raise DistributedError(f"process {q} failed on item {start + q}: {msg}")
+        for q in range(min(k, len(items) - start)):
+            yield start + q, _decode(every[q, :head[q, 1]].tobytes(), codec)

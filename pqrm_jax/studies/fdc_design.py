@@ -8,7 +8,9 @@ by one batched, ``vmap``-ed map update), with the rule that images 1–3 may not
 constrain an edge. The same QRM pipeline runs with the FDC calculus (``double_cross``, the
 open 6-state FDC; ``--calc dcc`` for the boundary-inclusive version when its tables exist).
 Outputs: ``fdc_design.png`` (layout + curves of % open states and % constrained edges, like
-MT Fig. 1.6a), ``design.json`` and ``report.md``.
+MT Fig. 1.6a), ``design.json`` and ``report.md``. As N processes on ``jax.distributed``
+(``--coordinator/--processes/--process-id``; :mod:`pqrm_jax.studies.distributed`) the searches
+are split over the processes and process 0 writes them.
 """
 
 from __future__ import annotations
@@ -73,38 +75,68 @@ def main(argv: list[str]) -> int:
     p.add_argument("--runs", type=int, default=8, help="independent searches (seeds)")
     p.add_argument("--reduced", action="store_true", help="2 searches")
     p.add_argument("--no-progress", action="store_true")
+    from . import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
 
+    from . import distributed
     from .store import Store, tidy_rows
 
     runs = 2 if a.reduced else a.runs
     if runs < 1:
         p.error(f"--runs must be ≥ 1, got {runs}")
     out = Path(a.out)
-    with Store.open(out, NAME, {"calc": a.calc}, legacy=(
+    cluster = distributed.initialize_from(a)  # before any JAX computation
+    distributed.agree(cluster, {"calc": a.calc, "runs": runs}, f"{NAME} config")
+    st = None
+
+    def open_store():
+        nonlocal st
+        st = Store.open(out, NAME, {"calc": a.calc}, legacy=(
             "design.json", "report.md", "fdc_design.png", "config.json", "study.json",
-            "results.csv")) as st:
-        results = _searches(a.calc, runs, a.no_progress, st)
+            "results.csv"))
+        return []
+
+    try:
+        distributed.decide(cluster, 0, open_store)  # process 0 opens the store (or all fail)
+        results = _searches(a.calc, runs, a.no_progress, st, cluster)
+        if st is None:  # other processes: the same verdict as process 0's
+            return 0 if any(r["fully_constrained_end"] and r["none_before_fourth"]
+                            for r in results) else 1
         code = _write(out, a.calc, runs, results, st)
         st.write_results_csv(tidy_rows(results, unit=lambda r: f"seed_{r['seed']}",
                                        skip=("seed", "poses")))
+    finally:
+        if st is not None:
+            st.close()
     return code
 
 
-def _searches(calc: str, runs: int, no_progress: bool, st) -> list[dict]:
+def _search_record(calc: str, s: int) -> dict:
+    """The stored record of the greedy search with seed ``s``."""
+    poses, rows, open_states, _ = search(calc, seed=s)
+    c = [r["constrained_pct"] for r in rows]
+    return {"seed": s, "poses": poses.tolist(), "rows": rows,
+            "open_pct_of_all_states": [float(x) for x in open_states],
+            "fully_constrained_end": c[-1] >= 100.0,
+            "none_before_fourth": all(x == 0 for x in c[:3]),
+            "first_constrained_image": next((i + 1 for i, x in enumerate(c) if x > 0), None)}
+
+
+def _searches(calc: str, runs: int, no_progress: bool, st, cluster=None) -> list[dict]:
+    """Every search's record (split over the processes of ``cluster``); process 0 stores."""
     from tqdm.auto import tqdm
 
-    results = []
-    for s in tqdm(range(runs), desc=NAME, disable=no_progress):
-        poses, rows, open_states, _ = search(calc, seed=s)
-        c = [r["constrained_pct"] for r in rows]
-        results.append({"seed": s, "poses": poses.tolist(), "rows": rows,
-                        "open_pct_of_all_states": open_states,
-                        "fully_constrained_end": c[-1] >= 100.0,
-                        "none_before_fourth": all(x == 0 for x in c[:3]),
-                        "first_constrained_image": next((i + 1 for i, x in enumerate(c)
-                                                         if x > 0), None)})
-    st.write_json("design.json", results)
+    from . import distributed
+
+    cluster = cluster or distributed.current()
+    done = distributed.map_units(lambda s: _search_record(calc, s), list(range(runs)),
+                                 cluster, codec="json")
+    results = [r for _, r in tqdm(done, total=runs, desc=NAME,
+                                  disable=no_progress or not cluster.is_main)]
+    if st is not None:
+        st.write_json("design.json", results)
     return results
 
 

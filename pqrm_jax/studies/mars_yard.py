@@ -170,6 +170,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--runs", type=int, help="number of traverses (default 5)")
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
     p.add_argument("--no-progress", action="store_true")
+    from . import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
 
     cfg = Config(**REDUCED) if a.reduced else Config()
@@ -177,50 +180,88 @@ def main(argv: list[str]) -> int:
         if a.runs < 1:
             p.error(f"--runs must be ≥ 1, got {a.runs}")
         cfg.traverses = a.runs
-    from .store import Store, tidy_rows
-
-    out = Path(a.out)
-    with Store.open(out, NAME, dataclasses.asdict(cfg), selection=("traverses",),
-                    legacy=("config.json", "traverse_*.json", "report.md", "*.png",
-                            "study.json", "results.csv", "*.corrupt")) as st:
-        rows = _traverses(cfg, st, a.no_progress)
-        _write_report(out, cfg, rows, st)
-        st.write_results_csv(tidy_rows(rows, unit=lambda r: f"traverse_{r['traverse']}",
-                                       skip=("traverse",)))
+    cluster = distributed.initialize_from(a)  # before any JAX computation
+    run_study(cfg, Path(a.out), no_progress=a.no_progress, cluster=cluster)
     return 0
 
 
+LEGACY = ("config.json", "traverse_*.json", "report.md", "*.png", "study.json", "results.csv",
+          "*.corrupt")
 _ROW_FIELDS = ("traverse", "wall_s", "removed_pct", "constrained_pct", "not_adjacent_pct",
                "rng_cost", "truth_kept", "nav_estimated", "nav_true")
 
 
-def _traverses(cfg: Config, st, no_progress: bool) -> list[dict]:
-    """Every traverse's row: read back when stored and valid, else computed and stored."""
+def run_study(cfg: Config, out: Path, *, no_progress: bool = False, cluster=None) -> list[dict]:
+    """Run (or resume) the traverses into ``out``, then the report; returns the rows.
+
+    With a multi-process ``cluster`` (:mod:`.distributed`, already initialised) every process
+    calls this with the same ``cfg``: differing configs are refused, process 0 alone opens the
+    store and lists the traverses left, the processes compute them in rounds
+    (:func:`.distributed.map_units`; traverse 0, recomputed for the figures, always falls to
+    process 0) and process 0 writes the rows, figures and report. The rows equal a
+    one-process run's bit for bit except the measured ``wall_s``.
+    """
     from tqdm.auto import tqdm
 
-    rows = []
-    for i in tqdm(range(cfg.traverses), desc=NAME, disable=no_progress):
-        name = f"traverse_{i}.json"
-        row = st.read_json(name, _ROW_FIELDS,
-                           check=lambda r, i=i: (r["traverse"] == i
-                                                 and len(r["removed_pct"]) == cfg.images))
-        if row is not None and i > 0:  # traverse 0 is recomputed for the figures
-            rows.append(row)
-            continue
-        tr = run_traverse(cfg, i)
-        nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
-        row = {"traverse": i, "wall_s": tr["wall"],
-               "removed_pct": tr["met"]["removed_pct"].tolist(),
-               "constrained_pct": tr["met"]["constrained_pct"].tolist(),
-               "not_adjacent_pct": tr["met"]["not_adjacent_pct"].tolist(),
-               "rng_cost": tr["met"]["rng_cost"].tolist(),
-               "truth_kept": bool(tr["met"]["truth_kept"].all()),
-               "nav_estimated": nav["estimated"], "nav_true": nav["true"]}
-        st.write_json(name, row, indent=None)
-        rows.append(row)
-        if i == 0:
-            _plots(st.out, cfg, tr, nav)
-    return rows
+    from . import distributed
+    from .store import Store, tidy_rows
+
+    cluster = cluster or distributed.current()
+    distributed.agree(cluster, dataclasses.asdict(cfg), f"{NAME} config")
+    st, stored = None, {}
+
+    def left():
+        nonlocal st
+        st = Store.open(out, NAME, dataclasses.asdict(cfg), selection=("traverses",),
+                        legacy=LEGACY)
+        for i in range(1, cfg.traverses):  # traverse 0 is recomputed for the figures
+            row = st.read_json(f"traverse_{i}.json", _ROW_FIELDS,
+                               check=lambda r, i=i: (r["traverse"] == i
+                                                     and len(r["removed_pct"]) == cfg.images))
+            if row is not None:
+                stored[i] = row
+        return [i not in stored for i in range(cfg.traverses)]
+
+    try:
+        mask = distributed.decide(cluster, cfg.traverses, left)
+        todo = [i for i in range(cfg.traverses) if mask[i]]
+
+        def compute(i):
+            row, tr, nav = _traverse(cfg, i)
+            if i == 0 and st is not None:  # map_units gives item 0 to process 0
+                _plots(st.out, cfg, tr, nav)
+            return row
+
+        new = distributed.map_units(compute, todo, cluster, codec="json")
+        for k, row in tqdm(new, total=len(todo), desc=NAME,
+                           disable=no_progress or not cluster.is_main):
+            if st is not None:
+                st.write_json(f"traverse_{todo[k]}.json", row, indent=None)
+                stored[todo[k]] = row
+        if st is None:
+            return []
+        rows = [stored[i] for i in range(cfg.traverses)]
+        _write_report(out, cfg, rows, st)
+        st.write_results_csv(tidy_rows(rows, unit=lambda r: f"traverse_{r['traverse']}",
+                                       skip=("traverse",)))
+        return rows
+    finally:
+        if st is not None:
+            st.close()
+
+
+def _traverse(cfg: Config, i: int) -> tuple[dict, dict, dict]:
+    """Traverse ``i``'s stored row, with its traverse and navigation results (for figures)."""
+    tr = run_traverse(cfg, i)
+    nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
+    row = {"traverse": i, "wall_s": tr["wall"],
+           "removed_pct": tr["met"]["removed_pct"].tolist(),
+           "constrained_pct": tr["met"]["constrained_pct"].tolist(),
+           "not_adjacent_pct": tr["met"]["not_adjacent_pct"].tolist(),
+           "rng_cost": tr["met"]["rng_cost"].tolist(),
+           "truth_kept": bool(tr["met"]["truth_kept"].all()),
+           "nav_estimated": nav["estimated"], "nav_true": nav["true"]}
+    return row, tr, nav
 
 
 def _write_report(out: Path, cfg: Config, rows: list[dict], st) -> None:

@@ -4,7 +4,10 @@ Runs the camera QRM on random 30-landmark layouts with 50 imaging poses, measuri
 nearest landmarks per pose for n ∈ {6, 9, 12, 18, 24, 30}, and reports the M§VIII.A metrics
 per image; every finished (n, run) is stored, so a killed study resumes.
 
-Setup, metrics and engineering: docs/studies.md §mcclelland-mc.
+Setup, metrics and engineering: docs/studies.md §mcclelland-mc. As N processes on
+``jax.distributed`` (``--coordinator/--processes/--process-id``, the environment or Slurm;
+:mod:`pqrm_jax.studies.distributed`) the (n, run) units are split over the processes and
+process 0 alone writes them (the old ``--shard I/K`` is removed).
 """
 
 from __future__ import annotations
@@ -70,19 +73,45 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
     return np.asarray(out)
 
 
-def run_study(cfg: Config, out: Path, progress: bool = True,
-              shard: tuple[int, int] = (0, 1)) -> None:
-    """Run (and resume) the study; ``shard=(i, k)`` does only the runs r with r % k == i, so
-    k processes (or machines sharing ``out``) can split it; every run is its own file,
-    written atomically and read back in full (a corrupt one is set aside and recomputed).
-    The shards share the study lock; the same shard twice, or an unsharded run beside them,
-    is refused."""
+def run_study(cfg: Config, out: Path, progress: bool = True, cluster=None) -> None:
+    """Run (and resume) the study into ``out``; every (n, run) is its own file, written
+    atomically and read back in full (a corrupt one is set aside and recomputed).
+
+    With a multi-process ``cluster`` (:mod:`.distributed`, already initialised) every process
+    calls this with the same ``cfg``: differing configs are refused on every process, process
+    0 alone opens the store and lists the units left, the processes compute them in rounds
+    (process p the p-th unit of each round, :func:`.distributed.map_units`) and process 0
+    writes each one; the stored runs are those of one process bit for bit, except the
+    measured times ``wall`` and ``update_time``.
+    """
+    from tqdm.auto import tqdm
+
+    from . import distributed
     from .store import Store
 
-    with Store.open(out, NAME, dataclasses.asdict(cfg),
-                    selection=("runs", "ns", "timed_runs", "exact_sample"),
-                    legacy=LEGACY, shard=shard) as st:
-        _run_units(cfg, st, progress, shard)
+    cluster = cluster or distributed.current()
+    distributed.agree(cluster, dataclasses.asdict(cfg), f"{NAME} config")
+    units = [(n, r) for n in cfg.ns for r in range(cfg.runs)]
+    st = None
+
+    def left():
+        nonlocal st
+        st = Store.open(out, NAME, dataclasses.asdict(cfg),
+                        selection=("runs", "ns", "timed_runs", "exact_sample"), legacy=LEGACY)
+        return [st.read_npz(f"runs/n{n}_r{r}.npz", RUN_FIELDS) is None for n, r in units]
+
+    try:
+        mask = distributed.decide(cluster, len(units), left)
+        todo = [u for u, m in zip(units, mask, strict=True) if m]
+        done = distributed.map_units(lambda u: run_unit(cfg, *u), todo, cluster, codec="npz")
+        for i, rec in tqdm(done, total=len(todo), desc=NAME,
+                           disable=not progress or not cluster.is_main):
+            if st is not None:
+                n, r = todo[i]
+                st.write_npz(f"runs/n{n}_r{r}.npz", rec, compressed=False)  # atomic
+    finally:
+        if st is not None:
+            st.close()
 
 
 LEGACY = ("config.json", "runs", "report.md", "fig7.png", "summary.json", "study.json",
@@ -91,29 +120,20 @@ RUN_FIELDS = ("removed_pct", "constrained_pct", "not_adjacent_pct", "rng_cost", 
               "first_proven", "truth_kept", "inconsistent", "wall")
 
 
-def _run_units(cfg: Config, st, progress: bool, shard: tuple[int, int]) -> None:
-    from tqdm.auto import tqdm
-
+def run_unit(cfg: Config, n: int, r: int) -> dict[str, np.ndarray]:
+    """The stored record of run ``r`` measuring the ``n`` nearest landmarks per image."""
     from pqrm_jax.qrm import pipeline as P
 
-    i_shard, k_shard = shard
-
-    def done(n, r):
-        return st.read_npz(f"runs/n{n}_r{r}.npz", RUN_FIELDS) is not None
-
-    todo = [(n, r) for n in cfg.ns for r in range(cfg.runs)
-            if r % k_shard == i_shard and not done(n, r)]
-    for n, r in tqdm(todo, desc=NAME, disable=not progress):
-        lm, poses = _layout(cfg, r)
-        t0 = time.perf_counter()
-        m, met = P.run_sequence(lm, poses, n, "edc")
-        jax.block_until_ready(m.rel)
-        wall = time.perf_counter() - t0
-        rec = {f: np.asarray(getattr(met, f)) for f in met._fields}
-        rec["wall"] = np.asarray(wall)
-        if r < cfg.timed_runs:
-            rec["update_time"] = _time_updates(cfg, lm, poses, n)
-        st.write_npz(f"runs/n{n}_r{r}.npz", rec, compressed=False)  # atomic
+    lm, poses = _layout(cfg, r)
+    t0 = time.perf_counter()
+    m, met = P.run_sequence(lm, poses, n, "edc")
+    jax.block_until_ready(m.rel)
+    wall = time.perf_counter() - t0
+    rec = {f: np.asarray(getattr(met, f)) for f in met._fields}
+    rec["wall"] = np.asarray(wall)
+    if r < cfg.timed_runs:
+        rec["update_time"] = _time_updates(cfg, lm, poses, n)
+    return rec
 
 
 def exact_first_image(cfg: Config, n: int) -> dict:
@@ -309,16 +329,10 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
     p.add_argument("--report-only", action="store_true")
     p.add_argument("--no-progress", action="store_true")
-    p.add_argument("--shard", default="0/1", metavar="I/K",
-                   help="only runs r with r %% K == I (split a study over K processes)")
+    from . import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
-    try:
-        shard = tuple(int(x) for x in a.shard.split("/"))
-        if len(shard) != 2 or not 0 <= shard[0] < shard[1]:
-            raise ValueError
-    except ValueError:
-        print(f"--shard must be I/K with 0 <= I < K, got {a.shard!r}", file=sys.stderr)
-        return 2
     cfg = Config(**REDUCED) if a.reduced else Config()
     for k in ("runs", "images", "exact_sample"):
         if getattr(a, k) is not None:
@@ -335,7 +349,10 @@ def main(argv: list[str]) -> int:
         with Store.open(out, NAME, None, legacy=LEGACY):
             summary = report(out, cfg)
     else:
-        run_study(cfg, out, progress=not a.no_progress, shard=shard)
+        cluster = distributed.initialize_from(a)  # before any JAX computation
+        run_study(cfg, out, progress=not a.no_progress, cluster=cluster)
+        if not cluster.is_main:
+            return 0
         summary = report(out, cfg)
     for n, s in summary.items():
         print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "

@@ -60,7 +60,8 @@ class Config:
     max_range: float = 60.0
     representations: tuple[str, ...] = REPS
     seed: int = 0
-    chunk_runs: int = 250
+    #: runs per compiled call; None sizes it from the device's memory (:func:`auto_chunk_runs`)
+    chunk_runs: int | None = None
     max_error_points: int = 4000
 
     def sigma_levels(self) -> list[dict]:
@@ -270,20 +271,80 @@ def compiled_runner(cfg: Config, *, dense: bool = False):
     return _COMPILED[key]
 
 
+PROBE_LANES = 1  # runs per device of the program whose size bounds one run's memory
+FALLBACK_CHUNK = 250  # runs per call when neither the device nor the OS reports its memory
+_AOT: dict = {}
+
+
+def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
+                  memory_bytes: int | None = None):
+    """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached.
+
+    Compiled ahead of time so that its size (XLA's memory analysis) is checked against the
+    device's memory before anything runs: a chunk needing more than
+    :data:`~pqrm_jax.studies.chunking.FRACTION` of ``memory_bytes`` (default: what the
+    device has available) is refused with a message naming ``--chunk-runs``.
+    """
+    from . import chunking
+
+    _, batched, sharding = compiled_runner(cfg, dense=dense)
+    key = (id(batched), chunk)
+    if key not in _AOT:
+        if len(_AOT) > 4:
+            _AOT.clear()
+        keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
+        _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
+    compiled = _AOT[key][1]
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    chunking.check_fits(chunking.program_bytes(compiled), budget, option="--chunk-runs",
+                        what=f"{NAME}: a chunk of {chunk} runs "
+                             f"({chunk // len(jax.local_devices())} per device)")
+    return compiled, sharding
+
+
+def auto_chunk_runs(cfg: Config, *, memory_bytes: int | None = None) -> int:
+    """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
+
+    One run's bytes are bounded by the compiled program of :data:`PROBE_LANES` run per device
+    (XLA's memory analysis; its fixed part counted for every run, so ``n`` runs need at most
+    ``n`` times it), then
+    :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of runs per
+    device that fits, capped at ``cfg.runs``. Without memory figures (no device statistics,
+    no OS figure) it falls back to :data:`FALLBACK_CHUNK`.
+    """
+    from . import chunking
+
+    ndev = len(jax.local_devices())
+    per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
+    probe = dataclasses.replace(cfg, chunk_runs=per_device * ndev)
+    compiled, _ = chunk_program(probe, per_device * ndev, memory_bytes=memory_bytes)
+    nbytes = chunking.program_bytes(compiled)
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    if not nbytes or budget is None:
+        return FALLBACK_CHUNK
+    return chunking.pick_chunk(nbytes / per_device, budget, total=cfg.runs, devices=ndev)
+
+
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
-              dense: bool = False, cluster=None) -> dict:
+              dense: bool = False, cluster=None, memory_bytes: int | None = None) -> dict:
     """All runs of one noise level, sharded over devices, in chunks; returns numpy results.
 
     With a multi-process ``cluster`` (:mod:`.distributed`) process ``p`` of ``K`` computes the
     chunks ``c`` with ``c % K == p`` — each chunk exactly as a one-process run computes it
     (same runs, padding, per-device batch and compiled program) — and the chunks are gathered
-    on every process, so the result is bit-identical to a one-process run.
+    on every process, so the result is bit-identical to a one-process run. ``chunk_runs=None``
+    sizes the chunks from the device memory (:func:`auto_chunk_runs`; ``memory_bytes``
+    overrides what the device reports); a chunk that does not fit fails before it runs, with
+    a message naming ``--chunk-runs``.
     """
     from . import distributed
 
     cluster = cluster or distributed.Cluster(0, 1, None)
-    _, batched, sharding = compiled_runner(cfg, dense=dense)
+    if cfg.chunk_runs is None:
+        cfg = dataclasses.replace(cfg, chunk_runs=auto_chunk_runs(cfg,
+                                                                  memory_bytes=memory_bytes))
     chunk = layout(cfg)["chunk"]
+    batched, sharding = chunk_program(cfg, chunk, dense=dense, memory_bytes=memory_bytes)
     base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
     starts = list(range(0, cfg.runs, chunk))
     mine = distributed.share(len(starts), cluster)
@@ -410,6 +471,8 @@ def layout(cfg: Config) -> dict:
     the effective chunk and the device count are stored in the config (a resume with
     another layout is refused instead of mixing bits).
     """
+    if cfg.chunk_runs is None:
+        raise ValueError("layout needs an explicit chunk_runs (see auto_chunk_runs)")
     ndev = len(jax.local_devices())  # per process: the split over processes is bit-neutral
     chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
     return {"chunk": chunk, "devices": ndev}
@@ -431,8 +494,39 @@ def results_rows(lines: list[dict]) -> list[tuple[str, str, float]]:
     return tidy_rows(lines, unit=lambda r: f"level_{r['level']:02d}", skip=("level",))
 
 
+def _stored_chunk(out: Path) -> int | None:
+    """The chunk of the layout stored in ``out/config.json`` (None when there is none)."""
+    try:
+        chunk = json.loads((Path(out) / "config.json").read_text())["layout"]["chunk"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return chunk if isinstance(chunk, int) and chunk >= 1 else None
+
+
+def resolve_chunk(cfg: Config, out: Path, *, fresh: bool = False, cluster=None,
+                  memory_bytes: int | None = None) -> Config:
+    """``cfg`` with an explicit ``chunk_runs``, the same on every process.
+
+    Given by the user: kept. Else process 0 reuses the chunk stored in ``out`` (a resume
+    keeps its layout, hence its float bits, whatever the free memory is now) or sizes a new
+    one from the device memory (:func:`auto_chunk_runs`), and broadcasts it.
+    """
+    from . import distributed
+
+    if cfg.chunk_runs is not None:
+        return cfg
+    cluster = cluster or distributed.current()
+
+    def choose():
+        stored = None if fresh else _stored_chunk(out)
+        return [stored or auto_chunk_runs(cfg, memory_bytes=memory_bytes)]
+
+    chunk = int(distributed.decide(cluster, 1, choose)[0])
+    return dataclasses.replace(cfg, chunk_runs=chunk)
+
+
 def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = False,
-              store=None, cluster=None) -> list[dict]:
+              store=None, cluster=None, memory_bytes: int | None = None) -> list[dict]:
     """Run (or resume) the study into ``out``; returns the level summaries.
 
     Every level is its own unit: ``level_XX.npz`` then its line in ``levels.jsonl``, both
@@ -441,12 +535,16 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
     calls this with the same arguments: the configs are compared (a differing one is refused
     on every process), process 0 alone opens the store and decides which levels are left,
     every process computes its chunks of each level (:func:`run_level`) and process 0 writes.
+    ``cfg.chunk_runs=None`` takes the stored chunk or one sized from the device memory
+    (:func:`resolve_chunk`; ``memory_bytes`` overrides the device's figure); a chunk that does
+    not fit is refused before it runs, naming ``--chunk-runs``.
     """
     from tqdm.auto import tqdm
 
     from . import distributed
 
     cluster = cluster or distributed.current()
+    cfg = resolve_chunk(cfg, out, fresh=fresh, cluster=cluster, memory_bytes=memory_bytes)
     distributed.agree(cluster, dict(cfg.to_json(), layout=layout(cfg)), "padgett-mc config")
     levels = cfg.sigma_levels()
     st = log = None
@@ -480,7 +578,8 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
         t0 = time.perf_counter()
         for i in todo:
             bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-            res = run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster)
+            res = run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster,
+                            memory_bytes=memory_bytes)
             if cluster.is_main:
                 line, arrays = summarise_level(cfg, levels[i], res, i)
                 st.write_npz(f"level_{i:02d}.npz", arrays)
@@ -509,7 +608,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="samples per triplet per update (default 256)")
     p.add_argument("--landmarks", type=int, help="landmarks per world (default 10)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--chunk-runs", type=int, help="runs per compiled call (memory/progress)")
+    p.add_argument("--chunk-runs", type=int,
+                   help="runs per compiled call (default: sized from the device memory)")
     p.add_argument("--out", default="out/padgett-mc", help="output directory")
     p.add_argument("--reduced", action="store_true",
                    help="quick preset: 100 runs per level (a few minutes on 2 cores)")
@@ -549,7 +649,7 @@ def configure(argv: list[str], overrides: dict | None = None
     overrides = dict(overrides or {})
     cfg = dataclasses.replace(cfg, **overrides)
     for flag, attr, lo, why in bounds:
-        if getattr(cfg, attr) < lo:
+        if getattr(cfg, attr) is not None and getattr(cfg, attr) < lo:  # chunk_runs: None=auto
             p.error(f"{attr if attr in overrides else flag} must be ≥ {lo}{why}, "
                     f"got {getattr(cfg, attr)}")
     for attr in ("max_range", "dtheta_deg", "world_size", "loop_radius", "max_sigma_r"):
@@ -589,6 +689,7 @@ def main(argv: list[str] | None = None) -> int:
         with Store.open(out, NAME, None, legacy=LEGACY):
             path = write_report(out)
     else:
+        cfg = resolve_chunk(cfg, out, fresh=args.fresh, cluster=cluster)
         with open_store(cfg, out, fresh=args.fresh) as st:
             run_study(cfg, out, quiet=args.quiet, store=st)
             path = write_report(out)
@@ -600,5 +701,6 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "summarise_level",
-           "memory_error", "load_results", "main", "boundary_distance"]
+__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk_runs",
+           "resolve_chunk", "chunk_program", "summarise_level", "memory_error", "load_results",
+           "main", "boundary_distance"]

@@ -8,6 +8,10 @@ rate (P Fig. 3.7), example maps (P Fig. 3.8) and ``report.md`` against the publi
 Results are appended to ``results.jsonl`` one evaluation at a time; a rerun with the same
 ``--out`` skips what is done (an interrupted study resumes). ``--reduced`` runs a subset
 (2 folds, a few μ and σ values, fewer trials and samples) in about a minute or two.
+As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
+environment or Slurm; :mod:`pqrm_jax.studies.distributed`) the solves are split over the
+processes and process 0 alone writes them (the same results as one process, except the
+measured ``seconds``).
 """
 
 from __future__ import annotations
@@ -41,6 +45,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--datasets", default="well_separated,hallway,lab")
     p.add_argument("--grid", type=int, default=None, help="grid cells per axis (96; 64 reduced)")
     p.add_argument("--seed", type=int, default=0)
+    from . import distributed
+
+    distributed.add_arguments(p)
     return p
 
 
@@ -94,37 +101,59 @@ def main(argv: list[str] | None = None) -> int:
     if unknown or not datasets:
         parser.error(f"--datasets: unknown {unknown or datasets}; known: "
                      f"{', '.join(sorted(_scenes_mod.SCENES))}")
+    from . import distributed
+
+    cluster = distributed.initialize_from(args)  # before any JAX computation
     meta = {"reduced": args.reduced, "folds": args.folds, "folds_run": folds_run,
             "grid": n_grid, "seed": args.seed, "trials": args.trials,
-            "devices": str(jax.devices())}
-    with Store.open(out, NAME, meta, selection=("folds_run", "devices"),
-                    legacy=("meta.json", "results.jsonl", "report.md", "fig_*.png",
-                            "config.json", "study.json", "results.csv", "*.corrupt"),
-                    legacy_config="meta.json") as st:
-        meta = st.config
+            "devices": str(jax.local_devices())}
+    # every process: the same scenes, grids and unit list; the devices may differ
+    distributed.agree(cluster, dict(meta, devices=None, datasets=datasets), "serge config")
+    scenes, grids, units = {}, {}, []
+    for d in datasets:
+        sc = _scene(d, args.reduced, args.seed)
+        scenes[d], grids[d] = sc, _grid(sc, n_grid)
+        units += [(d, f, sweep, mu, sigma) for f in folds_run
+                  for sweep, mu, sigma in _plan(sc.k, args.reduced)]
+    st = log = None
+
+    def left():
+        nonlocal st, log
+        st = Store.open(out, NAME, meta, selection=("folds_run", "devices"),
+                        legacy=("meta.json", "results.jsonl", "report.md", "fig_*.png",
+                                "config.json", "study.json", "results.csv", "*.corrupt"),
+                        legacy_config="meta.json")
         log = st.records("results.jsonl", key=_key, required=_FIELDS)
-        scenes, grids, tasks = {}, {}, []
-        for d in datasets:
-            sc = _scene(d, args.reduced, args.seed)
-            scenes[d], grids[d] = sc, _grid(sc, n_grid)
-            for f in folds_run:
-                for sweep, mu, sigma in _plan(sc.k, args.reduced):
-                    if (d, sweep, mu, sigma, f) not in log:
-                        tasks.append((d, f, sweep, mu, sigma))
-        folds_cache: dict = {}
-        for d, f, sweep, mu, sigma in tqdm(tasks, desc="serge study", unit="solve"):
-            sc = scenes[d]
-            if (d, f) not in folds_cache:
-                folds_cache.clear()
-                folds_cache[(d, f)] = make_fold(sc, grids[d], sc.folds(args.folds, args.seed), f,
-                                                jax.random.PRNGKey(1000 * args.seed + f))
-            trials = args.trials or (4 if args.reduced else 20) * sc.k
-            t0 = time.perf_counter()
-            seed = zlib.crc32(f"{d}/{sweep}/{mu}/{sigma}/{f}".encode()) % 2**31
-            r = evaluate(folds_cache[(d, f)], mu, sigma, jax.random.PRNGKey(seed), trials)
-            r.update(dataset=d, sweep=sweep, mu=mu, sigma=sigma, fold=f, trials=trials,
-                     seconds=time.perf_counter() - t0)
-            log.add(r)
+        return [(d, sweep, mu, sigma, f) not in log for d, f, sweep, mu, sigma in units]
+
+    folds_cache: dict = {}
+
+    def solve(task):
+        d, f, sweep, mu, sigma = task
+        sc = scenes[d]
+        if (d, f) not in folds_cache:
+            folds_cache.clear()
+            folds_cache[(d, f)] = make_fold(sc, grids[d], sc.folds(args.folds, args.seed), f,
+                                            jax.random.PRNGKey(1000 * args.seed + f))
+        trials = args.trials or (4 if args.reduced else 20) * sc.k
+        t0 = time.perf_counter()
+        seed = zlib.crc32(f"{d}/{sweep}/{mu}/{sigma}/{f}".encode()) % 2**31
+        r = evaluate(folds_cache[(d, f)], mu, sigma, jax.random.PRNGKey(seed), trials)
+        r.update(dataset=d, sweep=sweep, mu=mu, sigma=sigma, fold=f, trials=trials,
+                 seconds=time.perf_counter() - t0)
+        return r
+
+    try:
+        mask = distributed.decide(cluster, len(units), left)
+        tasks = [u for u, m in zip(units, mask, strict=True) if m]
+        for _, r in tqdm(distributed.map_units(solve, tasks, cluster, codec="json"),
+                         total=len(tasks), desc="serge study", unit="solve",
+                         disable=not cluster.is_main):
+            if log is not None:
+                log.add(r)
+        if st is None:
+            return 0
+        meta = st.config
         rows = [r for r in log.values() if r["dataset"] in datasets and r["fold"] in folds_run]
         summary = _summarise(rows)
         _figures(summary, scenes, grids, out, args)
@@ -132,6 +161,9 @@ def main(argv: list[str] | None = None) -> int:
         st.write_results_csv(tidy_rows(
             rows, unit=lambda r: "/".join(str(r[k]) for k in _KEY),
             skip=(*_KEY, "trials", "seconds")))
+    finally:
+        if st is not None:
+            st.close()
     print(f"wrote {out / 'report.md'}")
     return 0
 

@@ -5,9 +5,8 @@ resume and inspect:
 
 * **lock** — an exclusive ``fcntl.flock`` on ``out/.lock`` is held while the store is open, so
   a second process on the same directory is refused with a message instead of computing
-  every unit twice and appending duplicates. (Sharded studies take a *shared* lock on
-  ``.lock`` plus an exclusive one on ``.lock.shard-I-of-K``: the K shards of one study may
-  run together, the same shard twice may not, nor an unsharded run beside them.)
+  every unit twice and appending duplicates. (A multi-process study,
+  :mod:`pqrm_jax.studies.distributed`, opens the store in process 0 only.)
 * **study marker** — ``out/study.json`` names the study; a directory of another study, or a
   non-empty directory of files the study does not know, is refused.
 * **config guard** — ``out/config.json`` holds every setting that changes results, plus the
@@ -429,7 +428,7 @@ class Store:
     @classmethod
     def open(cls, out: str | Path, study: str, config: dict | None, *,
              selection: tuple[str, ...] = (), legacy: tuple[str, ...] = (),
-             fresh: bool = False, shard: tuple[int, int] | None = None,
+             fresh: bool = False,
              legacy_config: str | None = None, legacy_assume: tuple[str, ...] = (),
              advice: str = "use another --out") -> Store:
         """Lock ``out``, check it holds ``study`` and guard ``config``; returns the store.
@@ -445,7 +444,6 @@ class Store:
                 marker; a directory holding only such files is adopted, any other
                 non-empty unmarked directory is refused.
             fresh: delete the stored results of this study first (after the checks).
-            shard: ``(i, k)`` for one of k processes sharing ``out`` (shared main lock).
             legacy_config: the file an older version kept its config in (e.g.
                 ``"meta.json"``); read as the stored config of an adopted directory.
             legacy_assume: fields an older version did not record (``"precision"`` always):
@@ -463,7 +461,7 @@ class Store:
             raise StoreError(f"--out {out} does not exist: no {study} results to read")
         try:
             out.mkdir(parents=True, exist_ok=True)
-            fds = cls._lock(out, shard)
+            fds = cls._lock(out)
         except PermissionError as exc:
             raise StoreError(f"--out {out} is not writable ({exc.strerror}); {advice}") \
                 from None
@@ -498,29 +496,20 @@ class Store:
         return cls(out, study, cfg, fds)
 
     @staticmethod
-    def _lock(out: Path, shard: tuple[int, int] | None) -> list[int]:
+    def _lock(out: Path) -> list[int]:
         if fcntl is None:  # pragma: no cover
             return []
-        fds = []
-        plan = [(".lock", fcntl.LOCK_EX if shard is None or shard[1] == 1 else fcntl.LOCK_SH)]
-        if shard is not None and shard[1] > 1:
-            plan.append((f".lock.shard-{shard[0]}-of-{shard[1]}", fcntl.LOCK_EX))
-        for name, mode in plan:
-            fd = os.open(out / name, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                fcntl.flock(fd, mode | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                Store._unlock(fds)
-                what = "this shard of it" if name != ".lock" and shard else "it"
-                raise StoreError(f"{out} is in use by another process running {what} "
-                                 f"(lock {out / name} is held); wait for it to finish or use "
-                                 "another --out") from None
-            if mode == fcntl.LOCK_EX:
-                os.ftruncate(fd, 0)
-                os.write(fd, f"{os.getpid()}\n".encode())
-            fds.append(fd)
-        return fds
+        fd = os.open(out / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise StoreError(f"{out} is in use by another process running it (lock "
+                             f"{out / '.lock'} is held); wait for it to finish or use another "
+                             "--out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        return [fd]
 
     @staticmethod
     def _unlock(fds: list[int]) -> None:
@@ -556,7 +545,7 @@ class Store:
         for p in out.rglob(".*.tmp-*"):
             try:
                 pid = int(p.name.rsplit("-", 1)[1])
-                os.kill(pid, 0)  # alive (e.g. another shard writing): keep
+                os.kill(pid, 0)  # alive (another process writing): keep
             except ProcessLookupError:
                 p.unlink(missing_ok=True)
             except (ValueError, PermissionError, OSError):

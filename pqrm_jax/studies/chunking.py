@@ -1,0 +1,145 @@
+"""Chunk sizes from the device's memory: how many lanes (runs) one compiled call may take.
+
+A study that maps many independent runs in one compiled call (padgett-mc's chunks of runs)
+sizes the call from what the device can hold instead of a constant tuned for one machine:
+
+1. :func:`available_bytes` — the memory one device may use now: ``bytes_limit -
+   bytes_in_use`` of ``device.memory_stats()`` where the backend reports it (GPU, TPU), else
+   the host's available RAM (``MemAvailable`` of ``/proc/meminfo``, else ``os.sysconf``)
+   shared by this process's local devices;
+2. :func:`program_bytes` — what XLA's buffer assignment says a compiled program needs per
+   device (arguments + outputs + temporaries, ``Compiled.memory_analysis()``);
+3. :func:`pick_chunk` — from a per-lane bound (a one-lane probe program's bytes: its fixed
+   part is then counted once per lane, so ``n`` lanes need at most ``n`` times it) the largest
+   power-of-two number of lanes per device whose bytes stay under ``FRACTION`` of the
+   budget, capped at the work there is. Powers of two keep the choice stable when the free
+   memory moves a little, so two runs of one study on one machine pick the same chunk
+   (the chunk changes float bits, so a study stores it and reuses it on resume);
+4. :func:`check_fits` — a chosen (or user-given) chunk whose program needs more than the
+   budget fails with a :class:`~pqrm_jax.studies.store.StudyError` naming the chunk option,
+   before anything runs.
+
+The budget can be passed explicitly (``memory_bytes``) for tests and for users who share a
+device; nothing here mocks JAX.
+
+>>> pick_chunk(per_lane_bytes=1 << 20, budget_bytes=100 << 20, total=1000, devices=1)
+32
+>>> pick_chunk(1 << 20, 100 << 20, total=20, devices=4)  # capped at the work: 5 lanes each
+20
+>>> check_fits(3 << 30, 1 << 30, option="--chunk-runs", what="a chunk of 64 runs")
+Traceback (most recent call last):
+...
+pqrm_jax.studies.store.StudyError: a chunk of 64 runs needs about 3072 MiB per device but \
+FRACTION = 0.5 of the 1024 MiB available is 512 MiB; lower --chunk-runs
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+__all__ = ["FRACTION", "available_bytes", "check_fits", "pick_chunk", "program_bytes"]
+
+#: share of a device's available memory one chunk may use: XLA's own runtime buffers, the
+#: host-side copies of the results and other processes on the machine need the rest
+FRACTION = 0.5
+
+
+def _host_available() -> int | None:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return None
+
+
+def available_bytes(device: Any = None) -> int | None:
+    """Bytes one device may still allocate (None when neither the device nor the OS says).
+
+    A device that reports ``memory_stats()`` (GPU, TPU) gives ``bytes_limit - bytes_in_use``;
+    the CPU backend reports none, so the host's available RAM is shared by the local devices
+    (several forced host devices live in the same RAM).
+    """
+    import jax
+
+    device = device or jax.local_devices()[0]
+    try:
+        stats = device.memory_stats()
+    except Exception:  # noqa: BLE001  (backends without the call raise various errors)
+        stats = None
+    if stats and stats.get("bytes_limit"):
+        return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+    host = _host_available()
+    if host is None:
+        return None
+    same = [d for d in jax.local_devices() if d.platform == device.platform]
+    return host // max(len(same), 1)
+
+
+def program_bytes(compiled: Any) -> int | None:
+    """Arguments + outputs + temporaries of a compiled program, per device (XLA's analysis).
+
+    None when the backend gives no analysis.
+    """
+    try:
+        m = compiled.memory_analysis()
+    except Exception:  # noqa: BLE001  (not implemented on every backend)
+        return None
+    if m is None:
+        return None
+    return int(m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+               - m.alias_size_in_bytes)
+
+
+def pick_chunk(per_lane_bytes: float, budget_bytes: int, *, total: int, devices: int,
+               fraction: float = FRACTION, option: str = "--chunk-runs") -> int:
+    """Lanes per call: ``devices`` × the largest power of two of lanes per device that fits.
+
+    Args:
+        per_lane_bytes: estimated bytes of one lane on one device.
+        budget_bytes: bytes one device may use (:func:`available_bytes`).
+        total: the lanes there are (the chunk is capped at ``total`` rounded up to a
+            multiple of ``devices``).
+        devices: devices one call is sharded over.
+        fraction: share of the budget one call may use.
+        option: the command-line option that sets the chunk by hand (named in errors).
+
+    Raises:
+        StudyError: not even one lane per device fits.
+    """
+    if per_lane_bytes <= 0 or budget_bytes is None:
+        raise ValueError(f"need a positive per-lane estimate and a budget, got "
+                         f"{per_lane_bytes} and {budget_bytes}")
+    per_device = int(fraction * budget_bytes // per_lane_bytes)
+    if per_device < 1:
+        from .store import StudyError
+
+        raise StudyError(f"one lane needs about {per_lane_bytes / 2**20:.0f} MiB per device but "
+                         f"FRACTION = {fraction:g} of the {budget_bytes / 2**20:.0f} MiB "
+                         f"available is {fraction * budget_bytes / 2**20:.0f} MiB; the device "
+                         f"is too small for this configuration ({option} cannot go below "
+                         f"one run per device)")
+    need = -(-total // devices)
+    lanes = 1 << (per_device.bit_length() - 1)  # largest power of two <= per_device
+    return devices * min(lanes, need)
+
+
+def check_fits(nbytes: int | None, budget_bytes: int | None, *, option: str, what: str,
+               fraction: float = FRACTION) -> None:
+    """Refuse a program needing more than ``fraction`` of the budget (message names option).
+
+    Nothing is checked when either number is unknown (None).
+    """
+    if nbytes is None or budget_bytes is None or nbytes <= fraction * budget_bytes:
+        return
+    from .store import StudyError
+
+    raise StudyError(f"{what} needs about {nbytes / 2**20:.0f} MiB per device but FRACTION = "
+                     f"{fraction:g} of the {budget_bytes / 2**20:.0f} MiB available is "
+                     f"{fraction * budget_bytes / 2**20:.0f} MiB; lower {option}")
