@@ -548,31 +548,21 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
     distributed.agree(cluster, dict(cfg.to_json(), layout=layout(cfg)), "padgett-mc config")
     levels = cfg.sigma_levels()
     st = log = None
-    status = np.zeros(len(levels) + 1, np.int32)  # [opened ok, level i left to do...]
-    failure = None
-    if cluster.is_main:
-        try:
-            st = store if store is not None else open_store(cfg, out, fresh=fresh)
-            log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
-                             check=level_check(len(levels)))
-            req = npz_required(cfg.representations)
-            for i in list(log.done):
-                if st.read_npz(f"level_{i:02d}.npz", req) is None:
-                    log.discard(i)
-            status[0] = 1
-            status[1:] = [i not in log for i in range(len(levels))]
-        except BaseException as exc:  # tell the other processes before failing
-            failure = exc
-    status = distributed.broadcast(status, cluster)
-    if failure is not None:
-        raise failure
-    if not status[0]:
-        from .store import StudyError
 
-        raise StudyError(f"{NAME}: process 0 could not open the study store in {out}; "
-                         "see its error")
+    def prepare():  # process 0 only: open the store, check the records, list the levels left
+        nonlocal st, log
+        st = store if store is not None else open_store(cfg, out, fresh=fresh)
+        log = st.records("levels.jsonl", key=lambda r: r["level"], required=LINE_FIELDS,
+                         check=level_check(len(levels)))
+        req = npz_required(cfg.representations)
+        for i in list(log.done):
+            if st.read_npz(f"level_{i:02d}.npz", req) is None:
+                log.discard(i)
+        return [i not in log for i in range(len(levels))]
+
     try:
-        todo = [i for i in range(len(levels)) if status[1 + i]]
+        left = distributed.decide(cluster, len(levels), prepare)
+        todo = [i for i in range(len(levels)) if left[i]]
         bar = tqdm(total=len(todo) * cfg.runs, desc="padgett-mc runs", unit="run",
                    disable=quiet or not cluster.is_main, file=sys.stderr)
         t0 = time.perf_counter()

@@ -230,7 +230,7 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     Returns None on processes other than 0 of a multi-process run (they write nothing).
     """
     from . import distributed
-    from .store import Store, StudyError
+    from .store import Store
 
     _check_protocol(module)
     specs, rest = split_argv(argv)
@@ -260,26 +260,18 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     cluster = distributed.initialize_from(args)  # before any JAX computation
     distributed.agree(cluster, guard, f"{module.NAME} sweep")
     st = log = None
-    status = np.zeros(len(cells) + 1, np.int32)  # [opened ok, cell i left to do, ...]
-    failure = None
-    if cluster.is_main:
-        try:
-            st = Store.open(out, sweep_study, guard, fresh=getattr(args, "fresh", False),
-                            advice="use another --out or --fresh")
-            log = _records(st)
-            status[0] = 1
-            status[1:] = [cell_name(c) not in log for c in cells]
-        except BaseException as exc:  # tell the other processes before failing
-            failure = exc
-    status = distributed.broadcast(status, cluster)
-    if failure is not None:
-        raise failure
-    if not status[0]:
-        raise StudyError(f"{sweep_study}: process 0 could not open the sweep store in {out}; "
-                         "see its error")
+
+    def prepare():  # process 0 only: open the sweep store, list the cells left
+        nonlocal st, log
+        st = Store.open(out, sweep_study, guard, fresh=getattr(args, "fresh", False),
+                        advice="use another --out or --fresh")
+        log = _records(st)
+        return [cell_name(c) not in log for c in cells]
+
     quiet = getattr(args, "quiet", False)
     try:
-        todo = [i for i in range(len(cells)) if status[1 + i]]
+        left = distributed.decide(cluster, len(cells), prepare)
+        todo = [i for i in range(len(cells)) if left[i]]
         if cluster.is_main and not quiet:
             print(f"{sweep_study}: {len(cells)} cells, {len(cells) - len(todo)} already done",
                   file=sys.stderr)
