@@ -224,7 +224,8 @@ def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
 # the other Monte Carlo studies on distributed.map_units: 2 processes vs 1
 # --------------------------------------------------------------------------------------
 
-_TIMING = ("wall", "update_time", "seconds", "_time", "time_")  # measured, differ per run
+_TIMING = ("wall", "update_time", "seconds", "_time", "time_", "explore_s", "map_s",
+           "setting_s")  # measured, differ per run
 
 
 def _timed(name: str) -> bool:
@@ -408,3 +409,36 @@ def test_map_units_failure_on_one_process_is_raised_on_every_process():
         assert r.returncode == 0, r.stderr[-2000:]
         assert r.stdout.strip().splitlines()[-1] == (
             "refused: process 1 failed on item 3: ValueError: bad unit 3")
+
+
+@pytest.mark.slow
+def test_hssh_localization_two_processes_equal_one(tmp_path):
+    """6 (run, model) units in rounds of 2; process 0 writes each unit file."""
+    one, two = _one_vs_two(tmp_path, ["study", "hssh-localization", "--steps", "3"])
+    assert _same_study_files(one, two) == 9  # 6 units, config, marker, results.csv
+    assert len(list((two / "units").glob("*.json"))) == 6
+    assert (two / "report.md").exists() and (two / "best_likelihood.png").exists()
+
+
+@pytest.mark.slow
+def test_hssh_maps_two_processes_equal_one(tmp_path):
+    """2 worlds, 2 office seeds and 1 simulator world in rounds of 2; process 0 writes."""
+    one, two = _one_vs_two(tmp_path, ["study", "hssh-maps", "--reduced", "--worlds", "2",
+                                      "--no-progress"])
+    # worlds/office/sim.jsonl, config, marker, results.csv
+    assert _same_study_files(one, two) == 6
+    assert len((two / "worlds.jsonl").read_text().splitlines()) == 2
+    for f in ("report.md", "sim_map.png", "tree_size.png"):
+        assert (two / f).exists()
+
+
+@pytest.mark.slow
+def test_qlink_two_processes_equal_one(tmp_path):
+    """Two worlds, one per process: each builds its map and drives its trials units."""
+    one, two = _one_vs_two(tmp_path, ["study", "qlink", "--reduced", "--worlds", "0", "1",
+                                      "--max-pairs", "8", "--no-progress"])
+    n_units = len(list((one / "trials").glob("*.csv")))
+    assert n_units == 2 * 5  # b2: R, 0.8R, occ 0.5 m; b1: R, 0.8R
+    # 2 world arrays and summaries, the units, trials.csv, config, marker, results.csv
+    assert _same_study_files(one, two) == 4 + n_units + 4
+    assert (two / "report.md").exists()

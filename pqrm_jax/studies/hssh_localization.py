@@ -17,6 +17,11 @@ beats grow with "large"; grow beats shrink with "small"; shrink-and-grow is best
 Work unit = one (run, model): its five algorithms over all steps, written atomically to
 ``units/`` of a :class:`~pqrm_jax.studies.store.Store`; a rerun resumes; a different
 configuration in the same ``--out`` is refused; ``results.csv`` is the tidy table.
+
+As N processes on ``jax.distributed`` (README "Running on a cluster"; flags of
+:func:`.distributed.add_arguments`) process 0 lists the units left, the processes compute them
+in rounds of N (:func:`.distributed.map_units`) and process 0 writes each as it arrives: the
+units equal a one-process run's bit for bit (every unit draws from its own fold-in keys).
 """
 
 from __future__ import annotations
@@ -42,6 +47,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--reduced", action="store_true", help="40 steps per run (default 400)")
     p.add_argument("--steps", type=int, default=None, help="steps per run")
     p.add_argument("--seed", type=int, default=0)
+    from . import distributed
+
+    distributed.add_arguments(p)
     return p
 
 
@@ -121,23 +129,44 @@ def main(argv: list[str] | None = None) -> int:
            "max_range": 8.0, "range_sigma": 0.01, "blocks": 5, "block": 100,
            "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
            "models": list(MODELS)}
-    with Store.open(out, NAME, cfg) as st:
-        def check(u):  # one number per step for every method, else recomputed
-            return all(isinstance(u[m], list) and len(u[m]) == steps
-                       and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
+    from . import distributed
 
-        todo = [(r, m) for r in range(2) for m in MODELS
-                if st.read_json(_unit_name(r, m), METHODS, check) is None]
-        for run, model in tqdm(todo, desc="hssh-localization", unit="unit"):
-            st.write_json(_unit_name(run, model), run_unit(run, model, cfg))  # atomic
-        data = {(r, m): st.read_json(_unit_name(r, m), METHODS, check)
-                for r in range(2) for m in MODELS}
+    cluster = distributed.initialize_from(args)  # before any JAX computation
+    distributed.agree(cluster, cfg, f"{NAME} config")
+    units = [(r, m) for r in range(2) for m in MODELS]
+
+    def check(u):  # one number per step for every method, else recomputed
+        return all(isinstance(u[m], list) and len(u[m]) == steps
+                   and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
+
+    st = None
+
+    def left():  # process 0 only: open the store, list the units not yet written
+        nonlocal st
+        st = Store.open(out, NAME, cfg)
+        return [st.read_json(_unit_name(r, m), METHODS, check) is None for r, m in units]
+
+    try:
+        mask = distributed.decide(cluster, len(units), left)
+        todo = [u for u, m in zip(units, mask, strict=True) if m]
+        for i, rec in tqdm(distributed.map_units(lambda u: run_unit(*u, cfg), todo, cluster,
+                                                 codec="json"),
+                           total=len(todo), desc="hssh-localization", unit="unit",
+                           disable=not cluster.is_main):
+            if st is not None:
+                st.write_json(_unit_name(*todo[i]), rec)  # atomic
+        if st is None:
+            return 0
+        data = {(r, m): st.read_json(_unit_name(r, m), METHODS, check) for r, m in units}
         if any(v is None for v in data.values()):
             raise StudyError(f"{NAME}: a unit did not read back as written")
         _report(data, cfg, out)
         st.write_results_csv([(f"run{r}_{m}_{meth}", "mean_best_likelihood",
                                float(np.mean(data[(r, m)][meth])))
                               for r in range(2) for m in MODELS for meth in METHODS])
+    finally:
+        if st is not None:
+            st.close()
     print(f"wrote {out / 'report.md'}")
     return 0
 

@@ -23,6 +23,13 @@ Writes ``worlds.jsonl`` / ``office.jsonl`` / ``sim.jsonl`` (records, resumable),
 ``report.md`` and figures ``tree_size.png``, ``layout.png``, ``navigation.png``, ``sim_map.png``.
 
     pqrm-jax study hssh-maps --out DIR [--reduced]
+
+As N processes on ``jax.distributed`` (README "Running on a cluster"; the flags of
+:func:`.distributed.add_arguments`) process 0 lists the world, office and simulator units left,
+the processes compute them in rounds of N (:func:`.distributed.map_units`) and process 0
+writes each record as it arrives; the records equal a one-process run's except the measured
+``explore_s``. Simulator world 0, which also draws ``sim_map.png``, is listed first, so it
+always falls to process 0.
 """
 
 from __future__ import annotations
@@ -454,6 +461,7 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
 def main(argv: list[str]) -> int:
     from tqdm.auto import tqdm
 
+    from . import distributed
     from .store import Store, tidy_rows
 
     ap = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
@@ -462,6 +470,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seed", type=int, default=18)
     ap.add_argument("--worlds", type=int, help="run/report only the first N worlds (resumable)")
     ap.add_argument("--no-progress", action="store_true")
+    distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
     if a.worlds is not None:
@@ -469,23 +478,49 @@ def main(argv: list[str]) -> int:
             raise SystemExit("--worlds must be >= 1")
         cfg["worlds"] = a.worlds
     n_worlds = cfg["worlds"]
-    with Store.open(a.out, NAME, cfg, selection=("worlds",)) as st:
-        wl = st.records("worlds.jsonl", key=lambda r: r["world"], required=("world", "too_large"))
-        for i in tqdm(range(n_worlds), disable=a.no_progress, desc="worlds"):
-            if i not in wl:
-                wl.add(run_world(cfg, i))
-        ol = st.records("office.jsonl", key=lambda r: r["seed"], required=("seed", "leaves"))
-        for s in range(cfg["office_seeds"]):
-            if s not in ol:
-                ol.add(run_office(cfg, s))
-        sl = st.records("sim.jsonl", key=lambda r: r["world"], required=("world", "lost"))
-        for i in tqdm(range(cfg["sim_worlds"]), disable=a.no_progress, desc="sim worlds"):
-            if i not in sl:
-                sl.add(run_sim_world(cfg, i, st.path(".") if i == 0 else None))
-        sim = sorted(sl.values(), key=lambda r: r["world"])
-        worlds = sorted((r for r in wl.values() if r["world"] < n_worlds),
+    cluster = distributed.initialize_from(a)  # before any JAX computation
+    distributed.agree(cluster, cfg, f"{NAME} config")
+    # simulator world 0 first: item 0 of the units left always falls to process 0, which
+    # draws its map figure
+    units = ([("sim", i) for i in range(cfg["sim_worlds"])]
+             + [("world", i) for i in range(n_worlds)]
+             + [("office", s) for s in range(cfg["office_seeds"])])
+    st = None
+    logs: dict = {}
+
+    def left():  # process 0 only: open the store, list the units not yet recorded
+        nonlocal st
+        st = Store.open(a.out, NAME, cfg, selection=("worlds",))
+        logs["world"] = st.records("worlds.jsonl", key=lambda r: r["world"],
+                                   required=("world", "too_large"))
+        logs["office"] = st.records("office.jsonl", key=lambda r: r["seed"],
+                                    required=("seed", "leaves"))
+        logs["sim"] = st.records("sim.jsonl", key=lambda r: r["world"],
+                                 required=("world", "lost"))
+        return [i not in logs[kind] for kind, i in units]
+
+    def compute(unit):
+        kind, i = unit
+        if kind == "world":
+            return run_world(cfg, i)
+        if kind == "office":
+            return run_office(cfg, i)
+        return run_sim_world(cfg, i, st.path(".") if i == 0 and st is not None else None)
+
+    try:
+        mask = distributed.decide(cluster, len(units), left)
+        todo = [u for u, m in zip(units, mask, strict=True) if m]
+        for j, rec in tqdm(distributed.map_units(compute, todo, cluster, codec="json"),
+                           total=len(todo), disable=a.no_progress or not cluster.is_main,
+                           desc="units"):
+            if st is not None:
+                logs[todo[j][0]].add(rec)
+        if st is None:
+            return 0
+        sim = sorted(logs["sim"].values(), key=lambda r: r["world"])
+        worlds = sorted((r for r in logs["world"].values() if r["world"] < n_worlds),
                         key=lambda r: r["world"])
-        office = sorted(ol.values(), key=lambda r: r["seed"])
+        office = sorted(logs["office"].values(), key=lambda r: r["seed"])
         st.write_results_csv(
             tidy_rows(worlds, unit=lambda r: f"world{r['world']}", skip=("world", "leaves",
                                                                           "lattice"))
@@ -494,5 +529,8 @@ def main(argv: list[str]) -> int:
                         skip=("world", "lattice", "reason")))
         text = report(st, cfg, worlds, office, sim)
         figures(st.path("."), cfg, worlds, office)
+    finally:
+        if st is not None:
+            st.close()
     print(text)
     return 0

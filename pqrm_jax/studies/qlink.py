@@ -283,6 +283,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--max-pairs", type=int, help="pairs per world (0 = all ordered pairs)")
     p.add_argument("--chunk", type=int, help="trials per compiled batch")
     p.add_argument("--no-progress", action="store_true")
+    from . import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
     cfg = Config(**REDUCED) if a.reduced else Config()
     if a.worlds:
@@ -293,15 +296,46 @@ def main(argv: list[str]) -> int:
         cfg.chunk = a.chunk
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
-    with Store.open(a.out, NAME, stored, selection=("worlds", "chunk"),
-                    legacy=("config.json", "world_*.npz", "world_*.json", "trials",
-                            "trials.csv", "report.md", "*.png")) as st:
+    cluster = distributed.initialize_from(a)  # before any JAX computation
+    distributed.agree(cluster, stored, f"{NAME} config")
+    st = None
+    plan: list[int] = []
+
+    def worlds_left():  # process 0: open the store; per world its id and what is missing
+        nonlocal st
+        st = Store.open(a.out, NAME, stored, selection=("worlds", "chunk"),
+                        legacy=("config.json", "world_*.npz", "world_*.json", "trials",
+                                "trials.csv", "report.md", "*.png"))
         # every world stored so far plus the ones asked (selection: union)
-        cfg.worlds = tuple(int(w) for w in st.config["worlds"])
+        for w in (int(w) for w in st.config["worlds"]):
+            plan.extend([w, *_world_left(cfg, w, st)])
+        return [len(plan)]
+
+    try:
+        n = int(distributed.decide(cluster, 1, worlds_left)[0])
+        flat = distributed.decide(cluster, n, lambda: plan).tolist()
+        k = 2 + len(_units_of(cfg))     # [world, arrays missing, trials missing per unit]
+        table = [flat[i:i + k] for i in range(0, n, k)]
+        cfg.worlds = tuple(row[0] for row in table)
+        todo = [(row[0], bool(row[1]), tuple(bool(x) for x in row[2:])) for row in table
+                if any(row[1:])]
         t0 = time.time()
+        for j, res in distributed.map_units(
+                lambda u: compute_world(cfg, *u, progress=not a.no_progress
+                                        and cluster.is_main), todo, cluster, codec="json"):
+            if st is not None:
+                _write_world(st, todo[j][0], res)
+        if st is None:
+            return 0
         summary, units = {}, {}
         for w in cfg.worlds:
-            summary[w], got = _run_world(cfg, w, st, not a.no_progress)
+            info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
+            got = {} if info is None else {
+                trials_name(w, b, nm): _read_trials(st, w, b, nm, info["pairs"])
+                for b, nm in _units_of(cfg)}
+            if info is None or any(v is None for v in got.values()):
+                raise StudyError(f"{NAME}: world {w} did not read back as written")
+            summary[w] = info
             units.update(got)
         rows = [r for name in sorted(units) for r in units[name]]
         st.write_csv("trials.csv", FIELDS, rows)
@@ -311,6 +345,9 @@ def main(argv: list[str]) -> int:
         write_report(st.out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg),
                      time.time() - t0, examples)
         print(f"wrote {st.out / 'report.md'} ({len(rows)} trials, {time.time() - t0:.0f} s)")
+    finally:
+        if st is not None:
+            st.close()
     return 0
 
 
@@ -329,20 +366,49 @@ def _build(cfg: Config, w: int):
     return lm, el, detect
 
 
-def _run_world(cfg: Config, w: int, st: Store, progress: bool) -> tuple[dict, dict]:
-    """(summary, {trials file: rows}) of world ``w``; only missing or corrupt units are run."""
+def _units_of(cfg: Config) -> list[tuple[int, str]]:
+    """The (β, setting) trials units of one world: every setting at the primary β, the
+    sensor-range rows only at the others."""
+    return [(b, name) for b in cfg.betas for name, _, occ in settings(cfg)
+            if b == cfg.betas[0] or occ == 0]
+
+
+def _world_left(cfg: Config, w: int, st: Store) -> list[int]:
+    """``[arrays missing, trials missing per unit...]`` (0/1) of world ``w`` in ``st``.
+
+    All zeros when the world is complete. Without its summary (which holds the pair count
+    that checks a trials file) every unit counts as missing: recomputed, it gives the same
+    rows (per-trial keys).
+    """
+    units = _units_of(cfg)
+    info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
+    arrays = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
+    if info is None:
+        return [int(arrays is None)] + [1] * len(units)
+    trials = [int(_read_trials(st, w, b, n, info["pairs"]) is None) for b, n in units]
+    if arrays is not None and not any(trials):
+        return [0] * (1 + len(units))
+    return [int(arrays is None), *trials]
+
+
+def _pack(x) -> dict:
+    x = np.asarray(x)
+    return {"dtype": x.dtype.str, "shape": list(x.shape), "data": x.reshape(-1).tolist()}
+
+
+def _unpack(d: dict) -> np.ndarray:
+    return np.asarray(d["data"], np.dtype(d["dtype"])).reshape(d["shape"])
+
+
+def compute_world(cfg: Config, w: int, arrays_missing: bool, trials_missing: tuple[bool, ...],
+                  progress: bool = False) -> dict:
+    """World ``w``'s map and the trials units flagged in ``trials_missing`` (order of
+    :func:`_units_of`), as JSON: ``{"arrays": packed or None, "info": ..., "trials":
+    {file: rows}}``; arrays travel as dtype, shape and exact values (bit for bit)."""
     from pqrm_jax.qlink import elements as qel
     from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
-    todo = [(b, name) for b in cfg.betas for name, _, occ in settings(cfg)
-            if b == cfg.betas[0] or occ == 0]
-    info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
-    arrays = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
-    if info is not None and arrays is not None:      # resume: check every unit of the world
-        got = {trials_name(w, b, n): _read_trials(st, w, b, n, info["pairs"]) for b, n in todo}
-        if all(v is not None for v in got.values()):
-            return info, got
     t0 = time.time()
     lm, el, detect = _build(cfg, w)
     t_map = time.time() - t0
@@ -352,12 +418,12 @@ def _run_world(cfg: Config, w: int, st: Store, progress: bool) -> tuple[dict, di
     goal_row[lms] = np.arange(len(lms))
     tables = nav.start_tables(el)
     pairs = _pairs(cfg, lms, w)
-    if arrays is None:
-        st.write_npz(f"world_{w:02d}.npz",
-                     dict(positions=np.asarray(lm), element_ids=np.asarray(el.ids),
-                          element_probs=np.asarray(el.probs), betas=np.asarray(cfg.betas),
-                          detection=np.asarray(detect if detect is not None else np.nan)),
-                     compressed=False)
+    arrays = None
+    if arrays_missing:
+        arrays = {k: _pack(v) for k, v in dict(
+            positions=np.asarray(lm), element_ids=np.asarray(el.ids),
+            element_probs=np.asarray(el.probs), betas=np.asarray(cfg.betas),
+            detection=np.asarray(detect if detect is not None else np.nan)).items()}
     from pqrm_jax.qlink import pomdp
 
     plans = nav.qsr_plans(el, pomdp.search_model("quadrant", horizon=cfg.horizon,
@@ -366,28 +432,31 @@ def _run_world(cfg: Config, w: int, st: Store, progress: bool) -> tuple[dict, di
             "pairs": int(len(pairs)), "map_s": round(t_map, 1),
             "detection": None if detect is None else np.round(detect, 3).tolist(),
             "setting_s": {}}
-    got = {}
+    missing = dict(zip(_units_of(cfg), trials_missing, strict=True))
+    trials = {}
     for beta in cfg.betas:
         g = lg.link_graph(el, beta)
         to_go = lg.goal_distances(g, el, lms)
         world = (lm, el, g, to_go, goal_row, tables, pairs, detect, plans)
         info[f"edges_beta{beta}"] = int(g.adjacency.sum() // 2)
         for name, frac, occ in settings(cfg):
-            if beta != cfg.betas[0] and occ > 0:
-                continue        # the literal beta = 1 variant: sensor-range rows only
-            f = trials_name(w, beta, name)
-            got[f] = _read_trials(st, w, beta, name, len(pairs))
-            if got[f] is not None:
-                continue        # resume: one checked file per (world, beta, setting)
+            if not missing.get((beta, name)):
+                continue        # stored and checked (or the literal beta = 1 occlusion rows)
             t1 = time.time()
-            rows = run_setting(cfg, w, beta, name, frac, occ, world, progress)
-            st.write_csv(f, FIELDS, rows)
-            got[f] = _read_trials(st, w, beta, name, len(pairs))    # the rows as stored
-            if got[f] is None:
-                raise StudyError(f"{NAME}: {f} did not read back as written")
+            trials[trials_name(w, beta, name)] = run_setting(cfg, w, beta, name, frac, occ,
+                                                             world, progress)
             info["setting_s"][f"b{beta} {name}"] = round(time.time() - t1, 1)
-    st.write_json(f"world_{w:02d}.json", info)
-    return info, got
+    return {"arrays": arrays, "info": info, "trials": trials}
+
+
+def _write_world(st: Store, w: int, res: dict) -> None:
+    """Process 0: write world ``w``'s records from :func:`compute_world` (each atomically)."""
+    if res["arrays"] is not None:
+        st.write_npz(f"world_{w:02d}.npz", {k: _unpack(v) for k, v in res["arrays"].items()},
+                     compressed=False)
+    for f, rows in res["trials"].items():
+        st.write_csv(f, FIELDS, rows)
+    st.write_json(f"world_{w:02d}.json", res["info"])
 
 
 def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
@@ -419,7 +488,7 @@ def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
     if not picks:
         return []
     z = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
-    if z is None:       # set aside since _run_world checked it: no examples this run
+    if z is None:       # set aside since main checked it: no examples this run
         return []
     lm = jnp.asarray(z["positions"])
     el = qel.MapElements(jnp.asarray(z["element_ids"]), jnp.asarray(z["element_probs"]),
