@@ -163,20 +163,22 @@ def camera_structure(spec: QRMSpec) -> CameraStructure:
     return CameraStructure(vanish, edge_ok, reps, rep_atoms)
 
 
-def form_values(spec: QRMSpec, w, d, o: int):
-    """Values and rounding bounds of relation ``o``'s constraints at ranges ``d``.
+def form_values(spec: QRMSpec, w, d):
+    """Values and rounding bounds of the constraints of the relation XY:Z at ranges ``d``.
 
     Args:
         spec: the calculus.
-        w: ``(cos, sin)`` of the bearings, each [3, T] in slot order (near, mid, far).
-        d: the three slot ranges ``(d_near, d_mid, d_far)``, each broadcastable to [..., T].
-        o: the cyclic relation (index into :data:`CYCLIC`).
+        w: ``(cos, sin)`` of the bearings of X, Y, Z, each [3, ...] (broadcastable against
+            ``d``'s entries on the trailing axes).
+        d: the ranges ``(d_X, d_Y, d_Z)``, each broadcastable to [..., T].
 
     Returns:
         ``(f, e)`` [K, ..., T]: the constraint values and a worst-case bound on their rounding
-        error (cos/sin and every product and sum; machine epsilon of the dtype).
+        error (cos/sin and every product and sum; machine epsilon of the dtype). A cyclic
+        relation of a slot triple is XY:Z with its slots permuted to ``CYCLIC[o]``
+        (:func:`exact_sets`).
     """
-    X, Y, Z = CYCLIC[o]
+    X, Y, Z = 0, 1, 2
     cw, sw = w
     eps = jnp.finfo(cw.dtype).eps
     dX, dY, dZ = d[X], d[Y], d[Z]
@@ -317,7 +319,7 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array
     i, j = np.array(EDGES).T
     # the three vertices and the three edge midpoints, for the edge quadratics
     nodes = np.concatenate([VERTICES, 0.5 * (VERTICES[i] + VERTICES[j])], 0)  # (6, 3)
-    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)), 0)  # (K, O, 6, T)
+    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)))  # (K, O, 6, T)
     van = np.moveaxis(st.vanish, 1, 0)  # (K, O, 3 vertices)
     vmask = jnp.asarray(van)[..., None]
     f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
@@ -331,7 +333,7 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array
     S = t.shape[0]
     Vi = rel_d(VERTICES[i], (1, 3, 3, 1))
     Vd = rel_d(VERTICES[j] - VERTICES[i], (1, 3, 3, 1))
-    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)], 0)  # (K,S,O,3,T)
+    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
     band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
     # a quadratic's vertex is only needed where it nears zero there (a tangency that the
     # roots may have missed); elsewhere it could sit on another constraint's root
@@ -345,7 +347,7 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array
     # region points: R_s inside the image of the cone
     reps = jnp.asarray(st.reps, dtype)
     dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
-    fr, er = form_values(spec, w, dr, 0)  # (K, O, R, T)
+    fr, er = form_values(spec, w, dr)  # (K, O, R, T)
     D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
     ds = jnp.take_along_axis(D, jnp.asarray(inv.T)[:, :, None, None], 0)
     ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
