@@ -26,13 +26,12 @@ import numpy as np
 
 from ..calculi.poly import Poly
 from ..tables.certify import SAT, UNSAT, decide
+from .exact_camera import CYCLIC
 from .spec import QRMSpec, qrm_spec
 
 __all__ = ["exact_vectors", "exact_forms", "exact_signs", "decide_state", "oracle_sets",
            "settle_undecided"]
 
-#: the three cyclic relations of a slot triple (near, mid, far) = (0, 1, 2): XY:Z
-CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
 
 
 def exact_vectors(bearings) -> list[tuple[Fraction, Fraction]]:
