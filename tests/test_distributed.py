@@ -71,16 +71,22 @@ def _same_results(a: Path, b: Path) -> int:
     return len(names)
 
 
+def _driver_one_and_two(one: Path, two: Path) -> list[subprocess.CompletedProcess]:
+    """The padgett driver as 1 process into ``one`` and as 2 processes into ``two``, at once;
+    every process must succeed."""
+    port = str(free_port())
+    rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
+                 + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
+                    for i in (1, 0)])
+    for r in rs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    return rs
+
+
 def test_two_processes_bit_identical_to_one(tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
-    port = str(free_port())
     # the one-process reference runs beside the two cooperating processes (wall time)
-    r1, *rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
-                      + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
-                         for i in (1, 0)])
-    for r in (r1, *rs):
-        assert r.returncode == 0, r.stderr[-2000:]
-    last = [r.stdout.strip().splitlines()[-1] for r in (r1, *rs)]
+    last = [r.stdout.strip().splitlines()[-1] for r in _driver_one_and_two(one, two)]
     assert last == ["done 0 1", "done 1 2", "done 0 2"]
     assert _same_results(one, two) == 6
     # only process 0 wrote: the directory holds exactly the files of a one-process run
@@ -211,12 +217,7 @@ def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
     assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
     done = len(list(two.glob("level_*.npz")))
     assert 1 <= done < 6
-    port = str(free_port())
-    r1, *rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
-                      + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
-                         for i in (1, 0)])
-    for r in (r1, *rs):
-        assert r.returncode == 0, r.stderr[-2000:]
+    _driver_one_and_two(one, two)
     assert _same_results(one, two) == 6
 
 
