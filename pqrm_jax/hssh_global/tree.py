@@ -18,7 +18,8 @@ continues along the same global path (global paths are the chains of local paths
 corridors), (3.7)–(3.10) ``order`` along a path is a strict order: a global path is a simple
 chain, never a cycle and never through the same place twice; and determinism of ``R`` (one
 corridor per gateway; traversability ``α`` respected). The planarity constraint (Savelli &
-Kuipers 2004) is not implemented.
+Kuipers 2004) does not prune the tree; :func:`is_planar` checks it on a leaf, as an optional
+filter on the final leaves.
 
 Preference: the thesis ranks leaves by the *prioritized circumscription policy* of Remolina &
 Kuipers 2004, which the thesis does not specify; we use **fewest places** (the minimality that

@@ -98,14 +98,15 @@ def config_for(a) -> dict:
     return cfg
 
 
-def _relax_padded(hg, leaves, odometry, cfg, chunk: int = 1024):
-    """Relaxes all leaves in chunks with shapes bucketed (hypotheses to a power of two up to
-    ``chunk``, places to travels + 1) so that worlds share compiled code; padding is dropped."""
+def _relax_padded(hg, leaves, odometry, cfg, chunk: int = 1024, least: int = 64):
+    """Relaxes all leaves in chunks with shapes bucketed (hypotheses to a power of two, at
+    least ``least`` and at most ``chunk``, places to travels + 1) so that worlds share compiled
+    code (a compile costs seconds, 64 padded hypotheses milliseconds); padding is dropped."""
     probs, chis, costs = [], [], []
     for s in range(0, len(leaves), chunk):
         part = leaves[s:s + chunk]
         h = len(part)
-        padded = part + [part[0]] * ((1 << (h - 1).bit_length()) - h)
+        padded = part + [part[0]] * (min(max(1 << (h - 1).bit_length(), least), chunk) - h)
         prob = hg.pack(padded, odometry, cfg["sigma_xy"], cfg["sigma_theta"],
                        m_max=len(odometry) + 1)
         chi, cost = hg.relax(prob)
