@@ -1,8 +1,8 @@
 """Re-localisation at a revisit: the current LPM matched against the place's stored LPM (B §9.2).
 
 At a loop closure the layout needs the rover's pose relative to the place's frame, and B
-re-localises in the stored local map ``m_p`` of the place (digest §4: "align LPMs first by
-corresponding gateways, then refine on obstacles"). Without it the springs assume the rover stands
+re-localises in the stored local map ``m_p`` of the place: the LPMs are aligned first by
+corresponding gateways, then refined on obstacles (B §9.2). Without it the springs assume the rover stands
 exactly at the first visit's dividing pose turned by the arrival bearing,
 ``X_i = χ_p ⊕ (0, 0, δ_i)`` (:mod:`~pqrm_jax.hssh_global.layout`); in the simulator the dividing
 pose re-read at a revisit strays from that by a fraction of a corridor width, more than the
@@ -31,12 +31,14 @@ place in a wrong hypothesis) keeps ``c₀`` (no correction).
 >>> import numpy as np
 >>> n = 21
 >>> grid = np.zeros((n, n)); grid[5, 3:18] = 3.0; grid[3:18, 5] = 3.0    # an L of walls
->>> pts, mask = occupied_points(grid[None], np.zeros((1, 2)), np.zeros((1, 3)), 1.0, 1.0)
->>> c = match_pairs(pts, mask, field(grid[None], 1.0, 1.0), np.zeros((1, 2)),
-...                 np.zeros((1, 3)), np.array([[0.3, -0.2, 0.05]]), 1.0, 1.0,
-...                 RelocParams(window_xy=1.0))[0]
->>> np.round(np.asarray(c[0]), 3).tolist()
-[0.0, 0.0, 0.0]
+>>> # the same walls seen from a dividing pose (0.4, -0.3, 0.03) off the stored one
+>>> pts, mask = occupied_points(grid[None], np.zeros((1, 2)), np.array([[0.4, -0.3, 0.03]]),
+...                             1.0, 1.0)
+>>> c, score = match_pairs(pts, mask, field(grid[None], 1.0, 1.0), np.zeros((1, 2)),
+...                        np.zeros((1, 3)), np.zeros((1, 3)), 1.0, 1.0,
+...                        RelocParams(window_xy=1.0))
+>>> [round(float(v), 2) for v in c[0]], bool(score[0] > 0.9)
+([0.4, -0.3, 0.03], True)
 """
 
 from __future__ import annotations
