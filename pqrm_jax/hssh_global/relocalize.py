@@ -2,8 +2,8 @@
 
 At a loop closure the layout needs the rover's pose relative to the place's frame, and B
 re-localises in the stored local map ``m_p`` of the place: the LPMs are aligned first by
-corresponding gateways, then refined on obstacles (B §9.2). Without it the springs assume the rover stands
-exactly at the first visit's dividing pose turned by the arrival bearing,
+corresponding gateways, then refined on obstacles (B §9.2). Without it the springs assume the
+rover stands exactly at the first visit's dividing pose turned by the arrival bearing,
 ``X_i = χ_p ⊕ (0, 0, δ_i)`` (:mod:`~pqrm_jax.hssh_global.layout`); in the simulator the dividing
 pose re-read at a revisit strays from that by a fraction of a corridor width, more than the
 odometry error of a travel, so relaxation made layouts worse.
