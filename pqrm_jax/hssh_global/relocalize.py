@@ -17,7 +17,8 @@ Here, for visit ``i`` of place ``p`` first seen at visit ``j`` in a hypothesis:
    likelihood field of ``j`` (mean ``exp(−d² / 2σ²)``, ``d`` the distance in cells to the nearest
    occupied cell of ``j``, bilinear); a coarse-to-fine grid search over a small window around
    ``c₀`` (``levels`` levels of ``steps³`` candidates, each level ``1 / zoom`` of the last) keeps
-   the best. All pairs are matched at once (``vmap`` over pairs, the points padded with a mask).
+   the best. All pairs are matched in one jitted call (``lax.map`` over pairs, ``vmap`` over
+   the candidates, the points padded with a mask).
 3. **Corrected displacements**: with the offset ``r_i = (0, 0, δ_j − δ_i) ⊕ c`` of the real
    dividing pose from the assumed one (``r = 0`` at first visits) the travel ``λ_i`` between real
    dividing poses becomes ``λ'_i = r_{i−1} ⊕ λ_i ⊖ r_i`` between the assumed poses, so the
@@ -175,7 +176,10 @@ def _search(pts, mask, fld, origin, pose, c0, resolution, win, steps, levels, zo
         (best, s_best, _), _ = jax.lax.scan(level, (c0, s0, win), None, length=levels)
         return best, s_best
 
-    return jax.vmap(one)(pts, mask, fld, origin, pose, c0)
+    # lax.map, not vmap, over pairs: each pair's candidates x points already fill the vector
+    # units, and a vmapped gather over [K, candidates, points] leaves the caches (on CPU it
+    # measured 2-5x slower than a Python loop; benchmarks/bench_hssh_reloc.py)
+    return jax.lax.map(lambda a: one(*a), (pts, mask, fld, origin, pose, c0))
 
 
 def match_pairs(pts, mask, fields, origins, poses, c0, resolution: float, width: float,
