@@ -15,8 +15,8 @@ from pqrm_jax.studies import discover
 
 
 def test_bands_are_the_double_cross_bands():
-    """front / between / behind of (A, B) = the Double Cross's three bands merged (digest §3.2):
-    a random point's band equals the sign test on its projection along AB."""
+    """front / between / behind of (A, B) = the Double Cross's three bands merged
+    (docs/qlink.md §invivo): a point's band is the sign test on its projection along AB."""
     b, dc = hy.bands_calculus(), calculi.get("double_cross")
     rng = np.random.default_rng(0)
     a, bb = jnp.array([0.0, 0.0]), jnp.array([7.0, 3.0])

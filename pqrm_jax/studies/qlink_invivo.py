@@ -48,7 +48,7 @@ REASONS = {
     "size": "world W x H (m): not in P; chosen so the map has tens to ~100 elements (P: 44) "
             "and several bands elements; not tuned to any result",
     "wall_gap": "distance between the wall midpoints A, B (m); walls perpendicular to AB "
-                "(digest: two facing buildings, bands = Double Cross bands)",
+                "(two facing buildings; bands = Double Cross bands, docs/qlink.md §invivo)",
     "wall_length": "wall segment length (m)",
     "map_range": "P §4.4.2: sensor range 60 m (Q28: as stated)",
     "sigma": "P §4.4.2: noise N(0, 0.7), std 0.7 m per coordinate",
@@ -63,7 +63,7 @@ REASONS = {
     "detect_same": "sweep detection probability the robot assumes in the swept state, the same "
                    "for all elements (P L1165); < 1 so the plan may sweep a state twice; the "
                    "robot does not know p_miss",
-    "p_miss": "injected per-scan, per-landmark miss probability (digest §7.3: 0 and 0.3)",
+    "p_miss": "injected per-scan, per-landmark miss probability (0 and 0.3, docs/qlink.md §invivo)",
     "trials": "P §4.4.2: 18 trials",
     "max_replans": "contingency re-plans per trial (decision Q30: at most 3)",
     "attrib_radius": "a success is attributed correctly when the robot ends within this of the "
