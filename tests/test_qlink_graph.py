@@ -35,9 +35,13 @@ def test_edges_match_brute_force(beta):
         assert not (g.adjacency & ~lg.link_graph(el, 1).adjacency).any()
 
 
-def test_planning_matches_networkx_unit_and_weighted():
-    rng = np.random.default_rng(0)
-    for trial in range(16):
+@pytest.mark.parametrize("trials", [range(0, 8), pytest.param(range(8, 16),
+                                                                 marks=pytest.mark.slow)])
+def test_planning_matches_networkx_unit_and_weighted(trials):
+    # the first 8 random graphs cover beta 1 and 2, unit and weighted, twice each (each graph
+    # size is a compile, so the other 8 are slow)
+    rng = np.random.default_rng(trials.start)
+    for trial in trials:
         el = _random_elements(rng, 10, 14)
         inc = qel.incidence(el)
         landmarks = np.flatnonzero(inc.any(axis=1))
