@@ -376,9 +376,10 @@ def _figure(cfg, world, rows, out):
                              squeeze=False)
     for ax, pm in zip(axes[0], cfg.p_miss, strict=True):
         ax.scatter(pts[:, 0], pts[:, 1], c="k", s=12, label="point landmarks")
-        for w in walls:
-            ax.plot(w[:, 0], w[:, 1], "b-", lw=4)
-        rs = [r for r in rows if r["p_miss"] == pm][:6]
+        for i, w in enumerate(walls):
+            ax.plot(w[:, 0], w[:, 1], "b-", lw=4, label="walls" if i == 0 else None)
+        rs = sorted((r for r in rows if r["p_miss"] == pm),     # re-planned/failed first
+                    key=lambda r: (-(r["replans"] > 0 or not r["success"]), r["trial"]))[:6]
         for r in rs:
             xy = np.concatenate([np.asarray(t).reshape(-1, 2) for t in r["trace"]] +
                                 [np.array([[r["final_x"], r["final_y"]]])])
