@@ -45,8 +45,8 @@ PUBLISHED = {"trials": 18, "successes": 13, "success_rate": 0.72, "replanned_suc
 
 REASONS = {
     "points": "P §4.4.2: 25 point landmark features",
-    "size": "world W x H (m): not in P; chosen so the map has tens to ~100 elements (P: 44) "
-            "and several bands elements; not tuned to any result",
+    "size": "world W x H (m): not in P; larger than R so paths need several elements, small "
+            "enough that some points see both walls (bands elements); not tuned to any result",
     "wall_gap": "distance between the wall midpoints A, B (m); walls perpendicular to AB "
                 "(two facing buildings; bands = Double Cross bands, docs/qlink.md §invivo)",
     "wall_length": "wall segment length (m)",
