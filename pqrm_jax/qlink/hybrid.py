@@ -37,7 +37,8 @@ from . import pomdp as _pomdp
 from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
-           "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule"]
+           "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
+           "qsr_tables", "uniform_sequence"]
 
 LR, BANDS = 0, 1
 RUNNING, SUCCESS, LINK_NOT_FOUND, REFS_NOT_FOUND, BUDGET = 0, 1, 2, 3, 6
@@ -191,33 +192,46 @@ def reference_rule(ids_i, kind_i, ids_j, walls):
     return refs.astype(np.int32), target.astype(np.int32), order.astype(np.int32)
 
 
-def hybrid_costs(hmap: HybridMap, beta: int, models):
+def uniform_sequence(q: int, horizon: int) -> np.ndarray:
+    """``[τ]`` the sweep order for a target whose state is unknown (uniform belief): the
+    states in turn, ``0, 1, …, q − 1, 0, …`` (with one detection table for every state, any
+    order of distinct states has the same success probability)."""
+    return (np.arange(horizon) % q).astype(np.int32)
+
+
+def hybrid_costs(hmap: HybridMap, beta: int, models, tables=None):
     """``[E, E]`` −log p edge costs (P eqs. 4.2–4.4), ``inf`` where no edge.
 
-    p is eq. 4.3's success probability of the exact open-loop search plan for the target of
-    :func:`reference_rule` (1 when no search is needed), clamped to [1e-12, 1].
+    p is eq. 4.3's success probability of the command sequence the executive would sweep for
+    the target of :func:`reference_rule` (1 when no search is needed), clamped to
+    [1e-12, 1]: the exact open-loop plan of :func:`qsr_tables` (``tables``, computed when not
+    given) for a target in L_i, :func:`uniform_sequence` for one outside it.
     """
     from .linkgraph import shared_counts
 
     ids = np.asarray(hmap.elements.ids)
     probs = np.asarray(hmap.elements.probs)
+    tables = qsr_tables(hmap, models) if tables is None else tables
     adj = shared_counts(hmap.elements) >= beta
     np.fill_diagonal(adj, False)
     src, dst = np.nonzero(adj)
     cost = np.full(adj.shape, np.inf)
     for kd in (LR, BANDS):
         m = models[kd]
-        q = m.detect.shape[0]
+        q, tau = m.detect.shape[0], int(m.horizon)
         sel = np.flatnonzero(hmap.kind[src] == kd)
         if sel.size == 0:
             continue
         _, t, o = reference_rule(ids[src[sel]], hmap.kind[src[sel]], ids[dst[sel]],
                                  hmap.walls)
         b = np.where((o >= 0)[:, None], probs[src[sel], np.maximum(o, 0), :q], 1.0 / q)
+        b = b / np.maximum(b.sum(-1, keepdims=True), 1e-30)
+        seq = np.where((o >= 0)[:, None], np.asarray(tables[kd])[src[sel], np.maximum(o, 0)],
+                       uniform_sequence(q, tau)[None, :])
         width = 1 << max(0, int(sel.size - 1).bit_length())           # few compiles
-        b = jnp.asarray(np.concatenate([b, np.full((width - sel.size, q), 1.0 / q)]),
-                        jnp.float32)
-        _, seq = _pomdp.open_loop_plan(m, jnp.zeros(width, jnp.int32), b)
+        pad = width - sel.size
+        b = jnp.asarray(np.concatenate([b, np.full((pad, q), 1.0 / q)]), jnp.float32)
+        seq = jnp.asarray(np.concatenate([seq, np.zeros((pad, tau), np.int32)]))
         h = jax.vmap(lambda bb, s, m=m: _pomdp.hazards(m, bb, s, True))(b, seq)
         p = np.clip(np.asarray(jax.vmap(_pomdp.success_probability)(h))[:sel.size],
                     1e-12, 1.0)
@@ -350,9 +364,8 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             in_c = jnp.any(mem_c == tgt)
             order = ordering_index(mem_c, s.refs[0], s.refs[1])
             seq = jnp.where(kind[cur] == BANDS, plans_bd[cur, order], plans_lr[cur, order])
-            q_uni = jnp.where(kind[cur] == BANDS, jnp.array([0, 1, 2, 0]),
-                              jnp.array([0, 1, 0, 1]))
-            seq = jnp.where(in_c, seq, q_uni[jnp.arange(tau) % 4])
+            q_uni = jnp.where(kind[cur] == BANDS, jnp.arange(tau) % 3, jnp.arange(tau) % 2)
+            seq = jnp.where(in_c, seq, q_uni)   # uniform_sequence: the state is unknown
             centre = jnp.mean(s.refs_xy, axis=0)
             s_search = s._replace(pos=centre, length=s.length + jnp.linalg.norm(centre - s.pos),
                                   phase=jnp.int32(SEARCH), c=jnp.int32(0), e=tgt, seq=seq)

@@ -135,7 +135,8 @@ def build(cfg: Config):
                                      poses, cfg.map_range, cfg.sigma, cfg.num_samples,
                                      cfg.max_obs, cfg.floor, max_side=cfg.max_side)
     models = hy.search_models(cfg.horizon, cfg.detect_same)
-    cost = hy.hybrid_costs(hmap, cfg.beta, models)
+    tables = hy.qsr_tables(hmap, models)
+    cost = hy.hybrid_costs(hmap, cfg.beta, models, tables)
     graph = qlink.link_graph(hmap.elements, cfg.beta, cost=np.where(np.isfinite(cost), cost, 1.0))
     g = qlink.to_networkx(graph, hmap.elements)
     rng = np.random.default_rng(cfg.seed)
@@ -154,7 +155,7 @@ def build(cfg: Config):
     if len(pairs) < cfg.trials:
         raise ValueError(f"only {len(pairs)} connected start/goal pairs in this map")
     return dict(points=pts, walls=walls, hmap=hmap, landmarks=lm, models=models, graph=g,
-                tables=hy.qsr_tables(hmap, models), pairs=pairs, paths=paths)
+                tables=tables, pairs=pairs, paths=paths)
 
 
 def _pad(paths):
