@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 
 import numpy as np
@@ -121,14 +122,29 @@ def make_world(cfg: Config):
     return pts, jnp.asarray(walls)
 
 
+_NOT_BUILD = ("p_miss", "max_replans", "attrib_radius")   # fields build() does not read
+
+
 def build(cfg: Config):
-    """World, hybrid map, −log p Link Graph (networkx), QSR tables, trial pairs and paths."""
+    """World, hybrid map, −log p Link Graph (networkx), QSR tables, trial pairs and paths.
+
+    A pure function of the config; the last two results are kept in the process (a resumed
+    run, or a second setting, does not map the world again). Treat the result as read-only.
+    """
+    key = json.dumps({k: v for k, v in dataclasses.asdict(cfg).items()
+                      if k not in _NOT_BUILD}, sort_keys=True)
+    return _build(key)
+
+
+@functools.lru_cache(maxsize=2)
+def _build(key: str):
     import jax
     import networkx as nx
 
     from .. import qlink, sim
     from ..qlink import hybrid as hy
 
+    cfg = Config(**json.loads(key))
     pts, walls = make_world(cfg)
     poses = sim.lawnmower(cfg.size, spacing=cfg.map_range, step=cfg.sweep_step)
     hmap, lm, _ = hy.hybrid_elements(jax.random.fold_in(jax.random.key(cfg.seed), 2), pts, walls,
