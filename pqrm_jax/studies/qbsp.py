@@ -103,17 +103,29 @@ DECISIONS = {
 
 
 #: Extensions beyond the thesis's model, each off by default (the default study is Z's model
-#: and its config.json has no such key); ``--nondetection`` merges this into the config.
+#: and its config.json has no such key); ``--nondetection`` / ``--nothing-seen`` add theirs
+#: to ``config["extensions"]`` with the reason.
 EXTENSIONS = {
-    "extensions": {
-        "nondetection": "EXTENSION beyond Z (off by default, an ablation): after each move the "
-                        "rows ij:k and ji:k of the frame's candidates that were not seen get "
-                        "P(s_tau) * sum_{s_x,b} P(s_x) P_F(b) (1 - A[s_x, s_tau, b]) "
-                        "(negative information with the association model, Z eq. 4.12). "
-                        "Reason: in Z's psi not seeing a candidate gives no evidence, and "
-                        "most failed executions never leave the first frame, repeating one "
-                        "action (docs/bsp.md §execution-failures, §non-detection)"},
+    "nondetection": "EXTENSION beyond Z (off by default, an ablation): after each move the "
+                    "rows ij:k and ji:k of the frame's candidates that were not seen get "
+                    "P(s_tau) * sum_{s_x,b} P(s_x) P_F(b) (1 - A[s_x, s_tau, b]) "
+                    "(negative information with the association model, Z eq. 4.12). "
+                    "Reason: in Z's psi not seeing a candidate gives no evidence, and "
+                    "most failed executions never leave the first frame, repeating one "
+                    "action (docs/bsp.md §execution-failures, §non-detection)",
+    "nothing_seen": "EXTENSION beyond Z (off by default, an ablation): the planner's "
+                    "expectation over candidates gets a 'nothing seen' branch of weight "
+                    "1 - min(1, sum_beta P(beta | a)) valued as staying (h(F) + cbar), "
+                    "instead of renormalising the kept candidates' weights to 1 (Z-24, "
+                    "eq. 4.14). Reason: with renormalisation an action that sees a "
+                    "candidate with probability 0.01 is valued as if it saw it surely, so "
+                    "the cheapest such action is repeated (docs/bsp.md §nothing-seen)",
 }
+
+
+def _extensions(args) -> dict:
+    on = [k for k in EXTENSIONS if getattr(args, k, False)]
+    return {"extensions": {k: EXTENSIONS[k] for k in on}} if on else {}
 
 
 def config_for(args) -> dict:
@@ -150,7 +162,7 @@ def config_for(args) -> dict:
         "chunk": base["chunk"],
         "decisions": DECISIONS,
         "published": PUBLISHED,
-    } | (EXTENSIONS if getattr(args, "nondetection", False) else {})
+    } | _extensions(args)
 
 
 def _env_rng(seed: int, e: int) -> np.random.Generator:
@@ -225,7 +237,9 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
            "tree_exists": {m: {} for m in ("without", "with")}}
     pps = {d: P.PlannerParams(depth=d, n_actions=cfg["planner"]["n_actions"],
                               n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
-                              rho=cfg["planner"]["rho"]) for d in sw["depths"]}
+                              rho=cfg["planner"]["rho"],
+                              nothing_seen="nothing_seen" in cfg.get("extensions", {}))
+           for d in sw["depths"]}
     bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
     for size in sizes:
         ex = {m: [] for m in ("without", "with")}
@@ -307,7 +321,7 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
     ex = cfg["execution"]
     ep = X.ExecParams(t_max=ex["t_max"], sigma_m=ex["sigma_m"], sigma_z=ex["sigma_z"],
                       pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"],
-                      nondetection=bool(cfg.get("extensions", {}).get("nondetection")))
+                      nondetection="nondetection" in cfg.get("extensions", {}))
     pos = jnp.asarray(np.stack([E.padded_positions(e, L) for e in pad]))
     lm = jnp.asarray(np.stack([np.arange(L) < len(e.pos) for e in pad]))
     goal = jnp.asarray([e.goal for e in pad], jnp.int32)
@@ -330,7 +344,8 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
     costs = jnp.asarray(np.repeat([c for _, c in combos], width), jnp.int32)
     pp = P.PlannerParams(depth=cfg["planner"]["depth"], n_actions=cfg["planner"]["n_actions"],
                          n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
-                         rho=cfg["planner"]["rho"])
+                         rho=cfg["planner"]["rho"],
+                         nothing_seen="nothing_seen" in cfg.get("extensions", {}))
     lanes = (rep(pos), rep(lm), rep(goal), rep(start), B, rep(ref), rep(rs), rep(keys), costs)
     lanes = shard_lanes(lanes)
     t0 = time.perf_counter()
@@ -747,6 +762,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--nondetection", action="store_true",
                     help="EXTENSION beyond the thesis (ablation): negative-information update "
                          "of candidates not seen (docs/bsp.md §non-detection)")
+    ap.add_argument("--nothing-seen", dest="nothing_seen", action="store_true",
+                    help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
+                         "in the planner instead of renormalised candidate weights "
+                         "(docs/bsp.md §nothing-seen)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
     distributed.add_arguments(ap)
