@@ -153,7 +153,7 @@ def test_sigma_to_zero_limits():
 def test_sigma_to_zero_limits_full():
     sigmas = (0.1, 0.05, 0.02, 0.01, 0.005, 0.0)
     t_dev, z_dev = _check_limits(sigmas, _limit_tables(sigmas, samples=1000, n_f=5))
-    assert t_dev[-2] < 0.01  # digest §4 A.2: mass on the target >= 0.99 as σ_m -> 0
+    assert t_dev[-2] < 0.01  # mass on the target >= 0.99 as σ_m -> 0 (docs/bsp.md §models)
     print("1 - diag mass, T:", np.round(t_dev, 4), "AZ:", np.round(z_dev, 4))
 
 
@@ -186,7 +186,7 @@ def _link_tvs(mod, edc, a, b, c, x, ok):
 
 
 def test_world_matched_tables(mod):
-    """World-matched priors (random worlds of four points, histogrammed; digest check A.6)
+    """World-matched priors (random worlds of four points, histogrammed)
     against the window tables on the 12 bounded states, for the link model K (AC, BC) and
     the association A. docs/bsp.md §world-matched has the numbers.
 
@@ -195,7 +195,7 @@ def test_world_matched_tables(mod):
        to sampling error (a frame or ordering mix-up in the sampler would show here).
     2. The study's world (A, B, C, X uniform in a 2.5 R square): the states are no longer
        uniformly filled (the square cuts them), and K differs by a mean TV of ~0.13 — above
-       the digest's 0.05; measured, bounded here so that a change shows.
+       the 0.05 asked for; measured, bounded here so that a change shows.
     """
     edc = calculi.get("edc")
     rng = np.random.default_rng(11)
