@@ -108,15 +108,17 @@ def test_psi_matches_particles(mod, pool):
         want, kept = particle_update(rng, pool, mod, scale_f, a, row, zhat, link)
         assert kept > 200
         tvs.append(0.5 * np.abs(got - want).sum())
-        metric, _ = particle_update(rng, pool, mod, scale_f, a, row, zhat, link, resample=False)
-        metric_tv.append(0.5 * np.abs(got - metric).sum())
+        if link == 0:  # only the stay cases are asserted (links differ by design, below)
+            metric, _ = particle_update(rng, pool, mod, scale_f, a, row, zhat, link,
+                                        resample=False)
+            metric_tv.append(0.5 * np.abs(got - metric).sum())
         expect = [[0, 1], [0, 2], [1, 2]][link]
         assert np.asarray(new.frame).tolist() == expect
     assert np.mean(tvs) < 0.06, tvs
     assert max(tvs) < 0.12, tvs
     # the stay cases are exact either way; links drop the within-state correlation (Z eq. 4.25)
-    assert max(metric_tv[0], metric_tv[3]) < 0.05, metric_tv
-    print("psi vs fully metric particles, TV per case:", np.round(metric_tv, 3))
+    assert max(metric_tv) < 0.05, metric_tv
+    print("psi vs fully metric particles, TV of the stay cases:", np.round(metric_tv, 3))
 
 
 def test_zero_evidence_counted_not_nan(mod):
@@ -165,7 +167,7 @@ def test_non_detection_matches_particles(mod, pool):
     under the same uniform-in-state priors; never NaN; seen rows untouched."""
     rng = np.random.default_rng(7)
     edges = np.asarray(mod.bin_edges)
-    n = 100_000
+    n = 60_000
     tvs, moved = [], []
     for _ in range(4):
         robot = np.zeros(20)
