@@ -41,7 +41,7 @@ step serge "$SERGE_S" "$PY" benchmarks/bench_serge.py --trials 64 --seq-trials 4
 step compositions "$STEP_S" "$PY" benchmarks/bench_compositions.py --quick \
   --json "$WORK/compositions.json"
 step study "$STUDY_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 20 --levels 2 \
-  --chunk-runs 20 --quiet --out "$WORK/study"
+  --quiet --out "$WORK/study"
 
 "$PY" - "$WORK" "${1:-}" "$T0" <<'EOF'
 import json, sys, time
