@@ -235,3 +235,26 @@ def test_bridge_from_the_local_levels_star():
                 ta = list(zip(a.path, a.dir, map(bool, a.alpha), strict=True))
                 tb = list(zip(b.path, b.dir, map(bool, b.alpha), strict=True))
                 assert hg.isomorphisms(a, b) == local.star_isomorphisms(ta, tb)
+
+
+def test_planarity_filter_keeps_the_true_map_and_refuses_crossing_corridors():
+    """B §8.3's planarity as an optional leaf filter: the true map of a lattice world always
+    embeds in the plane with its stars' orders (property over random worlds), and two corridors
+    whose ends interleave around one + place cannot."""
+    for seed in range(4):
+        w = hg.grid_world(4, 3, loop_prob=0.5, seed=seed)
+        e = hg.explore(w, 16, seed=seed)
+        leaves = hg.build_tree(e).leaves
+        truth = [h for h in leaves if hg.is_true_map(h, e)]
+        assert len(truth) == 1 and hg.is_planar(truth[0])
+    plus = Star.from_entries([(0, 1, 1), (1, 1, 1), (0, -1, 1), (1, -1, 1)])
+
+    def loops(pairs):
+        edges = {}
+        for a, b in pairs:
+            edges[(0, a)], edges[(0, b)] = (0, b), (0, a)
+        return hg.MapHypothesis((plus,), ((0.0, 1.6, 3.1, 4.7),), edges, ((0, 0),))
+
+    assert hg.is_planar(loops([(0, 1), (2, 3)]))          # nested ends: planar
+    assert not hg.is_planar(loops([(0, 2), (1, 3)]))      # interleaved ends: a torus
+    assert hg.is_planar(loops([(0, 2)]))                  # one loop, two open gateways

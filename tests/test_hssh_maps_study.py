@@ -30,12 +30,17 @@ def test_reduced_study(tmp_path):
     # the map from dead reckoning agrees with the walls (a frame shifted by w/2: about 0.04);
     # relaxed poses may do worse here: revisit jitter exceeds the odometry error (docs)
     assert sim[0]["map_agree_odometry"] > 0.8 and sim[0]["map_agree_relaxed"] > 0.3
-    assert sim[0]["nav_success"] > 0.4
+    # re-localisation at revisits shrinks the place-frame jitter the loop springs carry
+    assert sim[0]["reloc_used"] > 0.5
+    assert sim[0]["reloc_err_theta"] < 0.6 * sim[0]["revisit_jitter_theta"]
+    assert sim[0]["reloc_err_xy"] <= sim[0]["revisit_jitter_xy"]
+    assert sim[0]["map_agree_reloc"] > 0.8 and sim[0]["layout_err_reloc"] < 0.1
+    assert sim[0]["nav_success"] > 0.4 and isinstance(sim[0]["nav_lost_reasons"], list)
     rows = list(csv.DictReader((out / "results.csv").open()))
     assert {"study", "unit", "metric", "value"} == set(rows[0])
     rep = (out / "report.md").read_text()
     assert "83" in rep and "not published" in rep
-    assert "Simulator-driven worlds" in rep
+    assert "Simulator-driven worlds" in rep and "re-localisation" in rep
     for f in ("tree_size.png", "layout.png", "navigation.png", "sim_map.png"):
         assert (out / f).stat().st_size > 1000
     before = (out / "worlds.jsonl").read_text()

@@ -5,6 +5,8 @@
 * :mod:`~pqrm_jax.hssh_global.tree` — the tree of topological map hypotheses (B Alg. 8.1).
 * :mod:`~pqrm_jax.hssh_global.layout` — SE(2) compounding, LM spring relaxation (B ch. 9).
 * :mod:`~pqrm_jax.hssh_global.navigation` — routes and turn commands (B §7.1.3).
+* :mod:`~pqrm_jax.hssh_global.relocalize` — re-localisation at revisits: the current LPM
+  matched against the place's stored LPM, corrected displacements for the layout (B §9.2).
 * :mod:`~pqrm_jax.hssh_global.simulation` — exploration, navigation and the global occupancy
   map driven by the simulator and the local levels (lidar → LPM → gateways → star views).
 """
@@ -12,7 +14,9 @@
 from .layout import (
     LayoutProblem,
     compose,
+    compose_host,
     inverse,
+    inverse_host,
     pack,
     relax,
     relax_loop,
@@ -30,6 +34,7 @@ from .navigation import (
     plan_route,
     shortest_distance,
 )
+from .relocalize import Relocalization, RelocParams, visit_offsets
 from .simulation import (
     SimExperience,
     SimParams,
@@ -53,6 +58,7 @@ from .tree import (
     build_tree,
     canonical_places,
     extend,
+    is_planar,
     is_true_map,
     minimal_models,
     preference_order,
@@ -75,12 +81,14 @@ __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "world_from_lattice", "global_paths",
            "MapHypothesis", "TreeLog", "TreeTooLarge", "build_basic_tree", "build_tree",
            "canonical_places", "extend",
-           "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
-           "LayoutProblem", "compose", "inverse", "pack", "relax", "relax_loop",
+           "is_planar", "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
+           "LayoutProblem", "compose", "compose_host", "inverse", "inverse_host", "pack",
+           "relax", "relax_loop",
            "scale_trajectory",
            "score_hypotheses", "true_layout",
            "NavigationError", "apply_command", "command", "evaluate_navigation", "execute",
            "map_graph", "plan_route", "shortest_distance",
            "SimParams", "SimWorld", "SimExperience", "SimulationError", "sim_world",
            "explore_sim", "navigate_sim", "evaluate_navigation_sim", "global_occupancy",
-           "map_agreement", "true_layout_sim", "revisit_jitter"]
+           "map_agreement", "true_layout_sim", "revisit_jitter",
+           "RelocParams", "Relocalization", "visit_offsets"]

@@ -54,6 +54,30 @@ def inverse(a):
                       wrap(-a[..., 2])], -1)
 
 
+def compose_host(a, b) -> np.ndarray:
+    """:func:`compose` in NumPy (float64) for host-side bookkeeping.
+
+    Eager JAX ops compile once per input shape, so point clouds of varying size (LPM snapshots)
+    cost a compile each through :func:`compose`; this one does not.
+
+    >>> compose_host([1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]).round(6).tolist()
+    [1.0, 1.0, 1.570796]
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1],
+                     np.mod(a[..., 2] + b[..., 2] + np.pi, 2 * np.pi) - np.pi], -1)
+
+
+def inverse_host(a) -> np.ndarray:
+    """:func:`inverse` in NumPy (float64), see :func:`compose_host`."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1],
+                     np.mod(-a[..., 2] + np.pi, 2 * np.pi) - np.pi], -1)
+
+
 class LayoutProblem(NamedTuple):
     """Padded layout problems, one row per hypothesis.
 
@@ -82,19 +106,30 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
 
     Args:
         hypotheses: leaves of the tree (same experience).
-        odometry: ``[N, 3]`` λ_i; NaN entries raise ``ValueError``.
+        odometry: ``[N, 3]`` λ_i shared by all hypotheses, or ``[H, N, 3]`` one row per
+            hypothesis (e.g. corrected by re-localisation at revisits,
+            :func:`~pqrm_jax.hssh_global.relocalize.visit_offsets`); NaN entries raise
+            ``ValueError``. The sd always follows the first row's travel lengths.
         sigma_xy: sd per unit travelled on x, y (relative), ``sigma_theta`` sd of θ per corridor.
             The θ sd is ``sigma_theta · d / median |λ|`` (scale-free); the generator in
             :func:`~pqrm_jax.hssh_global.world.explore` divides by the shortest corridor
             instead, a deliberate small model mismatch.
         m_max: padded number of places (default: the largest hypothesis).
     """
-    odo = np.asarray(odometry, float).reshape(-1, 3)
-    if not np.all(np.isfinite(odo)):
-        bad = np.where(~np.isfinite(odo).all(1))[0].tolist()
-        raise ValueError(f"odometry has non-finite displacements at travels {bad}")
     if not hypotheses:
         raise ValueError("no hypothesis to lay out")
+    raw = np.asarray(odometry, float)
+    if raw.ndim == 3:
+        if raw.shape[0] != len(hypotheses) or raw.shape[2] != 3:
+            raise ValueError(f"per-hypothesis odometry must be [H={len(hypotheses)}, N, 3], "
+                             f"got {list(raw.shape)}")
+        per_h = raw
+    else:
+        per_h = raw.reshape(1, -1, 3)
+    if not np.all(np.isfinite(per_h)):
+        bad = np.where(~np.isfinite(per_h).all(2).all(0))[0].tolist()
+        raise ValueError(f"odometry has non-finite displacements at travels {bad}")
+    odo = per_h[0]
     n = odo.shape[0]
     m = m_max or max(h.n_places for h in hypotheses)
     h_n = len(hypotheses)
@@ -114,17 +149,18 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
         if len(h.visits) != n + 1:
             raise ValueError("hypothesis and odometry come from different experiences")
         delta = [h.bearings[p][e] for p, e in h.visits]
+        odo_k = per_h[k if len(per_h) > 1 else 0]
         pose = np.zeros(3)
         seen = {h.visits[0][0]}
         for i in range(n):
             (p0, _), (p1, _) = h.visits[i], h.visits[i + 1]
             src[k, i], dst[k, i], ds[k, i], dd[k, i] = p0, p1, delta[i], delta[i + 1]
-            pose = np.asarray(compose(pose, odo[i]))
+            pose = compose_host(pose, odo_k[i])
             if p1 not in seen:
                 seen.add(p1)
-                init[k, p1] = np.asarray(compose(pose, np.array([0.0, 0.0, -delta[i + 1]])))
+                init[k, p1] = compose_host(pose, np.array([0.0, 0.0, -delta[i + 1]]))
     return LayoutProblem(*(jnp.asarray(x) for x in (init, src, dst, ds, dd)),
-                         jnp.asarray(np.broadcast_to(odo if n else np.zeros((1, 3)),
+                         jnp.asarray(np.broadcast_to(per_h if n else np.zeros((1, 1, 3)),
                                                      (h_n, max(n, 1), 3)).copy()),
                          jnp.asarray(np.broadcast_to(sig, (h_n, max(n, 1), 3)).copy()),
                          jnp.asarray(mask))

@@ -54,7 +54,7 @@ import numpy as np
 from pqrm_jax import hssh
 from pqrm_jax import sim as _sim
 
-from .layout import compose, inverse
+from .layout import compose, compose_host, inverse, inverse_host
 from .navigation import apply_command, shortest_distance
 from .star import view_from_local_star
 from .world import CorridorWorld, Experience
@@ -480,6 +480,7 @@ def _approach(rv: _Rover, line, travel_dir, leave_from=None) -> _Arrival:
     zero = np.zeros(2)
     leave = 0.5 * p.lpm_widths * w
     track: list = []   # odometry positions while following the corridor
+    rejected0, settled = rv.rejected, 0
     for _ in range(p.max_checks):
         away = leave_from is None or np.hypot(*(rv.odom()[:2] - leave_from)) > leave
         lt = rv.topology()
@@ -487,6 +488,7 @@ def _approach(rv: _Rover, line, travel_dir, leave_from=None) -> _Arrival:
                 and lt.core is not None):
             c = rv.to_odom(lt.core.centre)
             if np.hypot(*(c - rv.odom()[:2])) <= p.arrive_tol * w:
+                settled += 1
                 lt2 = _settled_view(rv, c)
                 if lt2 is not None:
                     return _read_view(rv, lt2, _corridor_axis(track, out, w))
@@ -503,8 +505,14 @@ def _approach(rv: _Rover, line, travel_dir, leave_from=None) -> _Arrival:
                 mid, out = rv.to_odom(np.mean(lt.gateways[g], axis=0)), outs[g]
         rv.drive(mid, out, p.look * w, p.check_every)
     kinds = [k for _, k in rv.trace[-p.max_checks:]]
+    why = ""
+    if rv.rejected > rejected0:
+        # the rover stood on a core centre but every read had crossing gateways: a local-level
+        # gateway failure (an anchor gateway across the junction, B Fig. 6.36), not a drive error
+        why = (f"; {settled} settles on a core centre, {rv.rejected - rejected0} place views "
+               "refused because their gateways cross (local-level gateway defect)")
     raise SimulationError(f"no place reached within {p.max_checks} checks (true pose "
-                          f"{np.round(rv.true(), 3).tolist()}; last views {kinds[-6:]})")
+                          f"{np.round(rv.true(), 3).tolist()}; last views {kinds[-6:]}{why})")
 
 
 def _travel(rv: _Rover, here: _Arrival, exit_entry: int) -> _Arrival:
@@ -646,7 +654,7 @@ def true_layout_sim(se: SimExperience) -> np.ndarray:
     for i, c in enumerate(lab):
         first.setdefault(c, se.true_dividing[i])
     x0 = first[0]
-    return np.stack([np.asarray(compose(inverse(x0), first[c])) for c in range(len(first))])
+    return np.stack([compose_host(inverse_host(x0), first[c]) for c in range(len(first))])
 
 
 def navigate_sim(sw: SimWorld, start: tuple[int, int], commands, seed: int = 0,
@@ -685,7 +693,7 @@ def evaluate_navigation_sim(sw: SimWorld, se: SimExperience, h, n_pairs: int = 5
     route planned on map ``h`` are driven by the rover (:func:`navigate_sim`). The length ratio
     is the true distance driven (manoeuvres at places included) over the shortest corridor
     route of the world. A :class:`SimulationError` during a run counts as a failure
-    (``lost`` counts them).
+    (``lost`` counts them; ``lost_reasons`` keeps each one's pair and message).
     """
     from .navigation import plan_route
     ex = se.experience
@@ -694,8 +702,9 @@ def evaluate_navigation_sim(sw: SimWorld, se: SimExperience, h, n_pairs: int = 5
     for i, (p, _) in enumerate(h.visits):
         first.setdefault(p, int(ex.true_places[i]))
     if h.n_places < 2:
-        return {"success": float("nan"), "length_ratio": float("nan"), "pairs": 0, "lost": 0}
-    ok, lost, ratios = 0, 0, []
+        return {"success": float("nan"), "length_ratio": float("nan"), "pairs": 0, "lost": 0,
+                "lost_reasons": []}
+    ok, lost, ratios, reasons = 0, 0, [], []
     for k in range(n_pairs):
         i = int(rng.integers(len(h.visits)))
         goal = int(rng.choice([p for p in range(h.n_places) if p != h.visits[i][0]]))
@@ -704,8 +713,9 @@ def evaluate_navigation_sim(sw: SimWorld, se: SimExperience, h, n_pairs: int = 5
         try:
             places, dist, done = navigate_sim(sw, ts, cmds, seed=seed + 7919 * (k + 1),
                                               params=params)
-        except SimulationError:
+        except SimulationError as exc:
             lost += 1
+            reasons.append(f"pair {k} {ts}->{first[goal]}: {exc}")
             continue
         if done and places[-1] == first[goal]:
             ok += 1
@@ -713,11 +723,11 @@ def evaluate_navigation_sim(sw: SimWorld, se: SimExperience, h, n_pairs: int = 5
             if sd > 0:
                 ratios.append(dist / sd)
     return {"success": ok / n_pairs, "length_ratio": float(np.mean(ratios)) if ratios
-            else float("nan"), "pairs": n_pairs, "lost": lost}
+            else float("nan"), "pairs": n_pairs, "lost": lost, "lost_reasons": reasons}
 
 
-def global_occupancy(sw: SimWorld, se: SimExperience, h,
-                     chi) -> tuple[np.ndarray, np.ndarray, float]:
+def global_occupancy(sw: SimWorld, se: SimExperience, h, chi,
+                     offsets=None) -> tuple[np.ndarray, np.ndarray, float]:
     """The global occupancy map ``m*`` projected from corrected place poses (B ch. 9).
 
     Each LPM snapshot (taken at a view) is placed by its view's dividing pose in hypothesis ``h``:
@@ -730,6 +740,9 @@ def global_occupancy(sw: SimWorld, se: SimExperience, h,
         se: the exploration.
         h: a map hypothesis of ``se.experience`` (e.g. the preferred or the true leaf).
         chi: ``[M, 3]`` its place poses (relaxed, or ``pack(...).init`` for raw odometry).
+        offsets: optional ``[n+1, 3]`` offsets ``r_i`` of each view's real dividing pose from
+            ``χ_p ⊕ (0, 0, δ)`` (re-localisation at revisits,
+            :attr:`~pqrm_jax.hssh_global.relocalize.Relocalization.offsets` of this ``h``).
 
     Returns:
         ``(logodds [R, C] rows along y, origin [2], resolution)`` in the frame of place 0.
@@ -743,10 +756,12 @@ def global_occupancy(sw: SimWorld, se: SimExperience, h,
         lo = se.snapshots[i]
         keep = lo != 0
         xy = se.snap_origins[i][None, :] + ij[keep][:, ::-1]          # (x, y) in odometry
-        rel = np.asarray(compose(inverse(se.snap_poses[i]),
-                                 np.concatenate([xy, np.zeros((len(xy), 1))], 1)))
-        d = np.asarray(compose(chi[p], np.array([0.0, 0.0, h.bearings[p][e]])))
-        pts.append(np.asarray(compose(d, rel))[:, :2])
+        rel = compose_host(inverse_host(se.snap_poses[i]),
+                           np.concatenate([xy, np.zeros((len(xy), 1))], 1))
+        d = compose_host(chi[p], np.array([0.0, 0.0, h.bearings[p][e]]))
+        if offsets is not None:
+            d = compose_host(d, offsets[i])
+        pts.append(compose_host(d, rel)[:, :2])
         vals.append(lo[keep])
     pts, vals = np.concatenate(pts), np.concatenate(vals)
     origin = pts.min(0) - r
@@ -779,8 +794,7 @@ def map_agreement(sw: SimWorld, grid: np.ndarray, origin, resolution: float, fra
     if len(rows) == 0:
         return float("nan")
     xy = np.asarray(origin)[None, :] + (np.stack([cols, rows], 1) + 0.5) * resolution
-    pts = np.asarray(compose(np.asarray(frame, float),
-                             np.concatenate([xy, np.zeros((len(xy), 1))], 1)))[:, :2]
+    pts = compose_host(frame, np.concatenate([xy, np.zeros((len(xy), 1))], 1))[:, :2]
     occ = np.asarray(sw.occupied)
     # distance to the wall surface (the boundary between free and occupied), either side
     dist = np.where(occ, distance_transform_edt(occ), distance_transform_edt(~occ)) \
@@ -793,7 +807,7 @@ def map_agreement(sw: SimWorld, grid: np.ndarray, origin, resolution: float, fra
     return float(near.mean())
 
 
-def revisit_jitter(se: SimExperience, h) -> tuple[float, float]:
+def revisit_jitter(se: SimExperience, h, offsets=None) -> tuple[float, float]:
     """How far the dividing poses of revisits stray from what the place frame predicts.
 
     At a revisit of place ``p`` on entry ``e`` the layout assumes the rover stands at
@@ -801,14 +815,22 @@ def revisit_jitter(se: SimExperience, h) -> tuple[float, float]:
     dividing pose. With the true dividing poses this returns the mean position discrepancy
     (world units) and mean absolute heading discrepancy (rad) over all revisits: the noise the
     loop-closing springs carry, beside the odometry's (NaN, NaN without a revisit).
+
+    With ``offsets`` (``[n+1, 3]``, re-localisation at revisits,
+    :attr:`~pqrm_jax.hssh_global.relocalize.Relocalization.offsets` of this ``h``) the
+    prediction is ``χ_p ⊕ (0, 0, δ_e − δ_first) ⊕ r_i``: what remains is the re-localisation
+    error.
     """
     first: dict = {}
     dxy, dth = [], []
     for i, (p, e) in enumerate(h.visits):
         if p not in first:
-            first[p] = se.true_dividing[i]
+            first[p] = (se.true_dividing[i], h.bearings[p][e])
             continue
-        pred = np.asarray(compose(first[p], np.array([0.0, 0.0, h.bearings[p][e]])))
+        x0, d0 = first[p]
+        pred = compose_host(x0, np.array([0.0, 0.0, h.bearings[p][e] - d0]))
+        if offsets is not None:
+            pred = compose_host(pred, offsets[i])
         dxy.append(float(np.hypot(*(se.true_dividing[i][:2] - pred[:2]))))
         dth.append(abs(float(_wrap(se.true_dividing[i][2] - pred[2]))))
     if not dxy:

@@ -18,7 +18,8 @@ continues along the same global path (global paths are the chains of local paths
 corridors), (3.7)–(3.10) ``order`` along a path is a strict order: a global path is a simple
 chain, never a cycle and never through the same place twice; and determinism of ``R`` (one
 corridor per gateway; traversability ``α`` respected). The planarity constraint (Savelli &
-Kuipers 2004) is not implemented.
+Kuipers 2004) does not prune the tree; :func:`is_planar` checks it on a leaf, as an optional
+filter on the final leaves.
 
 Preference: the thesis ranks leaves by the *prioritized circumscription policy* of Remolina &
 Kuipers 2004, which the thesis does not specify; we use **fewest places** (the minimality that
@@ -281,6 +282,65 @@ def minimal_models(leaves: list) -> list[int]:
         return []
     m = min(h.n_places for h in leaves)
     return [i for i, h in enumerate(leaves) if h.n_places == m]
+
+
+def is_planar(h: MapHypothesis) -> bool:
+    """Whether a map's corridors embed in the plane with the stars' clockwise orders (B §8.3).
+
+    The stars give a rotation system: at each place its gateways (traversable entries) in
+    clockwise order. Every gateway is a dart; a known corridor pairs two darts, a gateway not
+    explored yet gets a stub vertex of its own (a pendant edge never changes the genus). The
+    faces are the orbits of "cross the corridor, then turn to the next gateway clockwise";
+    the embedding is planar iff ``V − E + F = 2 C`` (Euler, ``C`` connected components).
+    Used as the optional consistency filter behind B's "46 → 1 with planarity" figure.
+
+    >>> from pqrm_jax.hssh_global.world import office_world, explore
+    >>> w = office_world()
+    >>> e = explore(w, 14, seed=0)
+    >>> all(is_planar(h) for h in build_tree(e).leaves if is_true_map(h, e))
+    True
+    """
+    darts = [(p, e) for p, star in enumerate(h.stars) for e in range(len(star))
+             if star.alpha[e]]
+    if not darts:
+        return True
+    nxt = {}
+    for p, star in enumerate(h.stars):
+        gs = [e for e in range(len(star)) if star.alpha[e]]
+        for k, e in enumerate(gs):
+            nxt[(p, e)] = (p, gs[(k + 1) % len(gs)])
+    partner = {d: h.edges.get(d, ("stub", d)) for d in darts}
+    for d in darts:
+        if partner[d][0] == "stub":
+            partner[partner[d]] = d
+            nxt[partner[d]] = partner[d]
+    n_stub = sum(1 for d in darts if d not in h.edges)
+    v = h.n_places + n_stub
+    # each known corridor pairs two darts; each stub edge pairs a dart with its stub dart
+    e_n = (len(darts) - n_stub) // 2 + n_stub
+    seen: set = set()
+    faces = 0
+    for d0 in partner:
+        if d0 in seen:
+            continue
+        faces += 1
+        d = d0
+        while d not in seen:
+            seen.add(d)
+            d = nxt[partner[d]]
+    # connected components over places (stubs hang on their place)
+    parent = list(range(h.n_places))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for (p, _), (q, _) in h.edges.items():
+        parent[find(p)] = find(q)
+    comps = len({find(p) for p in range(h.n_places)})
+    return v - e_n + faces == 2 * comps
 
 
 def view_symbol(view) -> tuple:
