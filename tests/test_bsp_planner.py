@@ -167,3 +167,42 @@ def test_generator_properties():
         assert C.is_composable(env.triplets, range(n))
         assert env.goal in env.triplets and not set(env.frame) <= set(env.goal)
         assert all(E.mec_radius(env.pos[list(t)]) <= 1.0 for t in env.triplets)
+
+
+@pytest.mark.slow
+def test_nothing_seen_branch(mod):
+    """The EXTENSION (docs/bsp.md §nothing-seen): at depth 1 with every action kept, each
+    action's value is c + P_seen · Σ_β w_β v_β + (1 − P_seen) · (h(F) + c̄), the renormalised
+    tree's expectation mixed with staying; P_seen = min(1, Σ_β P(β | a)) from the model."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):  # a study-like environment where P_seen varies over the actions
+        env = E.generate(rng, 10, 2.5)
+        b, fg = _graph(mod, env, True)
+        i, j = (int(x) for x in b.frame)
+        wt = np.asarray(jnp.einsum("b,bax,kxb->ak", b.scale[i, j], mod.T, fg.Ab[i, j])
+                        * fg.obs[i, j][None])
+        if wt.sum(1).min() < 0.5 < wt.sum(1).max():
+            break
+    goal = jnp.asarray(env.goal)
+    plans = {}
+    for flag in (False, True):
+        pp = P.PlannerParams(depth=1, n_actions=20, nothing_seen=flag)
+        plans[flag] = P.plan(mod, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
+                             jax.random.key(0), pp)
+    i, j = (int(x) for x in b.frame)
+    sf = b.scale[i, j]
+    wt = np.asarray(jnp.einsum("b,bax,kxb->ak", sf, mod.T, fg.Ab[i, j]) * fg.obs[i, j][None])
+    seen = np.clip(wt.sum(1), 0, 1)
+    cb = float(P.cbar(mod, D1, 1))
+    stuck = float(P.leaf_values(fg, b.frame, cb, jnp.asarray(1.0e5), 10.0)) + cb
+    cost = np.asarray(P.step_costs(mod, D1, sf, b.robot, 1))
+    q0, q1 = ({int(a): float(v) for a, v in zip(np.asarray(plans[f].actions),
+                                                np.asarray(plans[f].q), strict=True)}
+              for f in (False, True))
+    assert set(q0) == set(q1) == set(range(20))
+    for a in range(20):
+        if wt[a].sum() > 0:
+            want = cost[a] + seen[a] * (q0[a] - cost[a]) + (1 - seen[a]) * stuck
+            assert np.isclose(q1[a], want, rtol=1e-4), (a, q1[a], want)
+    assert seen.min() < 0.5 < seen.max()  # the branch weight really varies over actions
+    assert bool(plans[True].exists) == bool(plans[False].exists)

@@ -158,3 +158,24 @@ def test_two_processes_equal_one(tmp_path, request):
     assert sorted(p.name for p in one.iterdir()) == sorted(p.name for p in two.iterdir())
     timing = json.loads((two / "results.json").read_text())["timing"]
     assert timing["processes"] == 2 and timing["devices_per_process"] == 1
+
+
+@pytest.mark.slow
+def test_nondetection_extension_is_declared_and_off_by_default(tmp_path, request):
+    """The EXTENSION (docs/bsp.md §non-detection): off by default (no key in config.json),
+    declared with its reason when on, named in the report; plan existence is unchanged (it is
+    decided before any observation); the two configurations never mix."""
+    models = str(request.config.cache.mkdir("bsp-models"))
+    off, on = tmp_path / "off", tmp_path / "on"
+    assert _run(off, "--models-dir", models, "--chunk", "4") == 0
+    assert _run(on, "--models-dir", models, "--chunk", "4", "--nondetection") == 0
+    c_off = json.loads((off / "config.json").read_text())
+    c_on = json.loads((on / "config.json").read_text())
+    assert "extensions" not in c_off and "EXTENSION" not in (off / "report.md").read_text()
+    assert "Reason" in c_on["extensions"]["nondetection"]
+    assert "EXTENSIONS beyond the thesis's model are ON" in (on / "report.md").read_text()
+    r_off = list(csv.DictReader(open(off / "tests.csv")))
+    r_on = list(csv.DictReader(open(on / "tests.csv")))
+    assert [r["plan_exists"] for r in r_off] == [r["plan_exists"] for r in r_on]
+    with pytest.raises(StoreError, match="different config"):
+        _run(on, "--models-dir", models, "--chunk", "4")

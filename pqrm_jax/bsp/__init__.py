@@ -2,8 +2,9 @@
 
 * :mod:`.models` — offline transition, association + measurement, link, global-scale and
   unary models sampled under uniform-within-state priors (Z eqs. 4.5, 4.11–4.17, 4.22–4.24),
-  with per-cell counts, standard errors and a hashed cache.
-* :mod:`.belief` — the qualitative belief pytree and its update ψ (Z eqs. 4.18–4.25).
+  with per-cell counts, standard errors and a hashed cache (``sample_tables``: any subset).
+* :mod:`.belief` — the qualitative belief pytree and its update ψ (Z eqs. 4.18–4.25);
+  ``non_detection``, an EXTENSION beyond Z (off by default in execution).
 * :mod:`.compose` — the augmented belief from minimal composition trees (Z eqs. 4.26–4.28),
   the Link-Graph (Thm 4.1).
 * :mod:`.graph` — frame graph of a frozen belief: observability, hops, "plan exists".
@@ -16,17 +17,18 @@
 5
 """
 
-from .belief import QBelief, check_distribution, scale_posteriors, update
+from .belief import QBelief, check_distribution, non_detection, scale_posteriors, update
 from .compose import augment, link_graph
 from .env import Environment, check_environment, generate, initial_belief
 from .execute import ExecParams, Outcome, run_lane, run_lanes
 from .graph import FrameGraph, frame_graph, plan_exists
-from .models import ModelParams, Models, build_models, load_models, stderr
+from .models import ModelParams, Models, build_models, load_models, sample_tables, stderr
 from .planner import Plan, PlannerParams, plan
 
 __all__ = [
-    "QBelief", "check_distribution", "scale_posteriors", "update", "augment", "link_graph",
-    "Environment", "check_environment", "generate", "initial_belief", "ExecParams", "Outcome",
-    "run_lane", "run_lanes", "FrameGraph", "frame_graph", "plan_exists", "ModelParams", "Models",
-    "build_models", "load_models", "stderr", "Plan", "PlannerParams", "plan",
+    "QBelief", "check_distribution", "non_detection", "scale_posteriors", "update", "augment",
+    "link_graph", "Environment", "check_environment", "generate", "initial_belief",
+    "ExecParams", "Outcome", "run_lane", "run_lanes", "FrameGraph", "frame_graph",
+    "plan_exists", "ModelParams", "Models", "build_models", "load_models", "sample_tables",
+    "stderr", "Plan", "PlannerParams", "plan",
 ]

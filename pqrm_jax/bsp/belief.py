@@ -170,6 +170,50 @@ def update(models: Models, belief: QBelief, action, k, zhat, link) -> tuple[QBel
                            conflicts=belief.conflicts + (~ok).astype(jnp.int32)), eta
 
 
+def non_detection(models: Models, scale_f, robot, rows, unseen) -> tuple[jax.Array, jax.Array]:
+    """Rows ``P(ij:k)`` after *not* seeing the candidates ``unseen`` (EXTENSION beyond Z).
+
+    Off by default (``ExecParams.nondetection``; docs/bsp.md §non-detection). The thesis's
+    ψ (Z eq. 4.25) conditions only on an observed candidate, so a candidate that should be
+    visible and is not seen changes nothing. This is the negative-information update with the
+    association model ``A`` (Z eq. 4.12) of the current frame:
+
+        ℓ(s_τ)    = Σ_{s_x, b} robot(s_x) · P_F(b) · (1 − A[s_x, s_τ, b])
+        row'(s_τ) ∝ row(s_τ) · ℓ(s_τ)
+
+    (the same ℓ for every candidate of the frame: it depends on the candidate only through
+    its row). A row whose posterior mass is 0 (the model says it must have been seen) is
+    kept and counted as a conflict: never NaN.
+
+    Args:
+        models: the offline tables.
+        scale_f: [nb] scale belief of the current frame.
+        robot: [Q] the robot's state in the frame when it looked (the prediction).
+        rows: [K, Q] the candidates' rows in the current ordering.
+        unseen: [K] bool, the candidates that were not seen (the others are returned as is).
+
+    Returns:
+        ``(rows', conflicts)``: [K, Q] and the number of unseen rows with zero evidence.
+
+    Only ``models.A`` is read. With a stand-in whose robot state 0 sees state 1 of the
+    triplet for sure and state 0 with probability ½:
+
+    >>> from types import SimpleNamespace
+    >>> A = jnp.zeros((2, 2, 1)).at[0, 1].set(1.0).at[0, 0].set(0.5)
+    >>> rows = jnp.array([[0.5, 0.5], [0.5, 0.5], [0.0, 1.0]])
+    >>> new, bad = non_detection(SimpleNamespace(A=A), jnp.ones(1), jnp.array([1.0, 0.0]),
+    ...                          rows, jnp.array([True, False, True]))
+    >>> new.tolist(), int(bad)
+    ([[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]], 1)
+    """
+    like = jnp.einsum("x,b,xtb->t", robot, scale_f, 1.0 - models.A)
+    post = rows * like
+    s = post.sum(-1, keepdims=True)
+    ok = s[..., 0] > 0
+    new = jnp.where((unseen & ok)[:, None], post / jnp.where(s > 0, s, 1.0), rows)
+    return new, jnp.sum(unseen & ~ok).astype(jnp.int32)
+
+
 def discretise(rel_a, rel_b, rel_c, num_states: int, calc) -> jax.Array:
     """Discrete measurement ẑ = ẑ_x·Q + ẑ_τ from measured positions relative to the robot
     (docs/bsp.md §Z-5); ``-1`` when a state is undefined (boundary, degenerate or non-finite)."""

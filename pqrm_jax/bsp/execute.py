@@ -32,7 +32,7 @@ import jax.numpy as jnp
 
 from .. import calculi, sim
 from ..pqrm import state_probabilities
-from .belief import QBelief, discretise, predict, scale_posteriors, update
+from .belief import QBelief, discretise, non_detection, predict, scale_posteriors, update
 from .graph import frame_graph, plan_exists
 from .models import Models
 from .planner import PlannerParams, cbar, leaf_values, plan
@@ -47,6 +47,10 @@ class ExecParams(NamedTuple):
     pqrm_samples: int = 64
     eps_obs: float = 0.01
     calculus: str = "edc"
+    #: EXTENSION beyond Z, off by default (docs/bsp.md §non-detection): after each move,
+    #: the rows of the frame's candidates that were not seen get the negative-information
+    #: update :func:`~pqrm_jax.bsp.belief.non_detection`.
+    nondetection: bool = False
 
 
 class Outcome(NamedTuple):
@@ -125,6 +129,17 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         nothing = bel._replace(robot=predict(models, sf, a))
         use = anyc & (z >= 0)
         nb_ = jax.tree.map(lambda u, v: jnp.where(use, u, v), upd, nothing)
+        if ep.nondetection:  # EXTENSION (docs/bsp.md §non-detection); off in the thesis model
+            unseen = (avail & lm_mask & (idx != i) & (idx != j)
+                      & ~(vis[i] & vis[j] & vis))
+            pred = predict(models, sf, a)
+            rows_ij, bad = non_detection(models, sf, pred, nb_.trip[i, j], unseen)
+            # the reversed ordering ji:k is INVERSE of ij:k, an exact permutation P = U[2]
+            # (P = Pᵀ = P⁻¹): update it in the ij order with the same likelihood
+            P = models.U[2]
+            rows_ji, _ = non_detection(models, sf, pred, nb_.trip[j, i] @ P, unseen)
+            nd_trip = nb_.trip.at[i, j].set(rows_ij).at[j, i].set(rows_ji @ P)
+            nb_ = nb_._replace(trip=nd_trip, conflicts=nb_.conflicts + bad)
         # PQRM rows of every observed candidate triplet (i, j, k'), all orderings
         rel = ob.rel
         ids = jnp.stack([jnp.full(L, i), jnp.full(L, j), idx], -1)  # (L, 3)

@@ -44,7 +44,7 @@ import io
 import json
 import os
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import NamedTuple
@@ -240,12 +240,16 @@ def target_points(calc, half_width: float = 1.5, resolution: int = 241) -> np.nd
     return out
 
 
-@partial(jax.jit, static_argnums=(0, 1))
-def _sample_all(calc, p: ModelParams, key, targets, edges):
+@partial(jax.jit, static_argnums=(0, 1, 5))
+def _sample_all(calc, p: ModelParams, key, targets, edges, names, sigma):
+    # every table has its own fixed key, so a subset (``names``) samples exactly the same
+    # entries as the full build; the noise levels ``sigma`` = (σ_m, σ_z) are traced (``p``'s
+    # are ignored), so builds that differ only in the noise share one compiled program
     Q, nb, n, W = calc.num_states, p.n_f + 1, p.samples, p.window
     keys = jax.random.split(key, 12)
     pool = state_pool(calc, keys[0], p.pool, W)
     A0, B0 = jnp.zeros(2), jnp.asarray([0.0, 1.0])
+    out = {"pool": pool[2]}
 
     def cls(a, b, c):
         return calc.classify(*jnp.broadcast_arrays(a, b, c))
@@ -255,12 +259,14 @@ def _sample_all(calc, p: ModelParams, key, targets, edges):
         b, j, k = args
         k1, k2 = jax.random.split(k)
         d = _draw_scale(k1, b, n, edges, p.r_min)
-        x = targets[j] + jax.random.normal(k2, (n, 2)) * (p.sigma_m / d)[:, None]
+        x = targets[j] + jax.random.normal(k2, (n, 2)) * (sigma[0] / d)[:, None]
         s = cls(A0, B0, x)
         return _hist(s, s >= 0, Q)
 
-    bb, jj = jnp.meshgrid(jnp.arange(nb), jnp.arange(Q), indexing="ij")
-    T = jax.lax.map(t_cell, (bb.ravel(), jj.ravel(), jax.random.split(keys[1], nb * Q)))
+    if "T" in names:
+        bb, jj = jnp.meshgrid(jnp.arange(nb), jnp.arange(Q), indexing="ij")
+        T = jax.lax.map(t_cell, (bb.ravel(), jj.ravel(), jax.random.split(keys[1], nb * Q)))
+        out["T"] = T.reshape(nb, Q, Q)
 
     # AZ[s_x, s_t, b, z]
     def az_cell(args):
@@ -272,15 +278,17 @@ def _sample_all(calc, p: ModelParams, key, targets, edges):
         lms = jnp.stack([jnp.broadcast_to(A0, x.shape), jnp.broadcast_to(B0, x.shape), c], 1)
         rel = d[:, None] * (lms - x[:, None])
         vis = jnp.all(jnp.sum(rel**2, -1) <= 1.0, -1)
-        m = rel + p.sigma_z * jax.random.normal(k4, rel.shape)
+        m = rel + sigma[1] * jax.random.normal(k4, rel.shape)
         zx = cls(m[:, 0], m[:, 1], jnp.zeros(2))
         zt = cls(m[:, 0], m[:, 1], m[:, 2])
         ok = vis & (zx >= 0) & (zt >= 0)
         return _hist(zx * Q + zt, ok, Q * Q)
 
-    g = jnp.meshgrid(jnp.arange(Q), jnp.arange(Q), jnp.arange(nb), indexing="ij")
-    AZ = jax.lax.map(az_cell, (g[0].ravel(), g[1].ravel(), g[2].ravel(),
-                               jax.random.split(keys[2], Q * Q * nb)))
+    if "AZ" in names:
+        g = jnp.meshgrid(jnp.arange(Q), jnp.arange(Q), jnp.arange(nb), indexing="ij")
+        AZ = jax.lax.map(az_cell, (g[0].ravel(), g[1].ravel(), g[2].ravel(),
+                                   jax.random.split(keys[2], Q * Q * nb)))
+        out["AZ"] = AZ.reshape(Q, Q, nb, Q * Q)
 
     # K[type, s_x, s_t, s']
     def k_cell(args):
@@ -292,7 +300,10 @@ def _sample_all(calc, p: ModelParams, key, targets, edges):
         return jnp.stack([_hist(s, s >= 0, Q) for s in outs])
 
     g2 = jnp.meshgrid(jnp.arange(Q), jnp.arange(Q), indexing="ij")
-    K = jax.lax.map(k_cell, (g2[0].ravel(), g2[1].ravel(), jax.random.split(keys[3], Q * Q)))
+    if "K" in names:
+        K = jax.lax.map(k_cell, (g2[0].ravel(), g2[1].ravel(),
+                                 jax.random.split(keys[3], Q * Q)))
+        out["K"] = K.reshape(Q, Q, 5, Q).transpose(2, 0, 1, 3)
 
     # G2[s1, s2, b_ref, b], D2[s1, s2]
     def g2_cell(args):
@@ -305,8 +316,10 @@ def _sample_all(calc, p: ModelParams, key, targets, edges):
                                          p.n_f), r > 0, nb) for b in range(nb)])
         return hists, jnp.mean(r)
 
-    G2, D2 = jax.lax.map(g2_cell, (g2[0].ravel(), g2[1].ravel(),
-                                   jax.random.split(keys[4], Q * Q)))
+    if "G2" in names or "D2" in names:
+        G2, D2 = jax.lax.map(g2_cell, (g2[0].ravel(), g2[1].ravel(),
+                                       jax.random.split(keys[4], Q * Q)))
+        out |= {"G2": G2.reshape(Q, Q, nb, nb), "D2": D2.reshape(Q, Q)}
 
     # GA, GB, U
     def g1_cell(args):
@@ -322,10 +335,10 @@ def _sample_all(calc, p: ModelParams, key, targets, edges):
                        (cls(B0, x, A0), cls(x, A0, B0), cls(B0, A0, x))])
         return ga, gb, u
 
-    GA, GB, U = jax.lax.map(g1_cell, (jnp.arange(Q), jax.random.split(keys[5], Q)))
-    return dict(T=T.reshape(nb, Q, Q), AZ=AZ.reshape(Q, Q, nb, Q * Q),
-                K=K.reshape(Q, Q, 5, Q).transpose(2, 0, 1, 3), G2=G2.reshape(Q, Q, nb, nb),
-                GA=GA, GB=GB, U=U.transpose(1, 0, 2), D2=D2.reshape(Q, Q), pool=pool[2])
+    if {"GA", "GB", "U"} & set(names):
+        GA, GB, U = jax.lax.map(g1_cell, (jnp.arange(Q), jax.random.split(keys[5], Q)))
+        out |= {"GA": GA, "GB": GB, "U": U.transpose(1, 0, 2)}
+    return {k: v for k, v in out.items() if k in names or k == "pool"}
 
 
 def _normalise(c):
@@ -333,24 +346,33 @@ def _normalise(c):
     return np.divide(c, tot, out=np.zeros_like(c), where=tot > 0)
 
 
-def build_models(params: ModelParams | None = None) -> Models:
-    """Sample every table of the module docstring (no cache; see :func:`load_models`)."""
+def sample_tables(params: ModelParams | None = None,
+                  names: tuple[str, ...] = TABLES) -> dict[str, np.ndarray]:
+    """The tables ``names`` (a subset of ``TABLES``) as :func:`build_models` samples them.
+
+    Each table has its own key, so a subset is bit-identical to the same tables of the full
+    build: a cheap way to test one table (e.g. the σ → 0 limits of ``T`` and ``AZ``).
+    Returns float64 NumPy arrays (normalised as in :class:`Models`).
+    """
     p = (params or ModelParams()).validate()
+    names = tuple(sorted(set(names)))
+    if bad := set(names) - set(TABLES):
+        raise ValueError(f"unknown tables {sorted(bad)}; choose from {TABLES}")
     calc = calculi.get(p.calculus)
     if calc.boundary_inclusive:
         raise ValueError(f"uniform-within-state priors need an open calculus, not {calc.name!r}")
     targets = target_points(calc, p.target_half_width)
-    w = 2.0 / p.n_f
-    edges = np.append(np.arange(p.n_f + 1) * w, 3.0)
-    raw = jax.device_get(_sample_all(calc, p, jax.random.key(p.seed),
+    edges = bin_edges(p)
+    static = replace(p, sigma_m=0.0, sigma_z=0.0)
+    raw = jax.device_get(_sample_all(calc, static, jax.random.key(p.seed),
                                      jnp.asarray(targets, jnp.float32),
-                                     jnp.asarray(edges, jnp.float32)))
+                                     jnp.asarray(edges, jnp.float32), names,
+                                     jnp.asarray([p.sigma_m, p.sigma_z], jnp.float32)))
     pool = np.asarray(raw.pop("pool"))
     if np.any(pool == 0):
         raise ValueError(f"pool of {p.pool} points misses states "
                          f"{[calc.states[i] for i in np.flatnonzero(pool == 0)]}; raise pool")
     n = p.samples
-    Q, nb = calc.num_states, p.n_f + 1
     out = {}
     for k, v in raw.items():
         v = np.asarray(v, np.float64)
@@ -362,6 +384,25 @@ def build_models(params: ModelParams | None = None) -> Models:
             out[k] = _normalise(v + v.transpose(1, 0, 2, 3))
         else:
             out[k] = _normalise(v)
+    return out
+
+
+def bin_edges(params: ModelParams) -> np.ndarray:
+    """(nb + 1,) scale-bin edges in units of R (the last, 3R, caps the unobservable bin)."""
+    w = 2.0 / params.n_f
+    return np.append(np.arange(params.n_f + 1) * w, 3.0)
+
+
+def build_models(params: ModelParams | None = None) -> Models:
+    """Sample every table of the module docstring (no cache; see :func:`load_models`)."""
+    p = (params or ModelParams()).validate()
+    calc = calculi.get(p.calculus)
+    out = sample_tables(p)
+    targets = target_points(calc, p.target_half_width)
+    edges = bin_edges(p)
+    w = 2.0 / p.n_f
+    n = p.samples
+    Q, nb = calc.num_states, p.n_f + 1
     counts = {"T": np.full((nb, Q), n), "AZ": np.full((Q, Q, nb), n),
               "K": np.full((5, Q, Q), n), "G2": np.full((Q, Q, nb), 2 * n),
               "GA": np.full((Q, nb), n), "GB": np.full((Q, nb), n), "U": np.full((3, Q), n),

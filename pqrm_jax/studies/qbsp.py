@@ -102,6 +102,32 @@ DECISIONS = {
 }
 
 
+#: Extensions beyond the thesis's model, each off by default (the default study is Z's model
+#: and its config.json has no such key); ``--nondetection`` / ``--nothing-seen`` add theirs
+#: to ``config["extensions"]`` with the reason.
+EXTENSIONS = {
+    "nondetection": "EXTENSION beyond Z (off by default, an ablation): after each move the "
+                    "rows ij:k and ji:k of the frame's candidates that were not seen get "
+                    "P(s_tau) * sum_{s_x,b} P(s_x) P_F(b) (1 - A[s_x, s_tau, b]) "
+                    "(negative information with the association model, Z eq. 4.12). "
+                    "Reason: in Z's psi not seeing a candidate gives no evidence, and "
+                    "most failed executions never leave the first frame, repeating one "
+                    "action (docs/bsp.md §execution-failures, §non-detection)",
+    "nothing_seen": "EXTENSION beyond Z (off by default, an ablation): the planner's "
+                    "expectation over candidates gets a 'nothing seen' branch of weight "
+                    "1 - min(1, sum_beta P(beta | a)) valued as staying (h(F) + cbar), "
+                    "instead of renormalising the kept candidates' weights to 1 (Z-24, "
+                    "eq. 4.14). Reason: with renormalisation an action that sees a "
+                    "candidate with probability 0.01 is valued as if it saw it surely, so "
+                    "the cheapest such action is repeated (docs/bsp.md §nothing-seen)",
+}
+
+
+def _extensions(args) -> dict:
+    on = [k for k in EXTENSIONS if getattr(args, k, False)]
+    return {"extensions": {k: EXTENSIONS[k] for k in on}} if on else {}
+
+
 def config_for(args) -> dict:
     """The study configuration (every parameter; calibration filled in later)."""
     if args.tiny:
@@ -130,13 +156,13 @@ def config_for(args) -> dict:
         "initial_measurement_samples": 256,
         # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
         "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
-                   "depths": [1, 2]} if args.tiny else
+                   "depths": [1]} if args.tiny else
                   {"seed": args.seed + 20_000, "envs": 60 if args.reduced else 200,
                    "sizes": [1.5, 2.5, 3.5, 5.0], "depths": [1, 2, 3]}),
         "chunk": base["chunk"],
         "decisions": DECISIONS,
         "published": PUBLISHED,
-    }
+    } | _extensions(args)
 
 
 def _env_rng(seed: int, e: int) -> np.random.Generator:
@@ -211,7 +237,9 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
            "tree_exists": {m: {} for m in ("without", "with")}}
     pps = {d: P.PlannerParams(depth=d, n_actions=cfg["planner"]["n_actions"],
                               n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
-                              rho=cfg["planner"]["rho"]) for d in sw["depths"]}
+                              rho=cfg["planner"]["rho"],
+                              nothing_seen="nothing_seen" in cfg.get("extensions", {}))
+           for d in sw["depths"]}
     bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
     for size in sizes:
         ex = {m: [] for m in ("without", "with")}
@@ -292,7 +320,8 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
     L = cfg["L_max"]
     ex = cfg["execution"]
     ep = X.ExecParams(t_max=ex["t_max"], sigma_m=ex["sigma_m"], sigma_z=ex["sigma_z"],
-                      pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"])
+                      pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"],
+                      nondetection="nondetection" in cfg.get("extensions", {}))
     pos = jnp.asarray(np.stack([E.padded_positions(e, L) for e in pad]))
     lm = jnp.asarray(np.stack([np.arange(L) < len(e.pos) for e in pad]))
     goal = jnp.asarray([e.goal for e in pad], jnp.int32)
@@ -315,7 +344,8 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
     costs = jnp.asarray(np.repeat([c for _, c in combos], width), jnp.int32)
     pp = P.PlannerParams(depth=cfg["planner"]["depth"], n_actions=cfg["planner"]["n_actions"],
                          n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
-                         rho=cfg["planner"]["rho"])
+                         rho=cfg["planner"]["rho"],
+                         nothing_seen="nothing_seen" in cfg.get("extensions", {}))
     lanes = (rep(pos), rep(lm), rep(goal), rep(start), B, rep(ref), rep(rs), rep(keys), costs)
     lanes = shard_lanes(lanes)
     t0 = time.perf_counter()
@@ -450,9 +480,14 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
              f"{res['n_env']} environments × 2 modes × 2 costs; S/R = {cfg['size']}, "
              f"eps_obs = {cfg['execution']['eps_obs']} ({cfg['calibration']['how']}); "
              f"planner depth L = {cfg['planner']['depth']}, "
-             f"model samples per cell = {cfg['models']['samples']}.", "",
-             "| quantity | published | measured | 95 % interval | verdict |",
-             "|---|---|---|---|---|"]
+             f"model samples per cell = {cfg['models']['samples']}.", ""]
+    if cfg.get("extensions"):
+        lines += ["**EXTENSIONS beyond the thesis's model are ON** (an ablation, not the "
+                  "thesis's model; docs/bsp.md §non-detection):", ""]
+        lines += [f"- {k}: {v}" for k, v in cfg["extensions"].items()]
+        lines += [""]
+    lines += ["| quantity | published | measured | 95 % interval | verdict |",
+              "|---|---|---|---|---|"]
 
     def row(name, pub, val, lo, hi, fmt="{:.3f}"):
         lines.append(f"| {name} | {fmt.format(pub)} | {fmt.format(val)} | "
@@ -724,6 +759,13 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--size", type=float, default=2.5, help="environment size S/R")
     ap.add_argument("--eps", type=float, help="fix eps_obs (no calibration)")
     ap.add_argument("--seed", type=int, default=2022)
+    ap.add_argument("--nondetection", action="store_true",
+                    help="EXTENSION beyond the thesis (ablation): negative-information update "
+                         "of candidates not seen (docs/bsp.md §non-detection)")
+    ap.add_argument("--nothing-seen", dest="nothing_seen", action="store_true",
+                    help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
+                         "in the planner instead of renormalised candidate weights "
+                         "(docs/bsp.md §nothing-seen)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
     distributed.add_arguments(ap)
