@@ -35,9 +35,13 @@ def test_edges_match_brute_force(beta):
         assert not (g.adjacency & ~lg.link_graph(el, 1).adjacency).any()
 
 
-def test_planning_matches_networkx_unit_and_weighted():
-    rng = np.random.default_rng(0)
-    for trial in range(16):
+@pytest.mark.parametrize("trials", [range(0, 8), pytest.param(range(8, 16),
+                                                                 marks=pytest.mark.slow)])
+def test_planning_matches_networkx_unit_and_weighted(trials):
+    # the first 8 random graphs cover beta 1 and 2, unit and weighted, twice each (each graph
+    # size is a compile, so the other 8 are slow)
+    rng = np.random.default_rng(trials.start)
+    for trial in trials:
         el = _random_elements(rng, 10, 14)
         inc = qel.incidence(el)
         landmarks = np.flatnonzero(inc.any(axis=1))
@@ -126,11 +130,14 @@ def test_bad_input():
         lg.plan_pairs(g, el, [int(el.ids[0, 0])], [-3])
 
 
-def test_neg_log_success_costs_give_max_product_paths():
+@pytest.mark.parametrize("graphs", [1, pytest.param(2, marks=pytest.mark.slow)])
+def test_neg_log_success_costs_give_max_product_paths(graphs):
+    # one random graph in the default suite (each graph compiles its own edge-success and
+    # planning programs); the slow case adds a second
     from pqrm_jax.qlink import costs
 
     rng = np.random.default_rng(7)
-    for _ in range(2):
+    for _ in range(graphs):
         lm = jnp.asarray(rng.uniform(0, 30, (7, 2)), jnp.float32)
         el = _random_elements(rng, 7, 8)
         el = qel.exact_elements(lm, np.asarray(el.ids))

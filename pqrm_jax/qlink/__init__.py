@@ -10,6 +10,8 @@
 * :mod:`.trajectory` — quarter arcs of radius R, circle searches of radius R′, straight drives.
 * :mod:`.navigate` — the executive: one ``lax.while_loop`` per start/goal trial on the
   simulated rover, ``vmap``ped; failure reasons; re-planning inputs (P §4.3, §4.4).
+* :mod:`.hybrid` — the in-vivo hybrid map (LR point triplets + wall–wall–point bands), its
+  −log p costs and the segment-centre/sweep executive with injected misses (P §4.4.2).
 * :mod:`.guarantees` — Assumptions 1–4 and the bounds of Props. 2 and 4 (P §4.3.4).
 
 >>> import jax.numpy as jnp, numpy as np
@@ -21,7 +23,7 @@
 [2]
 """
 
-from . import costs, elements, guarantees, linkgraph, navigate, pomdp, trajectory
+from . import costs, elements, guarantees, hybrid, linkgraph, navigate, pomdp, trajectory
 from .costs import edge_costs, edge_success, path_success
 from .elements import MapElements, exact_elements, from_mapping_run, incidence
 from .linkgraph import (
@@ -46,7 +48,7 @@ from .navigate import navigate as drive
 from .pomdp import SearchPOMDP, open_loop_plan, search_model, solve_exact
 
 __all__ = [
-    "costs", "elements", "guarantees", "linkgraph", "navigate", "pomdp", "trajectory",
+    "costs", "elements", "guarantees", "hybrid", "linkgraph", "navigate", "pomdp", "trajectory",
     "MapElements", "from_mapping_run", "exact_elements", "incidence",
     "LinkGraph", "Plan", "link_graph", "plan_pairs", "plan_from", "goal_distances",
     "neighbour_table", "to_networkx", "edge_costs", "edge_success", "path_success",

@@ -487,6 +487,14 @@ def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
         picks.append(max(occ, key=lambda r: float(r["length_m"])))
     if not picks:
         return []
+    # a resumed run whose picks are unchanged keeps the figure and notes it already drew
+    # (the same per-trial keys would re-drive the same trajectories)
+    key = [[r["world"], r["beta"], r["setting"], r["start"], r["goal"], r["reason"],
+            r["length_m"]] for r in picks]
+    done = st.read_json("examples.json", ("picks", "notes"))
+    if done is not None and done["picks"] == key and st.path(
+            "example_trajectories.png").exists():
+        return list(done["notes"])
     z = st.read_npz(f"world_{w:02d}.npz", WORLD_ARRAYS)
     if z is None:       # set aside since main checked it: no examples this run
         return []
@@ -523,6 +531,7 @@ def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
     fig.tight_layout()
     st.savefig("example_trajectories.png", fig, dpi=110)
     plt.close(fig)
+    st.write_json("examples.json", {"picks": key, "notes": notes})
     return notes
 
 

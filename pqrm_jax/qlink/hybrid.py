@@ -1,0 +1,476 @@
+"""Q-Link on a hybrid map: LR point triplets and wall–wall–point bands (P §4.4.2).
+
+Padgett's in-vivo map mixes two ternary QSRs (P §4.4.2): the flip-flop (left/right, ``lr``) on
+point-landmark triplets, and a three-state calculus on *two oriented, extended landmarks and one
+point landmark* — "in front", "between", "behind" — whose references are the two extended
+landmarks only. Here the extended landmarks are two facing wall segments; with A, B their
+midpoints and the walls perpendicular to AB the three states are exactly the three bands of the
+Double Cross (β > 1, 0 < β < 1, β < 0 along AB), so :func:`bands_calculus` is a merge of
+``double_cross`` (docs/qlink.md §invivo).
+
+* :func:`hybrid_elements` maps a run: a wall is seen when any point of it is in range
+  (:func:`pqrm_jax.sim.segment_visibility`) and measured at its midpoint; every co-observed
+  triplet is an element; a triplet holding both walls is a **bands** element (``kind`` 1),
+  any other an **LR** element (``kind`` 0; a wall in it acts as a point at its midpoint —
+  decision, so that bands and point elements can share two landmarks and link at β = 2).
+* :func:`hybrid_costs` gives −log p edge costs (P eq. 4.4) from the search POMDP of each kind.
+* :func:`drive` is the in-vivo executive: at every stop a 360° scan (each landmark missed
+  with probability ``p_miss``); the QSR commands drive to the centre of the reference segment
+  and sweep the commanded state; a transition needs two landmarks of the next element in view
+  at once (both walls for a bands element); at the goal element, a drive to the centroid of
+  its landmarks. Sensing happens at stops only, so a trial is a short ``lax.while_loop`` over
+  stops (straight drives between them), ``vmap``ped over trials.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import calculi, pqrm
+from .. import sim as _sim
+from . import pomdp as _pomdp
+from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
+
+__all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
+           "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
+           "qsr_tables", "uniform_sequence"]
+
+LR, BANDS = 0, 1
+RUNNING, SUCCESS, LINK_NOT_FOUND, REFS_NOT_FOUND, BUDGET = 0, 1, 2, 3, 6
+ENTER, SEARCH = 0, 1
+
+
+def bands_calculus() -> calculi.Calculus:
+    """Front / between / behind along AB: the three bands of the Double Cross merged.
+
+    >>> import jax.numpy as jnp
+    >>> b = bands_calculus()
+    >>> [b.states[int(b.classify(jnp.array([0., 0.]), jnp.array([10., 0.]), jnp.array([x, 3.])))]
+    ...  for x in (-5., 5., 15.)]
+    ['behind', 'between', 'front']
+    """
+    return calculi.get("double_cross").merge(
+        "bands", {"front": ["lf", "rf"], "between": ["lm", "rm"], "behind": ["lb", "rb"]},
+        "front of B / between / behind A (3), the in-vivo extended-landmark QSR (P §4.4.2)")
+
+
+class HybridMap(NamedTuple):
+    """A hybrid qualitative map.
+
+    elements: ids ``[E, 3]`` sorted; probs ``[E, 6, 3]`` (LR rows use states 0–1, state 2 is 0).
+    kind: ``[E]`` int, :data:`LR` or :data:`BANDS`.
+    walls: ``(2,)`` the landmark ids of the two walls (the last two ids).
+    """
+
+    elements: MapElements
+    kind: np.ndarray
+    walls: tuple[int, int]
+
+
+def _fuse(p, mask, floor):
+    logp = jnp.log(jnp.maximum(p, floor)) * mask[:, :, None, None]
+    return jax.nn.softmax(jnp.sum(logp, axis=1), axis=-1)
+
+
+def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigma: float,
+                    num_samples: int = 64, max_obs: int = 6, floor: float = 1e-3,
+                    max_side: float | None = None) -> tuple[HybridMap, jax.Array, np.ndarray]:
+    """Map a hybrid world from a mapping run (P §2.2, §4.4.2).
+
+    Args:
+        key: PRNG key. points: ``[N, 2]`` point landmarks. walls: ``[2, 2, 2]`` segments.
+        poses: ``[P, 3]`` mapping poses. max_range, sigma: the sensor (P: 60 m, σ = 0.7 m).
+        num_samples, max_obs, floor: as :func:`pqrm_jax.qlink.from_mapping_run`.
+        max_side: keep only triplets whose measured pairwise distances (first
+            co-observation) are at most this (Assumption 3 of P §4.3.4 with ``max_range``);
+            ``None`` keeps every co-observed triplet.
+
+    Returns:
+        ``(map, landmarks [N + 2, 2] (walls at their midpoints), visible [P, N + 2])``.
+    """
+    points, walls = jnp.asarray(points), jnp.asarray(walls)
+    if walls.shape != (2, 2, 2):
+        raise ValueError(f"walls must have shape (2, 2, 2), got {walls.shape}")
+    n = points.shape[0]
+    lm = jnp.concatenate([points, walls.mean(1)])
+    k_obs, k_map = jax.random.split(key)
+    sensor = _sim.SensorParams(max_range=float(max_range), sigma=float(sigma))
+    obs = jax.vmap(_sim.observe, (0, 0, None, None))(jax.random.split(k_obs, poses.shape[0]),
+                                                      poses, lm, sensor)
+    wall_vis = jax.vmap(lambda p: _sim.segment_visibility(p[:2], walls, max_range))(poses)
+    visible = np.concatenate([np.asarray(obs.visible)[:, :n], np.asarray(wall_vis)], 1)
+    ids, which = co_observed_triplets(visible, max_obs)
+    if ids.shape[0] == 0:
+        raise ValueError("the mapping run observed no landmark triplet: the map would be empty")
+    if max_side is not None:
+        first = np.asarray(obs.rel)[which[:, 0][:, None], ids]              # [E, 3, 2]
+        side = np.linalg.norm(first[:, [0, 0, 1]] - first[:, [1, 2, 2]], axis=-1)
+        keep = (side <= max_side).all(1)
+        ids, which = ids[keep], which[keep]
+        if ids.shape[0] == 0:
+            raise ValueError(f"no co-observed triplet has all sides <= {max_side}: empty map")
+    kind = np.where((ids == n).any(1) & (ids == n + 1).any(1), BANDS, LR).astype(np.int32)
+    trip = jnp.asarray(ids)[:, ORDERINGS]
+    pose_idx = jnp.maximum(jnp.asarray(which), 0)
+    means = obs.rel[pose_idx[:, :, None, None], trip[:, None, :, :]]       # [E, K, 6, 3, 2]
+    e, k = which.shape
+    flat = means.reshape(e * k * 6, 3, 2)
+    mask = jnp.asarray(which >= 0, jnp.float32)
+    out = np.zeros((e, 6, 3), np.float32)
+    for kd, calc, q in ((LR, calculi.get("lr"), 2), (BANDS, bands_calculus(), 3)):
+        sel = kind == kd
+        if not sel.any():
+            continue
+        rows = flat.reshape(e, k * 6, 3, 2)[sel].reshape(-1, 3, 2)
+        p = pqrm.state_probabilities(jax.random.fold_in(k_map, kd), calc, rows, float(sigma),
+                                     num_samples).reshape(-1, k, 6, q)
+        out[sel, :, :q] = np.asarray(_fuse(p, mask[sel], floor))
+    el = MapElements(jnp.asarray(ids), jnp.asarray(out), n + 2)
+    return HybridMap(el, kind, (n, n + 1)), lm, visible
+
+
+def search_models(horizon: int = 4, detect_same: float = 0.9):
+    """``(lr, bands)`` search POMDPs with direct transitions (P §4.4.2) and one detection
+    table for all elements (P L1165): ``detect_same`` when the swept state holds the link,
+    0 otherwise (a sweep sees only its own state)."""
+    out = []
+    for q in (2, 3):
+        det = np.eye(q, dtype=np.float32) * detect_same
+        out.append(_pomdp.SearchPOMDP(jnp.ones((q, q), bool), jnp.asarray(det), 1.0,
+                                      int(horizon)))
+    return tuple(out)
+
+
+_ORDER_OF = np.full((3, 3), -1, np.int32)
+for _k, (_a, _b, _c) in enumerate(ORDERINGS):
+    _ORDER_OF[_a, _b] = _k
+
+
+def _first(mask):
+    """Index of the first True per row (``[K, 3]``) and whether there is one."""
+    return np.argmax(mask, 1), mask.any(1)
+
+
+def reference_rule(ids_i, kind_i, ids_j, walls):
+    """``(refs [K, 2], target [K], order [K])`` for transitions M_i → M_j (host side, batched).
+
+    Bands elements use the two walls as references; LR elements the two members other than
+    the link (the first shared member that is not a wall, else the first shared one). The
+    target is what the robot must find: the first member of L_i ∩ L_j that is not a
+    reference, else the first member of L_j not a reference (then it is not in L_i and the
+    search belief is uniform); ``target = -1`` when the references already give two members
+    of L_j. ``order`` is the :data:`~pqrm_jax.qlink.elements.ORDERINGS` row of
+    ``(refs, target)`` in L_i, −1 when the target is not in L_i.
+
+    >>> refs, t, o = reference_rule([[0, 1, 2]], [LR], [[1, 2, 3]], (8, 9))
+    >>> refs.tolist(), t.tolist(), o.tolist()
+    ([[0, 2]], [1], [1])
+    """
+    ids_i, ids_j = np.atleast_2d(ids_i), np.atleast_2d(ids_j)
+    kind_i = np.asarray(kind_i)
+    rows = np.arange(ids_i.shape[0])
+    shared = (ids_i[:, :, None] == ids_j[:, None, :]).any(-1)           # [K, 3]
+    is_wall = np.isin(ids_i, walls)
+    li, has = _first(shared & ~is_wall)
+    li = np.where(has, li, _first(shared)[0])
+    keep = np.arange(3)[None, :] != li[:, None]
+    pos_lr = np.sort(np.where(keep, np.arange(3)[None, :], 9), 1)[:, :2]
+    pos = np.where((kind_i == BANDS)[:, None], np.array([[1, 2]]), pos_lr)
+    refs = ids_i[rows[:, None], pos]
+    is_ref_i = (ids_i[:, :, None] == refs[:, None, :]).any(-1)
+    t_i, has_i = _first(shared & ~is_ref_i)
+    is_ref_j = (ids_j[:, :, None] == refs[:, None, :]).any(-1)
+    t_j, has_j = _first(~is_ref_j)
+    target = np.where(has_i, ids_i[rows, t_i], np.where(has_j, ids_j[rows, t_j], -1))
+    target = np.where(is_ref_j.sum(1) >= 2, -1, target)
+    order = np.where(has_i & (target >= 0), _ORDER_OF[pos[:, 0], pos[:, 1]], -1)
+    return refs.astype(np.int32), target.astype(np.int32), order.astype(np.int32)
+
+
+def uniform_sequence(q: int, horizon: int) -> np.ndarray:
+    """``[τ]`` the sweep order for a target whose state is unknown (uniform belief): the
+    states in turn, ``0, 1, …, q − 1, 0, …`` (with one detection table for every state, any
+    order of distinct states has the same success probability)."""
+    return (np.arange(horizon) % q).astype(np.int32)
+
+
+def hybrid_costs(hmap: HybridMap, beta: int, models, tables=None):
+    """``[E, E]`` −log p edge costs (P eqs. 4.2–4.4), ``inf`` where no edge.
+
+    p is eq. 4.3's success probability of the command sequence the executive would sweep for
+    the target of :func:`reference_rule` (1 when no search is needed), clamped to
+    [1e-12, 1]: the exact open-loop plan of :func:`qsr_tables` (``tables``, computed when not
+    given) for a target in L_i, :func:`uniform_sequence` for one outside it.
+    """
+    from .linkgraph import shared_counts
+
+    ids = np.asarray(hmap.elements.ids)
+    probs = np.asarray(hmap.elements.probs)
+    tables = qsr_tables(hmap, models) if tables is None else tables
+    adj = shared_counts(hmap.elements) >= beta
+    np.fill_diagonal(adj, False)
+    src, dst = np.nonzero(adj)
+    cost = np.full(adj.shape, np.inf)
+    for kd in (LR, BANDS):
+        m = models[kd]
+        q, tau = m.detect.shape[0], int(m.horizon)
+        sel = np.flatnonzero(hmap.kind[src] == kd)
+        if sel.size == 0:
+            continue
+        _, t, o = reference_rule(ids[src[sel]], hmap.kind[src[sel]], ids[dst[sel]],
+                                 hmap.walls)
+        b = np.where((o >= 0)[:, None], probs[src[sel], np.maximum(o, 0), :q], 1.0 / q)
+        b = b / np.maximum(b.sum(-1, keepdims=True), 1e-30)
+        seq = np.where((o >= 0)[:, None], np.asarray(tables[kd])[src[sel], np.maximum(o, 0)],
+                       uniform_sequence(q, tau)[None, :])
+        width = 1 << max(0, int(sel.size - 1).bit_length())           # few compiles
+        pad = width - sel.size
+        b = jnp.asarray(np.concatenate([b, np.full((pad, q), 1.0 / q)]), jnp.float32)
+        seq = jnp.asarray(np.concatenate([seq, np.zeros((pad, tau), np.int32)]))
+        h = jax.vmap(lambda bb, s, m=m: _pomdp.hazards(m, bb, s, True))(b, seq)
+        p = np.clip(np.asarray(jax.vmap(_pomdp.success_probability)(h))[:sel.size],
+                    1e-12, 1.0)
+        p = np.where(t < 0, 1.0, p)
+        cost[src[sel], dst[sel]] = -np.log(p.astype(np.float64))
+    return cost
+
+
+class HybridParams(NamedTuple):
+    """In-vivo executive parameters.
+
+    nav_range: sensing range (P: 60 m). sigma: measurement noise std. p_miss: probability
+    that a scan misses a landmark in range (injected; each scan and landmark independent).
+    """
+
+    nav_range: float
+    sigma: float
+    p_miss: float = 0.0
+
+
+class HybridResult(NamedTuple):
+    """Outcome of B trials (``[B]`` unless noted): status (codes of
+    :data:`pqrm_jax.qlink.FAILURE_REASONS`), length driven, stops (loop iterations), hops,
+    k (index on the path of the last element entered), pose ``[B, 2]`` final position,
+    refs ``[B, 2]``, failed ``[B, 2]`` the edge (element ids) that failed (−1 if none),
+    trace ``[B, T, 2]`` the stop positions (NaN after the end)."""
+
+    status: jax.Array
+    length: jax.Array
+    stops: jax.Array
+    hops: jax.Array
+    k: jax.Array
+    pose: jax.Array
+    refs: jax.Array
+    failed: jax.Array
+    trace: jax.Array
+
+
+class _S(NamedTuple):
+    pos: jax.Array
+    length: jax.Array
+    stops: jax.Array
+    k: jax.Array
+    refs: jax.Array
+    refs_xy: jax.Array
+    phase: jax.Array
+    c: jax.Array
+    e: jax.Array
+    seq: jax.Array
+    status: jax.Array
+    hops: jax.Array
+    trace: jax.Array
+
+
+def _sel(cond, a, b):
+    return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
+
+
+@partial(jax.jit, static_argnames=("trace_len",))
+def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
+           params, *, trace_len):
+    lr, bd = calculi.get("lr"), bands_calculus()
+    nw = lm.shape[0] - 2
+    tau = plans_lr.shape[-1]
+    fdt = lm.dtype
+
+    def visible(key, scan, pos, who):
+        """[K] who (landmark ids, -1 = none) in range of pos and not missed."""
+        w = jnp.maximum(who, 0)
+        d_pt = jnp.linalg.norm(lm[w] - pos, axis=-1)
+        d_wall = _sim.segment_distance(pos, walls)[jnp.clip(w - nw, 0, 1)]
+        d = jnp.where(w >= nw, d_wall, d_pt)
+        u = jax.vmap(lambda x: jax.random.uniform(
+            jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
+        return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
+
+    def measure(key, scan, who):
+        z = jax.vmap(lambda x: jax.random.normal(
+            jax.random.fold_in(jax.random.fold_in(key, scan), x), (2,), fdt))(who)
+        return lm[jnp.maximum(who, 0)] + params.sigma * z
+
+    def one(key, path, n, refs0, pos0):
+        k_miss, k_noise = jax.random.split(key)
+        l0 = path[0]
+        s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
+                measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
+                jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
+                jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
+        del l0
+        budget = 3 * (tau + 2) * n + 4
+
+        def pair_of(j, vis_j):
+            """(ok, refs [2]) of entering element j with members' visibility vis_j [3]."""
+            mem = ids[j]
+            is_bd = kind[j] == BANDS
+            ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
+            ok_lr = jnp.sum(vis_j) >= 2
+            first = jnp.argmax(vis_j)
+            second = jnp.argmax(vis_j & (jnp.arange(3) != first))
+            r_lr = jnp.stack([mem[first], mem[second]])
+            return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+
+        def body(s):
+            scan = s.stops + 1
+            goal_stage = s.k == n - 1
+            cur = path[s.k]
+            nxt = path[jnp.minimum(s.k + 1, path.shape[0] - 1)]
+            mem_n = ids[nxt]
+            # ---- goal: drive to the measured centroid of L_goal
+            cen = jnp.mean(measure(k_noise, scan, ids[cur]), axis=0)
+            s_goal = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
+                                status=jnp.int32(SUCCESS))
+            # ---- ENTER: 360° scan for the next element
+            vis_full = visible(k_miss, scan, s.pos, mem_n)
+            ok, new_refs = pair_of(nxt, vis_full)
+
+            def enter_next(st, refs):
+                return st._replace(k=st.k + 1, refs=refs.astype(jnp.int32),
+                                   refs_xy=measure(k_noise, scan, refs), phase=jnp.int32(ENTER),
+                                   hops=st.hops + 1, c=jnp.int32(0), e=jnp.int32(-1))
+            s_trans = enter_next(s, new_refs)
+            # plan the QSR search: target (host rule, mirrored), belief, command sequence
+            mem_c = ids[cur]
+            in_n = (mem_c[:, None] == mem_n[None, :]).any(1)
+            not_ref = (mem_c != s.refs[0]) & (mem_c != s.refs[1])
+            cand_c = in_n & not_ref
+            n_not_ref = (mem_n != s.refs[0]) & (mem_n != s.refs[1])
+            tgt = jnp.where(jnp.any(cand_c), mem_c[jnp.argmax(cand_c)],
+                            mem_n[jnp.argmax(n_not_ref)]).astype(jnp.int32)
+            in_c = jnp.any(mem_c == tgt)
+            order = ordering_index(mem_c, s.refs[0], s.refs[1])
+            seq = jnp.where(kind[cur] == BANDS, plans_bd[cur, order], plans_lr[cur, order])
+            q_uni = jnp.where(kind[cur] == BANDS, jnp.arange(tau) % 3, jnp.arange(tau) % 2)
+            seq = jnp.where(in_c, seq, q_uni)   # uniform_sequence: the state is unknown
+            centre = jnp.mean(s.refs_xy, axis=0)
+            s_search = s._replace(pos=centre, length=s.length + jnp.linalg.norm(centre - s.pos),
+                                  phase=jnp.int32(SEARCH), c=jnp.int32(0), e=tgt, seq=seq)
+            s_enter = _sel(ok, s_trans, s_search)
+            # ---- SEARCH: sweep the commanded state from the centre
+            cmd = s.seq[jnp.minimum(s.c, tau - 1)]
+            a, b = s.refs_xy[0], s.refs_xy[1]
+            who = jnp.concatenate([mem_n, s.e[None]])
+            true_xy = lm[jnp.maximum(who, 0)]
+            cls = jnp.where(kind[cur] == BANDS,
+                            jax.vmap(lambda x: bd.classify(a, b, x))(true_xy),
+                            jax.vmap(lambda x: lr.classify(a, b, x))(true_xy))
+            is_ref = (who[:, None] == s.refs[None, :]).any(1)
+            vis_sw = visible(k_miss, scan, s.pos, who) & ((cls == cmd) | is_ref)
+            ok_sw, refs_sw = pair_of(nxt, vis_sw[:3])
+            e_seen = vis_sw[3]
+            # seen the target alone: drive to it and scan all round
+            e_xy = measure(k_noise, scan, s.e[None])[0]
+            vis_at_e = visible(k_miss, scan + (1 << 20), e_xy, mem_n)
+            ok_e, refs_e = pair_of(nxt, vis_at_e)
+            s_at_e = s._replace(pos=e_xy, length=s.length + jnp.linalg.norm(e_xy - s.pos))
+            s_e = _sel(ok_e, enter_next(s_at_e, refs_e),
+                       s_at_e._replace(status=jnp.int32(REFS_NOT_FOUND)))
+            c2 = s.c + 1
+            s_miss = _sel(c2 < tau, s._replace(c=c2),
+                          s._replace(status=jnp.int32(LINK_NOT_FOUND)))
+            s_sweep = _sel(ok_sw, enter_next(s, refs_sw), _sel(e_seen, s_e, s_miss))
+            out = _sel(goal_stage, s_goal, _sel(s.phase == ENTER, s_enter, s_sweep))
+            out = out._replace(stops=scan,
+                               trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
+                                   jnp.where(scan < trace_len, out.pos,
+                                             out.trace[trace_len - 1])))
+            over = (out.status == RUNNING) & (scan >= budget)
+            return out._replace(status=jnp.where(over, BUDGET, out.status))
+
+        s = jax.lax.while_loop(lambda s: s.status == RUNNING, body, s0)
+        fail = s.status != SUCCESS
+        edge = jnp.where(fail, jnp.stack([path[s.k], path[jnp.minimum(s.k + 1,
+                                                                      path.shape[0] - 1)]]),
+                         -1)
+        return HybridResult(s.status, s.length, s.stops, s.hops, s.k, s.pos, s.refs,
+                            edge.astype(jnp.int32), s.trace)
+
+    return jax.vmap(one)(keys, paths, n, refs0, pos0)
+
+
+def qsr_tables(hmap: HybridMap, models) -> tuple[jax.Array, jax.Array]:
+    """``([E, 6, τ], [E, 6, τ])`` exact open-loop command sequences of every element and
+    ordering under the LR and the bands search POMDP (robot state irrelevant: direct
+    transitions)."""
+    probs = jnp.asarray(hmap.elements.probs)
+    e = probs.shape[0]
+    out = []
+    for kd in (LR, BANDS):
+        m = models[kd]
+        q = m.detect.shape[0]
+        b = probs[:, :, :q].reshape(e * 6, q)
+        b = b / jnp.maximum(b.sum(-1, keepdims=True), 1e-30)
+        b = jnp.where(jnp.sum(b, -1, keepdims=True) > 0, b, 1.0 / q)
+        _, seq = _pomdp.open_loop_plan(m, jnp.zeros(e * 6, jnp.int32), b)
+        out.append(seq.reshape(e, 6, -1).astype(jnp.int32))
+    return out[0], out[1]
+
+
+def drive(keys, hmap: HybridMap, landmarks, walls, paths, n_elements, refs, positions,
+          params: HybridParams, tables, trace_len: int = 32) -> HybridResult:
+    """Drive B planned trials with the in-vivo executive (one ``while_loop`` each, ``vmap``).
+
+    Args:
+        keys: ``[B]`` per-trial keys. hmap: the map. landmarks: ``[N + 2, 2]`` true positions
+            (walls at their midpoints); walls: ``[2, 2, 2]`` segments.
+        paths: ``[B, L]`` element ids (−1 padded); n_elements: ``[B]`` ≥ 1.
+        refs: ``[B, 2]`` the references the robot is localised with in ``paths[:, 0]``.
+        positions: ``[B, 2]`` start positions. params: :class:`HybridParams`.
+        tables: :func:`qsr_tables`. trace_len: stops kept for plots.
+
+    Raises:
+        ValueError: ``nav_range <= 0``, ``p_miss`` outside [0, 1], a trial without a path,
+            NaN positions.
+    """
+    if not (np.isfinite(params.nav_range) and params.nav_range > 0):
+        raise ValueError(f"nav_range must be positive and finite, got {params.nav_range}")
+    if not 0.0 <= params.p_miss <= 1.0:
+        raise ValueError(f"p_miss must lie in [0, 1], got {params.p_miss}")
+    n_elements = np.asarray(n_elements, np.int32)
+    if np.any(n_elements < 1):
+        raise ValueError("every trial needs a planned path (|P| >= 1)")
+    if not np.all(np.isfinite(np.asarray(positions))):
+        raise ValueError("start positions contain NaN or inf values")
+    p = HybridParams(*(float(x) for x in params))
+    lm = jnp.asarray(landmarks, jnp.float32)
+    # pad the batch to a power of two and the path width to a multiple of 8 (few compiles;
+    # every trial runs alone in its lane, so results do not depend on the padding)
+    paths = np.asarray(paths, np.int32)
+    b = paths.shape[0]
+    bp = 1 << max(3, int(b - 1).bit_length())
+    width = -(-paths.shape[1] // 8) * 8
+    paths = np.pad(paths, ((0, bp - b), (0, width - paths.shape[1])), constant_values=-1)
+    paths[b:, 0] = paths[0, 0]
+    rep = np.concatenate([np.arange(b), np.zeros(bp - b, np.int64)])
+    keys = jnp.asarray(keys)[rep]
+    res = _drive(keys, jnp.asarray(paths), jnp.asarray(n_elements[rep]),
+                 jnp.asarray(np.asarray(refs, np.int32)[rep]),
+                 jnp.asarray(np.asarray(positions)[rep], lm.dtype), lm,
+                 jnp.asarray(walls, lm.dtype), jnp.asarray(hmap.elements.ids),
+                 jnp.asarray(hmap.kind), jnp.asarray(hmap.elements.probs), tables[0],
+                 tables[1], p, trace_len=int(trace_len))
+    return jax.tree.map(lambda x: x[:b], res)

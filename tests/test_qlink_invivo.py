@@ -1,0 +1,92 @@
+"""The in-vivo-like Q-Link study (P §4.4.2): bands calculus, reference rule, executive, and the
+reduced study (files, acceptance checks, resume)."""
+
+import csv
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pqrm_jax import calculi
+from pqrm_jax.qlink import hybrid as hy
+from pqrm_jax.studies import discover
+
+
+def test_bands_are_the_double_cross_bands():
+    """front / between / behind of (A, B) = the Double Cross's three bands merged
+    (docs/qlink.md §invivo): a point's band is the sign test on its projection along AB."""
+    b, dc = hy.bands_calculus(), calculi.get("double_cross")
+    rng = np.random.default_rng(0)
+    a, bb = jnp.array([0.0, 0.0]), jnp.array([7.0, 3.0])
+    x = jnp.asarray(rng.uniform(-20, 25, (200, 2)), jnp.float32)
+    got = np.asarray(jax.vmap(lambda p: b.classify(a, bb, p))(x))
+    t = np.asarray((x - a) @ (bb - a)) / float((bb - a) @ (bb - a))
+    want = np.where(t > 1, 0, np.where(t < 0, 2, 1))
+    assert (got == want).all()
+    fine = np.asarray(jax.vmap(lambda p: dc.classify(a, bb, p))(x))
+    assert (np.asarray(b.parent_map)[fine] == got).all()
+
+
+def test_reference_rule_bands_use_the_walls():
+    walls = (8, 9)
+    # bands element {2, 8, 9} -> LR element {2, 8, 5}: refs = walls, target = point 2
+    refs, t, o = hy.reference_rule([[2, 8, 9]], [hy.BANDS], [[2, 5, 8]], walls)
+    assert refs.tolist() == [[8, 9]] and t.tolist() == [2] and o.tolist() == [3]
+    # bands -> bands sharing both walls: nothing to search
+    refs, t, o = hy.reference_rule([[2, 8, 9]], [hy.BANDS], [[3, 8, 9]], walls)
+    assert t.tolist() == [-1]
+    # LR {1, 2, 8} -> bands {1, 8, 9}: the link is the point 1, refs (2, 8); target 1
+    refs, t, o = hy.reference_rule([[1, 2, 8]], [hy.LR], [[1, 8, 9]], walls)
+    assert refs.tolist() == [[2, 8]] and t.tolist() == [1]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    mod = discover()["qlink-invivo"]
+    out = tmp_path_factory.mktemp("inv") / "s"
+    assert mod.main(["--reduced", "--out", str(out)]) == 0
+    return mod, out
+
+
+def test_reduced_invivo_study(study):
+    mod, out = study
+    rows = list(csv.DictReader((out / "trials.csv").open()))
+    cfg = json.loads((out / "config.json").read_text())
+    assert set(mod.REASONS) == set(cfg["reasons"]) == set(cfg) - {"reasons", "precision"}
+    assert len(rows) == cfg["trials"] * len(cfg["p_miss"])
+    clean = [r for r in rows if float(r["p_miss"]) == 0.0]
+    assert all(r["success"] == "1" and r["replans"] == "0" for r in clean)
+    for r in rows:      # lengths within the Prop. 2 and Prop. 4 bounds, successes attributed
+        n = max(int(r["n_entered"]), 1)
+        if r["success"] == "1":
+            assert float(r["length_m"]) <= cfg["map_range"] * n
+            assert r["attributed"] == "1"
+    w = np.load(out / "world.npz")
+    assert w["walls"].shape == (2, 2, 2) and set(np.unique(w["element_kind"])) <= {0, 1}
+    report = (out / "report.md").read_text()
+    assert "72%" in report and "Table 4.2" in report and "| match |" in report
+    assert (out / "invivo_world.png").exists()
+    before = (out / "trials.csv").read_text()
+    assert mod.main(["--reduced", "--out", str(out)]) == 0      # resume: same rows
+    assert (out / "trials.csv").read_text() == before
+
+
+def test_misses_fail_trials_and_replanning_follows(study):
+    """With every scan missing (p_miss = 1) and no re-planning, no trial with a transition to
+    make can succeed, and each failure names a search reason; the same trials succeed
+    without misses."""
+    mod, _ = study
+    cfg = mod.Config(**{**mod.REDUCED, "max_replans": 0})
+    world = mod.build(cfg)
+    ok = mod.run_setting(cfg, world, 0.0)
+    bad = mod.run_setting(cfg, world, 1.0)
+    assert all(r["success"] for r in ok)
+    for r in bad:
+        if r["n_planned"] > 1:
+            assert not r["success"] and r["reason"] in ("link_not_found", "refs_not_found")
+    with pytest.raises(ValueError, match="p_miss"):
+        hy.drive(jax.random.split(jax.random.key(0), 1), world["hmap"], world["landmarks"],
+                 world["walls"], np.zeros((1, 1), np.int32), [1], np.zeros((1, 2), np.int32),
+                 np.zeros((1, 2)), hy.HybridParams(60.0, 0.7, 1.5), world["tables"])
