@@ -18,11 +18,13 @@ def _run(out, *extra):
                       "--envs", "4", *extra])
 
 
-def test_tiny_study(tmp_path, request):
+def test_tiny_study(tmp_path, request, capsys):
     assert "qbsp" in discover()
     models = str(request.config.cache.mkdir("bsp-models"))
     out = tmp_path / "s"
-    assert _run(out, "--models-dir", models, "--chunk", "4") == 0
+    # no --chunk: sized from the device memory (capped at the 4 environments), then stored
+    assert _run(out, "--models-dir", models) == 0
+    assert "--chunk 4 environments per call, sized from the memory" in capsys.readouterr().out
     rows = list(csv.DictReader(open(out / "tests.csv")))
     assert len(rows) == 4 * 4
     assert {r["mode"] for r in rows} == {"without", "with"} and {r["cost"] for r in rows} == {
@@ -44,9 +46,10 @@ def test_tiny_study(tmp_path, request):
     assert "0.684" in rep and "0.816" in rep and "ratio" in rep
     assert (out / "fig45_plan_exists.png").exists()
     before = (out / "tests.csv").read_text()
-    # resume: nothing recomputed, same rows; a different configuration is refused
+    # resume: nothing recomputed, same rows, the stored chunk kept (a 1000-byte device could
+    # not size one: no probe runs); a different configuration is refused
     (out / "report.md").unlink()
-    assert _run(out, "--models-dir", models, "--chunk", "4") == 0
+    assert _run(out, "--models-dir", models, "--memory-bytes", "1000") == 0
     assert (out / "tests.csv").read_text() == before
     with pytest.raises(StoreError, match="different config"):
         _run(out, "--models-dir", models, "--depth", "2")
@@ -69,6 +72,15 @@ def test_tiny_study(tmp_path, request):
     with Store.open(out, "qbsp", None):
         with pytest.raises(StoreError, match="in use by another process"):
             _run(out, "--models-dir", models, "--chunk", "4")
+    # a device too small for one environment (the cached probe), or for the given chunk:
+    # refused naming --chunk before any environment is written
+    with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
+        _run(tmp_path / "small", "--models-dir", models, "--memory-bytes", "1000")
+    assert not (tmp_path / "small").exists()
+    with pytest.raises(StudyError, match="a chunk of 4 environments .* lower --chunk"):
+        _run(tmp_path / "small", "--models-dir", models, "--chunk", "4",
+             "--memory-bytes", "1000")
+    assert not list((tmp_path / "small").glob("chunks/*.json"))
 
 
 def test_corrupt_model_cache_fails_the_study(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 
 from pqrm_jax.studies import discover
 from pqrm_jax.studies import hssh_plus as study
-from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError
+from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError, StudyError
 
 
 def test_registered():
@@ -29,7 +29,7 @@ def _records(side, rot, argv):
 
 
 def test_reduced_unit_records_equal_the_stored_ones():
-    # side 49 of the reduced corpus: the same compiled program as the reduced-corpus test
+    # side 49 of the reduced corpus (2 images)
     assert _records(49, 30.0, ["--reduced"]) == json.loads(RECORDS.read_text())["reduced"]
 
 
@@ -43,9 +43,15 @@ def test_unit_records_equal_the_stored_sample(side, rot):
     assert _records(side, rot, []) == stored
 
 
-def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
+def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
+    from pqrm_jax.studies.chunking import FRACTION
+
     argv = ["--reduced", "--sizes", "49", "--out", str(tmp_path)]   # one size: one compile
-    assert study.main(argv) == 0
+    # the chunk sized from a (fake) device memory with room for 1.5 grids: one grid per chunk
+    grid = study.grid_bytes(49, {"robot_radius": 0.0, "evg_cap_fraction": 0.2})
+    room = str(int(1.5 * grid / FRACTION))
+    assert study.main(argv + ["--memory-bytes", room]) == 0
+    assert "--chunk-cells 2401 sized from the memory" in capsys.readouterr().out
     units = sorted((tmp_path / "units").glob("*.json"))
     assert len(units) == 2                                    # 1 size x 2 rotations
     rows = [r for u in units for r in json.loads(u.read_text())["records"]]
@@ -63,9 +69,12 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
     for fig in ("accuracy_size_noise.png", "accuracy_rotation_size_noise.png",
                 "accuracy_per_rotation.png"):
         assert (tmp_path / fig).stat().st_size > 0
+    assert cfg["layout"] == {"chunk_cells": 49 * 49}
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before
+    # the resume kept the stored chunk though the real memory holds both noise levels
+    assert json.loads((tmp_path / "config.json").read_text())["layout"] == cfg["layout"]
     assert (tmp_path / "results.csv").read_text().startswith("study,unit,metric,value")
     # a torn unit is named, set aside and recomputed alone; the other is not touched
     torn, other = units
@@ -89,6 +98,20 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path):
             study.main(argv)
     with pytest.raises(StoreError, match="different config"):
         study.main(argv + ["--supersample", "2"])
+    # another chunk width (both noise levels in one chunk): the same records
+    wide = tmp_path / "wide"
+    assert study.main(["--reduced", "--sizes", "49", "--out", str(wide),
+                       "--chunk-cells", str(2 * 49 * 49)]) == 0
+    assert [untimed(u.read_text()) for u in sorted((wide / "units").glob("*.json"))] == \
+        [untimed(before[u.name]) for u in units]
+    # a device without room for one grid, or for the chunk given: refused, nothing written
+    small = ["--reduced", "--sizes", "49", "--out", str(tmp_path / "small")]
+    with pytest.raises(StudyError, match="--chunk-cells cannot go below one lane"):
+        study.main(small + ["--memory-bytes", "1000"])
+    with pytest.raises(StudyError, match="a chunk of 2 grids of 49x49 cells .* lower "
+                                         "--chunk-cells"):
+        study.main(small + ["--chunk-cells", str(2 * 49 * 49), "--memory-bytes", room])
+    assert not (tmp_path / "small").exists()
 
 
 @pytest.mark.slow

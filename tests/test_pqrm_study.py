@@ -104,13 +104,13 @@ def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp
     from pqrm_jax.studies import chunking
     from pqrm_jax.studies.store import StudyError
 
-    cfg = padgett_mc.Config(runs=6, levels=1, num_samples=8, num_landmarks=4,
+    cfg = padgett_mc.Config(runs=4, levels=1, num_samples=8, num_landmarks=4,
                             representations=("edc",))
     assert cfg.chunk_runs is None
     probe, _ = padgett_mc.chunk_program(dataclasses.replace(cfg, chunk_runs=1), 1)
     one = chunking.program_bytes(probe)  # bounds one run's bytes (1 device here)
     assert one and one > 0
-    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=10**12) == 6  # capped at the runs
+    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=10**12) == 4  # capped at the runs
     # room for 2.5 runs in FRACTION of the memory: the largest power of two that fits, 2
     small = int(2.5 * one / chunking.FRACTION)
     assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=small) == 2
@@ -122,11 +122,12 @@ def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp
     padgett_mc.run_study(cfg, out, quiet=True, memory_bytes=10**12)
     assert json.loads((out / "config.json").read_text())["layout"]["chunk"] == 2
     assert (out / "level_01.npz").exists()
-    # a given chunk too large for the memory, and a memory too small for one run
-    six = dataclasses.replace(cfg, chunk_runs=6)
-    need = chunking.program_bytes(padgett_mc.chunk_program(six, 6)[0])
-    with pytest.raises(StudyError, match="a chunk of 6 runs .* lower --chunk-runs"):
-        padgett_mc.run_study(six, tmp_path / "big", quiet=True,
+    # a given chunk too large for the memory (the chunk of 2 compiled above: no new
+    # program), and a memory too small for one run
+    two = dataclasses.replace(cfg, chunk_runs=2)
+    need = chunking.program_bytes(padgett_mc.chunk_program(two, 2)[0])
+    with pytest.raises(StudyError, match="a chunk of 2 runs .* lower --chunk-runs"):
+        padgett_mc.run_study(two, tmp_path / "big", quiet=True,
                              memory_bytes=int(0.9 * need / chunking.FRACTION))
     assert not (tmp_path / "big" / "levels.jsonl").exists()
     with pytest.raises(StudyError, match="--chunk-runs"):

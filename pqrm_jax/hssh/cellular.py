@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
+    "CHUNK_CELLS",
     "CellularMaps",
     "zhang_suen_lut",
     "remove_islands",
@@ -343,7 +344,7 @@ def _bleed_and_distance(occupied, radius, cap):
 
 
 def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: float = 0.0,
-                    m_cap: float | None = None) -> CellularMaps:
+                    m_cap: float | None = None, chunk_cells: int | None = None) -> CellularMaps:
     """Run island removal, bleeding, the distance transform and the EVG skeleton on a stack.
 
     Args:
@@ -351,6 +352,8 @@ def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: fl
         unknown: bool ``[B, H, W]``.
         robot_radius: bleed obstacles by this many cells (B §6.1.1; 0 = none).
         m_cap: EVG cap ``M`` in cells; default ``min(H, W) / 5`` (B §6.3.1, ``c = 5``).
+        chunk_cells: cells per chunk of the batch (the grids go through the stages chunk by
+            chunk); default :data:`CHUNK_CELLS`. The outputs do not depend on it.
 
     Returns:
         :class:`CellularMaps` (a horizontal corridor through the grid thins to its midline
@@ -361,13 +364,17 @@ def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: fl
     h, w = occupied.shape[-2:]
     m = float(min(h, w) / 5.0 if m_cap is None else m_cap)
     cap = int(np.ceil(m + 2.0 + robot_radius))
-    return _cellular(occupied, unknown, float(robot_radius), m, cap)
+    cells = CHUNK_CELLS if chunk_cells is None else int(chunk_cells)
+    if cells < 1:
+        raise ValueError(f"chunk_cells must be positive, got {chunk_cells}")
+    return _cellular(occupied, unknown, float(robot_radius), m, cap, cells)
 
 
-_CHUNK_CELLS = 1_500_000  # cells per chunk of the batch: ~16 grids of 300 x 300 (see below)
+#: default cells per chunk of the batch: ~16 grids of 300 x 300 (CPU caches, see _chunking)
+CHUNK_CELLS = 1_500_000
 
 
-def _chunking(b: int, h: int, w: int) -> tuple[int, int]:
+def _chunking(b: int, h: int, w: int, cells: int = CHUNK_CELLS) -> tuple[int, int]:
     """(number of chunks, grids per chunk) for a batch of ``b`` grids of ``h x w`` cells.
 
     The stages sweep their arrays tens of times; past a few MB (an int16 distance map of 16
@@ -375,15 +382,15 @@ def _chunking(b: int, h: int, w: int) -> tuple[int, int]:
     grid grows (measured on a loaded machine: 2.8 ms/grid at 16, 4.6 at 32, 5.0 at 64 before
     chunking). Chunks are as equal as possible; the last is padded with empty grids.
     """
-    per = max(1, _CHUNK_CELLS // max(h * w, 1))
+    per = max(1, cells // max(h * w, 1))
     n = -(-b // per)
     return n, -(-b // n)
 
 
-@partial(jax.jit, static_argnames=("radius", "m", "cap"))
-def _cellular(occupied, unknown, radius, m, cap):
+@partial(jax.jit, static_argnames=("radius", "m", "cap", "cells"))
+def _cellular(occupied, unknown, radius, m, cap, cells):
     b, h, w = occupied.shape
-    n, per = _chunking(b, h, w)
+    n, per = _chunking(b, h, w, cells)
     if n == 1:
         return _cellular_chunk(occupied, unknown, radius, m, cap)
     pad = [(0, n * per - b), (0, 0), (0, 0)]

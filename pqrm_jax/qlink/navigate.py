@@ -381,7 +381,7 @@ def start_poses(keys, landmarks, starts, offset):
 def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
              params: NavParams, model: _pomdp.SearchPOMDP | None = None,
              poses=None, budget=None, chunk: int = 64, record: int = 0,
-             plans=None) -> NavResult:
+             plans=None, compile_only: bool = False) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
@@ -399,6 +399,8 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
             own ends); results do not depend on it.
         record: keep the first ``record`` positions of every trial (for plots).
         plans: optional :func:`qsr_plans` table (computed when not given).
+        compile_only: return the pool program compiled for these inputs instead of running
+            it (its XLA memory analysis sizes ``chunk``; nothing is driven).
 
     Raises:
         ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
@@ -443,11 +445,13 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
     if plans is None:
         plans = qsr_plans(elements, model)
     occ_tab, occlusion = _occ_inputs(landmarks, p)
-    res = _navigate(*args, jnp.int32(b), landmarks, jnp.asarray(elements.ids),
-                    jnp.asarray(plans), model.feasible, model.detect, p, occ_tab,
-                    horizon=int(model.horizon), occlusion=occlusion, width=int(chunk),
-                    record=int(record))
-    return _take(res, jnp.asarray(inv, jnp.int32))
+    call = (*args, jnp.int32(b), landmarks, jnp.asarray(elements.ids), jnp.asarray(plans),
+            model.feasible, model.detect, p, occ_tab)
+    kw = dict(horizon=int(model.horizon), occlusion=occlusion, width=int(chunk),
+              record=int(record))
+    if compile_only:
+        return _navigate.lower(*call, **kw).compile()
+    return _take(_navigate(*call, **kw), jnp.asarray(inv, jnp.int32))
 
 
 @jax.jit

@@ -17,7 +17,14 @@ sizes the call from what the device can hold instead of a constant tuned for one
    (the chunk changes float bits, so a study stores it and reuses it on resume);
 4. :func:`check_fits` — a chosen (or user-given) chunk whose program needs more than the
    budget fails with a :class:`~pqrm_jax.studies.store.StudyError` naming the chunk option,
-   before anything runs.
+   before anything runs;
+5. :func:`resolve` — the chunk one run of a study uses, the same on every process: the
+   user's, else the one stored in ``out/config.json`` (a resume keeps its layout whatever the
+   free memory is now), else a new one sized by the study (``size()``, on process 0 only).
+
+Studies using it (docs/studies.md): padgett-mc (``--chunk-runs``: runs per call), qbsp
+(``--chunk``: environments per call, four lanes each), qlink (``--chunk``: pool lanes of the
+navigation executive) and hssh-plus (``--chunk-grids``: grids per cellular call).
 
 The budget can be passed explicitly (``memory_bytes``) for tests and for users who share a
 device; nothing here mocks JAX.
@@ -35,10 +42,14 @@ FRACTION = 0.5 of the 1024 MiB available is 512 MiB; lower --chunk-runs
 
 from __future__ import annotations
 
+import json
 import os
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
-__all__ = ["FRACTION", "available_bytes", "check_fits", "pick_chunk", "program_bytes"]
+__all__ = ["FRACTION", "available_bytes", "check_fits", "pick_chunk", "program_bytes",
+           "balance", "resolve", "stored_chunk"]
 
 #: share of a device's available memory one chunk may use: XLA's own runtime buffers, the
 #: host-side copies of the results and other processes on the machine need the rest
@@ -120,11 +131,11 @@ def pick_chunk(per_lane_bytes: float, budget_bytes: int, *, total: int, devices:
     if per_device < 1:
         from .store import StudyError
 
-        raise StudyError(f"one lane needs about {per_lane_bytes / 2**20:.0f} MiB per device but "
-                         f"FRACTION = {fraction:g} of the {budget_bytes / 2**20:.0f} MiB "
-                         f"available is {fraction * budget_bytes / 2**20:.0f} MiB; the device "
+        raise StudyError(f"one lane needs about {_size(per_lane_bytes)} per device but "
+                         f"FRACTION = {fraction:g} of the {_size(budget_bytes)} "
+                         f"available is {_size(fraction * budget_bytes)}; the device "
                          f"is too small for this configuration ({option} cannot go below "
-                         f"one run per device)")
+                         f"one lane per device)")
     need = -(-total // devices)
     lanes = 1 << (per_device.bit_length() - 1)  # largest power of two <= per_device
     return devices * min(lanes, need)
@@ -140,6 +151,68 @@ def check_fits(nbytes: int | None, budget_bytes: int | None, *, option: str, wha
         return
     from .store import StudyError
 
-    raise StudyError(f"{what} needs about {nbytes / 2**20:.0f} MiB per device but FRACTION = "
-                     f"{fraction:g} of the {budget_bytes / 2**20:.0f} MiB available is "
-                     f"{fraction * budget_bytes / 2**20:.0f} MiB; lower {option}")
+    raise StudyError(f"{what} needs about {_size(nbytes)} per device but FRACTION = "
+                     f"{fraction:g} of the {_size(budget_bytes)} available is "
+                     f"{_size(fraction * budget_bytes)}; lower {option}")
+
+
+def _size(nbytes: float) -> str:
+    for unit, k in (("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if nbytes >= k:
+            return f"{nbytes / k:.0f} {unit}"
+    return f"{nbytes:.0f} B"
+
+
+def balance(chunk: int, total: int, devices: int = 1) -> int:
+    """The smallest multiple of ``devices`` that covers ``total`` in as many calls as
+    ``chunk`` does: the same number of compiled calls with less padding in the last one.
+
+    >>> balance(256, 300)  # two calls either way; the second no longer 212 lanes of padding
+    150
+    >>> balance(8, 20, devices=4)
+    8
+    """
+    calls = -(-total // max(chunk, 1))
+    per_call = -(-total // calls)
+    return max(devices, -(-per_call // devices) * devices)
+
+
+def stored_chunk(out: Path, key: str = "chunk") -> int | None:
+    """``layout[key]`` of ``out/config.json`` (None when there is no valid one).
+
+    >>> stored_chunk(Path("/nonexistent")) is None
+    True
+    """
+    try:
+        chunk = json.loads((Path(out) / "config.json").read_text())["layout"][key]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return chunk if isinstance(chunk, int) and not isinstance(chunk, bool) and chunk >= 1 \
+        else None
+
+
+def resolve(given: int | None, out: Path, size: Callable[[], int], *, fresh: bool = False,
+            cluster: Any = None, key: str = "chunk") -> int:
+    """The chunk of this run, the same on every process of ``cluster``.
+
+    ``given`` (the user's option) wins; else process 0 reuses the chunk stored in
+    ``out/config.json`` (unless ``fresh``) or calls ``size()`` (the study's memory-based
+    choice), and broadcasts it (:func:`~pqrm_jax.studies.distributed.decide`: a failure of
+    ``size`` on process 0 is raised on every process).
+
+    >>> resolve(None, Path("/nonexistent"), lambda: 16)
+    16
+    >>> resolve(8, Path("/nonexistent"), lambda: 16)
+    8
+    """
+    if given is not None:
+        return int(given)
+    from . import distributed
+
+    cluster = cluster or distributed.current()
+
+    def choose() -> list[int]:
+        stored = None if fresh else stored_chunk(out, key)
+        return [stored or int(size())]
+
+    return int(distributed.decide(cluster, 1, choose)[0])

@@ -32,6 +32,7 @@ one-process run's (the measured ``seconds`` aside).
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import time
 from pathlib import Path
@@ -73,6 +74,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=4,
                    help="area samples per cell and axis when drawing the +")
     p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    p.add_argument("--chunk-cells", type=int, default=None,
+                   help="cells per compiled chunk of the cellular stages (default: sized from "
+                        "the device memory, on CPU at most the cache-sized default; a resume "
+                        "keeps the stored one; results do not depend on it)")
+    p.add_argument("--memory-bytes", type=int, default=None,
+                   help="device memory the chunk is sized for and checked against (default: "
+                        "what the device reports)")
     from . import distributed
 
     distributed.add_arguments(p)  # --coordinator / --processes / --process-id
@@ -139,7 +147,8 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
     t0 = time.perf_counter()
     maps = cellular_stages(jnp.asarray(occ), jnp.zeros(occ.shape, bool),
                            robot_radius=cfg["robot_radius"],
-                           m_cap=cfg["evg_cap_fraction"] * side)
+                           m_cap=cfg["evg_cap_fraction"] * side,
+                           chunk_cells=cfg.get("layout", {}).get("chunk_cells"))
     maps = type(maps)(*(np.asarray(x) for x in maps))
     t_cell = (time.perf_counter() - t0) / len(occ)
     rc = (side // 2, side // 2)
@@ -182,6 +191,68 @@ def unit_ok(unit: dict, noise_levels: list) -> bool:
             and all(isinstance(r, dict) and all(k in r for k in UNIT_FIELDS) for r in recs)
             and [r["noise"] for r in recs] == list(noise_levels)
             and len({(r["side"], r["rotation"]) for r in recs}) == 1)
+
+
+def grid_bytes(side: int, cfg: dict) -> int | None:
+    """Bytes the cellular stages need for one ``side x side`` grid (XLA's memory analysis of
+    a one-grid probe program, cached; None when the backend gives none)."""
+    return _grid_bytes(side, float(cfg["robot_radius"]), float(cfg["evg_cap_fraction"]))
+
+
+@functools.lru_cache(maxsize=8)
+def _grid_bytes(side: int, radius: float, cap_fraction: float) -> int | None:
+    import jax
+
+    from ..hssh import cellular_stages
+    from . import chunking
+
+    f = jax.jit(functools.partial(cellular_stages, robot_radius=radius,
+                                  m_cap=cap_fraction * side, chunk_cells=side * side))
+    x = jax.ShapeDtypeStruct((1, side, side), bool)
+    return chunking.program_bytes(f.lower(x, x).compile())
+
+
+def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, cluster,
+                memory_bytes: int | None = None) -> int:
+    """Cells per chunk of the cellular stages (docs/studies.md §hssh-plus), the same on every
+    process, checked against this process's device.
+
+    The user's ``--chunk-cells``, else the stored one, else sized from the memory: a probe
+    of one grid of the largest side bounds a grid's bytes (its fixed part counted for every
+    grid), :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of
+    such grids (at most the noise levels of a unit) within the budget; on CPU at most
+    :data:`~pqrm_jax.hssh.cellular.CHUNK_CELLS`, where the caches, not the memory, bound the
+    chunk (measured, see that module). A chunk that does not fit is refused naming
+    ``--chunk-cells``.
+    """
+    import jax
+
+    from ..hssh.cellular import CHUNK_CELLS
+    from . import chunking
+
+    side = max(sizes)
+    per_grid = grid_bytes(side, cfg)
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    n = len(cfg["noise_levels"])
+
+    def size() -> int:
+        if not per_grid or budget is None:
+            return CHUNK_CELLS
+        grids = chunking.pick_chunk(per_grid, budget, total=n, devices=1,
+                                    option="--chunk-cells")
+        cells = grids * side * side
+        if jax.local_devices()[0].platform == "cpu":
+            cells = min(cells, CHUNK_CELLS)
+        print(f"{NAME}: --chunk-cells {cells} sized from the memory ({per_grid / 2**20:.1f} "
+              f"MiB per {side}x{side} grid, {budget / 2**20:.0f} MiB available)")
+        return cells
+
+    cells = chunking.resolve(given, out, size, cluster=cluster, key="chunk_cells")
+    grids = max(1, min(n, cells // (side * side)))
+    chunking.check_fits(None if not per_grid else per_grid * grids, budget,
+                        option="--chunk-cells",
+                        what=f"{NAME}: a chunk of {grids} grids of {side}x{side} cells")
+    return cells
 
 
 def _unit_name(side: int, rot: float) -> str:
@@ -246,12 +317,16 @@ def main(argv: list[str] | None = None) -> int:
     sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
     rots = _pick(args.rotations, cfg["corpus_rotations"], float)
     cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
+    if args.chunk_cells is not None and args.chunk_cells < 1:
+        raise SystemExit("--chunk-cells must be positive")
     cluster = distributed.initialize_from(args)  # before any JAX computation
     distributed.agree(cluster, cfg_all, "hssh-plus configuration")
+    cells = chunk_cells(args.chunk_cells, out, sizes, cfg, cluster, args.memory_bytes)
+    cfg["layout"] = cfg_all["layout"] = {"chunk_cells": cells}
     if not cluster.is_main:  # a helper process: compute its share, write nothing
         _compute(_shared_todo(None, cluster), cfg, cluster, None)
         return 0
-    with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run"),
+    with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run", "layout"),
                     legacy=("units", "units/*", "config.json", "report.md", "summary.json",
                             "*.png")) as st:
         def check(u):

@@ -131,11 +131,11 @@ def _extensions(args) -> dict:
 def config_for(args) -> dict:
     """The study configuration (every parameter; calibration filled in later)."""
     if args.tiny:
-        base = dict(envs=8, calib_envs=8, samples=600, depth=1, chunk=8, t_max=4)
+        base = dict(envs=8, calib_envs=8, samples=600, depth=1, chunk=None, t_max=4)
     elif args.reduced:
-        base = dict(envs=300, calib_envs=100, samples=2000, depth=2, chunk=50, t_max=12)
-    else:
-        base = dict(envs=3000, calib_envs=300, samples=4000, depth=2, chunk=250, t_max=12)
+        base = dict(envs=300, calib_envs=100, samples=2000, depth=2, chunk=None, t_max=12)
+    else:  # chunk None: sized from the device memory (auto_chunk)
+        base = dict(envs=3000, calib_envs=300, samples=4000, depth=2, chunk=None, t_max=12)
     for k in ("envs", "depth", "chunk", "samples"):
         if getattr(args, k, None) is not None:
             base[k] = getattr(args, k)
@@ -304,9 +304,88 @@ def run_chunk(cfg: dict, models, D1, envs: list, ids: list[int], size: float) ->
     return chunk_rows(out, dt, envs, ids)
 
 
-def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
+def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int],
+                     memory_bytes: int | None = None):
     """The batched :func:`~pqrm_jax.bsp.execute.run_lanes` of the four tests of each
-    environment in ``envs`` (padded to the chunk width): (numpy Outcome, seconds)."""
+    environment in ``envs`` (padded to the chunk width): (numpy Outcome, seconds).
+
+    The program is compiled ahead of time and refused before it runs, naming ``--chunk``,
+    when it needs more than :data:`~pqrm_jax.studies.chunking.FRACTION` of ``memory_bytes``
+    (default: what the device has available)."""
+    import jax
+
+    from . import chunking
+
+    lanes, pp, ep = _chunk_lanes(cfg, models, envs, ids)
+    compiled = chunk_program(cfg, models, D1, lanes, pp, ep)
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    chunking.check_fits(chunking.program_bytes(compiled), budget, option="--chunk",
+                        what=f"{NAME}: a chunk of {cfg['chunk']} environments "
+                             f"({4 * cfg['chunk']} lanes)")
+    t0 = time.perf_counter()
+    out = jax.device_get(compiled(models, D1, *lanes))
+    dt = time.perf_counter() - t0
+    return tuple(np.asarray(x) for x in out), dt
+
+
+_AOT: dict = {}  # compiled run_lanes per (models key, lane layout, static params)
+
+
+def chunk_program(cfg: dict, models, D1, lanes, pp, ep):
+    """:func:`~pqrm_jax.bsp.execute.run_lanes` compiled ahead of time for these lanes
+    (cached per models key and layout): its XLA memory analysis sizes and checks the chunk."""
+    from ..bsp import execute as X
+
+    n = int(lanes[-1].shape[0])
+    key = (cfg["models_key"], n, lane_devices(n), pp, ep)
+    if key not in _AOT:
+        if len(_AOT) > 4:
+            _AOT.clear()
+        _AOT[key] = X.run_lanes.lower(models, D1, *lanes, pp, ep).compile()
+    return _AOT[key]
+
+
+FALLBACK_CHUNK = 250  # environments per call when neither the device nor the OS gives memory
+
+
+def auto_chunk(cfg: dict, models, D1, memory_bytes: int | None = None) -> int:
+    """Environments per call sized from the device memory (docs/studies.md §qbsp).
+
+    One environment's bytes (its four lanes) per device are bounded by the compiled program
+    of one environment (XLA's memory analysis, its fixed part counted for every
+    environment); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of
+    two per device that fits, capped at ``cfg["envs"]``, and the chunks are then evened out
+    (:func:`~pqrm_jax.studies.chunking.balance`). Without memory figures: 250.
+    """
+    import copy
+
+    import jax
+
+    from . import chunking
+
+    probe = copy.deepcopy(cfg)
+    probe["chunk"] = 1
+    probe["execution"].setdefault("eps_obs", 0.01)  # static, shapes do not depend on it
+    env = make_env(probe, probe["seed"], 0, probe["size"])
+    lanes, pp, ep = _chunk_lanes(probe, models, [env], [0])
+    nbytes = chunking.program_bytes(chunk_program(probe, models, D1, lanes, pp, ep))
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    if not nbytes or budget is None:
+        return FALLBACK_CHUNK
+    ndev = len(jax.local_devices())
+    per_env = nbytes * lane_devices(len(COMBO_ORDER))  # 4 lanes split over d devices
+    chunk = chunking.pick_chunk(per_env, budget, total=cfg["envs"], devices=ndev,
+                                option="--chunk")
+    chunk = chunking.balance(chunk, cfg["envs"], ndev)
+    print(f"{NAME}: --chunk {chunk} environments per call, sized from the memory "
+          f"({per_env / 2**20:.1f} MiB per environment and device, "
+          f"{budget / 2**20:.0f} MiB available)")
+    return chunk
+
+
+def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
+    """(lanes, planner params, execution params) of the four tests of each environment of
+    ``envs`` padded to ``cfg["chunk"]``, the lanes placed over the devices."""
     import jax
     import jax.numpy as jnp
 
@@ -347,11 +426,7 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int]):
                          rho=cfg["planner"]["rho"],
                          nothing_seen="nothing_seen" in cfg.get("extensions", {}))
     lanes = (rep(pos), rep(lm), rep(goal), rep(start), B, rep(ref), rep(rs), rep(keys), costs)
-    lanes = shard_lanes(lanes)
-    t0 = time.perf_counter()
-    out = jax.device_get(X.run_lanes(models, D1, *lanes, pp, ep))
-    dt = time.perf_counter() - t0
-    return tuple(np.asarray(x) for x in out), dt
+    return shard_lanes(lanes), pp, ep
 
 
 def chunk_rows(out, dt: float, envs: list, ids: list[int]) -> list[dict]:
@@ -753,7 +828,10 @@ def main(argv: list[str]) -> int:
     g.add_argument("--reduced", action="store_true", help="300 environments (2 CPU cores)")
     g.add_argument("--tiny", action="store_true", help="test-size run (8 environments)")
     ap.add_argument("--envs", type=int)
-    ap.add_argument("--chunk", type=int, help="lanes per batch (a resume must use the same)")
+    ap.add_argument("--chunk", type=int, help="environments per compiled call (4 lanes each; "
+                    "default: sized from the device memory; a resume keeps the stored one)")
+    ap.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
+                    "sized for and checked against (default: what the device reports)")
     ap.add_argument("--depth", type=int)
     ap.add_argument("--samples", type=int, help="model samples per cell")
     ap.add_argument("--size", type=float, default=2.5, help="environment size S/R")
@@ -771,7 +849,7 @@ def main(argv: list[str]) -> int:
     distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
-    if cfg["envs"] < 1 or cfg["chunk"] < 1:
+    if cfg["envs"] < 1 or (cfg["chunk"] is not None and cfg["chunk"] < 1):
         ap.error("--envs and --chunk must be positive")
     if cfg["planner"]["depth"] < 1:
         ap.error("--depth must be >= 1 (L = 0 plans nothing)")
@@ -786,6 +864,12 @@ def main(argv: list[str]) -> int:
     cfg["models_key"] = M.ModelParams(**cfg["models"]).key()
     # the calibrated threshold is a result (calibration.json), not a setting
     del cfg["execution"]["eps_obs"]
+    from . import chunking
+
+    # the user's chunk, else the stored one (a resume keeps its layout), else sized from
+    # the device memory on process 0 (a probe program of one environment), broadcast
+    chunk = chunking.resolve(chunk, a.out, lambda: auto_chunk(
+        cfg, *_dependencies(cfg, a.models_dir)[1:], a.memory_bytes), cluster=cluster)
     # lane layout: batch width and devices (per process) change float bits of the costs at
     # rounding; the process count does not (each chunk is computed whole on one process)
     cfg["layout"] = {"chunk": chunk, "devices": lane_devices(4 * chunk)}
@@ -843,7 +927,8 @@ def main(argv: list[str]) -> int:
                    disable=not progress)
         parts = []
         for n_done, w in enumerate(todo):
-            parts.append(run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w]))
+            parts.append(run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w],
+                                          a.memory_bytes))
             if n_done < len(mine):
                 bar.update(len(work[w]) * cluster.num_processes)
             if not cluster.distributed and main_:  # write as we go (resume unit)

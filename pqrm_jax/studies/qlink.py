@@ -78,7 +78,8 @@ REASONS = {
     "start_offset": "start pose R/20 = 1 m from the start landmark, seeded direction",
     "nav_sigma": "navigation measurement noise, the same sensor as mapping",
     "max_pairs": "ordered start/goal pairs per world (0 = all, P: every pairwise combination)",
-    "chunk": "trials per compiled batch (results do not depend on it)",
+    "chunk": "pool lanes of the navigation executive (results do not depend on it); None = "
+             "sized per world from the device memory (auto_chunk), on CPU at most 128",
     "seed": "base seed; per-trial keys fold in (world, beta, setting, start, goal)",
 }
 
@@ -105,7 +106,7 @@ class Config:
     start_offset: float = 1.0
     nav_sigma: float = 0.3
     max_pairs: int = 0
-    chunk: int = 128
+    chunk: int | None = None  # None: sized from the device memory per world (auto_chunk)
     seed: int = 0
 
 
@@ -206,9 +207,16 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
     for i in tqdm(range(0, len(pairs), block), desc=f"w{w} b{beta} {name}", disable=not progress,
                   leave=False):
         sl = slice(i, i + block)
-        r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                               pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans,
-                               neighbours=nbrs)
+        try:
+            r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
+                                   pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans,
+                                   neighbours=nbrs)
+        except Exception as exc:  # noqa: BLE001  (XLA raises its OOM as several types)
+            text = str(exc)
+            if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
+                raise
+            raise StudyError(f"{NAME}: {cfg.chunk} pool lanes do not fit in the device "
+                             f"memory; lower --chunk ({text.splitlines()[0][:200]})") from exc
         for j in range(len(r.status)):
             k = i + j
             st = int(r.status[j])
@@ -281,7 +289,12 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reduced", action="store_true", help="small world, a few settings (<1 min)")
     p.add_argument("--worlds", type=int, nargs="+", help="world seeds (default 0 1 2)")
     p.add_argument("--max-pairs", type=int, help="pairs per world (0 = all ordered pairs)")
-    p.add_argument("--chunk", type=int, help="trials per compiled batch")
+    p.add_argument("--chunk", type=lambda v: 0 if v == "auto" else int(v),
+                   help="pool lanes per compiled batch, or 'auto' (the default, --reduced: 32): "
+                   "sized per world from the device memory, at most 128 on CPU; results do "
+                   "not depend on it")
+    p.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
+                   "sized for (default: what the device reports)")
     p.add_argument("--no-progress", action="store_true")
     from . import distributed
 
@@ -292,8 +305,10 @@ def main(argv: list[str]) -> int:
         cfg.worlds = tuple(a.worlds)
     if a.max_pairs is not None:
         cfg.max_pairs = a.max_pairs
-    if a.chunk:
-        cfg.chunk = a.chunk
+    if a.chunk is not None:
+        if a.chunk < 0:
+            p.error("--chunk must be positive or 'auto'")
+        cfg.chunk = a.chunk or None
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
     cluster = distributed.initialize_from(a)  # before any JAX computation
@@ -308,21 +323,25 @@ def main(argv: list[str]) -> int:
                                 "trials.csv", "report.md", "*.png"))
         # every world stored so far plus the ones asked (selection: union)
         for w in (int(w) for w in st.config["worlds"]):
-            plan.extend([w, *_world_left(cfg, w, st)])
+            info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)  # its chunk, 0: none
+            chunk = info.get("chunk") if isinstance(info, dict) else None
+            plan.extend([w, *_world_left(cfg, w, st),
+                         chunk if isinstance(chunk, int) and chunk > 0 else 0])
         return [len(plan)]
 
     try:
         n = int(distributed.decide(cluster, 1, worlds_left)[0])
         flat = distributed.decide(cluster, n, lambda: plan).tolist()
-        k = 2 + len(_units_of(cfg))     # [world, arrays missing, trials missing per unit]
+        k = 3 + len(_units_of(cfg))  # [world, arrays missing, trials missing per unit, chunk]
         table = [flat[i:i + k] for i in range(0, n, k)]
         cfg.worlds = tuple(row[0] for row in table)
-        todo = [(row[0], bool(row[1]), tuple(bool(x) for x in row[2:])) for row in table
-                if any(row[1:])]
+        todo = [(row[0], bool(row[1]), tuple(bool(x) for x in row[2:-1]), row[-1])
+                for row in table if any(row[1:-1])]
         t0 = time.time()
         for j, res in distributed.map_units(
                 lambda u: compute_world(cfg, *u, progress=not a.no_progress
-                                        and cluster.is_main), todo, cluster, codec="json"):
+                                        and cluster.is_main, memory_bytes=a.memory_bytes),
+                todo, cluster, codec="json"):
             if st is not None:
                 _write_world(st, todo[j][0], res)
         if st is None:
@@ -349,6 +368,45 @@ def main(argv: list[str]) -> int:
         if st is not None:
             st.close()
     return 0
+
+
+CPU_CHUNK = 128  # pool lanes on CPU: wider pools only add idle lanes to a few cores
+QUEUE_PER_LANE = 32  # trials queued per pool lane by run_setting (block = 32 x chunk)
+
+
+def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
+               memory_bytes: int | None = None) -> int:
+    """Pool lanes for world ``w`` sized from the device memory (docs/studies.md §qlink).
+
+    One lane's bytes are bounded by the navigation pool compiled for one lane and its
+    :data:`QUEUE_PER_LANE` queued trials on this world's map (XLA's memory analysis, the
+    map's fixed part counted for every lane; the last setting, with occluders when there
+    are any); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two
+    that fits, capped at the pairs, and on CPU at :data:`CPU_CHUNK`. A device too small for
+    one lane is refused naming ``--chunk``.
+    """
+    from pqrm_jax.qlink import navigate as nav
+
+    from . import chunking
+
+    name, frac, occ = settings(cfg)[-1]
+    params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
+                                       pairs[:1])
+    q = QUEUE_PER_LANE
+    compiled = nav.navigate(jnp.concatenate([keys] * q), lm, el, np.repeat(pairs[:1, 0], q),
+                            np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
+                            np.ones(q, np.int32), params, model, chunk=1, plans=plans,
+                            compile_only=True)
+    nbytes = chunking.program_bytes(compiled)
+    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    if not nbytes or budget is None:
+        return CPU_CHUNK
+    lanes = chunking.pick_chunk(nbytes, budget, total=len(pairs), devices=1, option="--chunk")
+    if jax.local_devices()[0].platform == "cpu":
+        lanes = min(lanes, CPU_CHUNK)
+    print(f"{NAME}: world {w}: --chunk {lanes} pool lanes sized from the memory "
+          f"({nbytes / 2**20:.1f} MiB per lane, {budget / 2**20:.0f} MiB available)")
+    return lanes
 
 
 def _build(cfg: Config, w: int):
@@ -401,7 +459,8 @@ def _unpack(d: dict) -> np.ndarray:
 
 
 def compute_world(cfg: Config, w: int, arrays_missing: bool, trials_missing: tuple[bool, ...],
-                  progress: bool = False) -> dict:
+                  chunk: int = 0, progress: bool = False, memory_bytes: int | None = None
+                  ) -> dict:
     """World ``w``'s map and the trials units flagged in ``trials_missing`` (order of
     :func:`_units_of`), as JSON: ``{"arrays": packed or None, "info": ..., "trials":
     {file: rows}}``; arrays travel as dtype, shape and exact values (bit for bit)."""
@@ -428,7 +487,10 @@ def compute_world(cfg: Config, w: int, arrays_missing: bool, trials_missing: tup
 
     plans = nav.qsr_plans(el, pomdp.search_model("quadrant", horizon=cfg.horizon,
                                                  detect=detect))
-    info = {"elements": int(el.ids.shape[0]), "mapped_landmarks": int(len(lms)),
+    if cfg.chunk is None:  # the world's stored chunk (a resume keeps it), else sized now
+        cfg = dataclasses.replace(cfg, chunk=chunk or auto_chunk(cfg, w, lm, el, pairs, detect,
+                                                                 plans, memory_bytes))
+    info = {"chunk": cfg.chunk,"elements": int(el.ids.shape[0]), "mapped_landmarks": int(len(lms)),
             "pairs": int(len(pairs)), "map_s": round(t_map, 1),
             "detection": None if detect is None else np.round(detect, 3).tolist(),
             "setting_s": {}}
@@ -541,5 +603,6 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
     lm, el, g, to_go, goal_row, tables, _, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
     return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
-                              pairs[:, 1], params, model, chunk=min(cfg.chunk, len(pairs)),
+                              pairs[:, 1], params, model,
+                              chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
                               record=record, plans=plans)    # few lanes: the traces are big

@@ -1,0 +1,42 @@
+"""Chunk sizes from the device memory (``pqrm_jax/studies/chunking.py``, docs/studies.md
+§chunks): qlink's pool lanes sized per world, stored and reused, and changing no trial.
+
+qbsp's and hssh-plus's sized chunks are tested in their study tests (``test_bsp_study.py``,
+``test_hssh_study.py``), padgett-mc's in ``test_pqrm_study.py``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from pqrm_jax.studies import qlink
+from pqrm_jax.studies.store import StudyError
+
+
+@pytest.mark.slow
+def test_qlink_pool_sized_from_memory_stored_and_changing_no_trial(tmp_path, capsys):
+    args = ["--reduced", "--max-pairs", "16", "--no-progress"]
+    auto, four = tmp_path / "auto", tmp_path / "four"
+    assert qlink.main([*args, "--out", str(auto), "--chunk", "auto"]) == 0
+    assert "world 0: --chunk 16 pool lanes sized from the memory" in capsys.readouterr().out
+    assert json.loads((auto / "world_00.json").read_text())["chunk"] == 16  # capped: 16 pairs
+    assert qlink.main([*args, "--out", str(four), "--chunk", "4"]) == 0
+    assert json.loads((four / "world_00.json").read_text())["chunk"] == 4
+    names = sorted(p.name for p in (auto / "trials").glob("*.csv"))
+    assert names and names == sorted(p.name for p in (four / "trials").glob("*.csv"))
+    for n in names:  # another pool width: the same trials, bit for bit
+        assert (auto / "trials" / n).read_text() == (four / "trials" / n).read_text(), n
+    assert (auto / "trials.csv").read_text() == (four / "trials.csv").read_text()
+    # a missing trials file is recomputed with the world's stored chunk: a 1000-byte device
+    # could not size one, so no probe runs
+    gone = auto / "trials" / names[0]
+    before = gone.read_text()
+    gone.unlink()
+    assert qlink.main([*args, "--out", str(auto), "--chunk", "auto",
+                       "--memory-bytes", "1000"]) == 0
+    assert gone.read_text() == before
+    # a fresh world on that device is refused naming the option
+    with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
+        qlink.main([*args, "--out", str(tmp_path / "small"), "--chunk", "auto",
+                    "--memory-bytes", "1000"])
