@@ -116,8 +116,8 @@ def test_zhang_suen_equals_paper_rules_and_tracks_scikit_image():
         assert (ours[k] & ~near).sum() <= 0.05 * max(ours[k].sum(), 1)
 
 
-@pytest.mark.parametrize("width", [32, 65] + [pytest.param(w, marks=pytest.mark.slow)
-                                               for w in (7, 31, 33, 64, 70)])
+@pytest.mark.parametrize("width", [65] + [pytest.param(w, marks=pytest.mark.slow)
+                                           for w in (7, 31, 32, 33, 64, 70)])
 def test_bit_packed_thinning_equals_paper_rules_at_word_edges(width):
     # the thinning runs on uint32 words of 32 columns: widths around word boundaries, both
     # border values and protected cells against the NumPy transcription
@@ -130,6 +130,44 @@ def test_bit_packed_thinning_equals_paper_rules_at_word_edges(width):
         ours = np.asarray(hssh.zhang_suen_thin(jnp.asarray(imgs), jnp.asarray(prot), pad=pad))
         for k in range(len(imgs)):
             np.testing.assert_array_equal(ours[k], _zs_reference(imgs[k], prot[k], pad))
+
+
+def test_thinning_deletes_exactly_the_table_neighbourhoods():
+    # every 3 x 3 neighbourhood with only its centre deletable: thinning removes the centre
+    # iff one of the two sub-iterations of the paper's table deletes it (the bitwise rules
+    # count B(P) and the 0->1 transitions differently from the table)
+    codes = np.arange(256)
+    img = np.ones((256, 3, 3), bool)
+    order = [(0, 0), (0, 1), (0, 2), (1, 2), (2, 2), (2, 1), (2, 0), (1, 0)]  # NW clockwise
+    for k, (r, c) in enumerate(order):
+        img[:, r, c] = (codes >> k) & 1
+    prot = np.ones_like(img)
+    prot[:, 1, 1] = False
+    lut = hssh.cellular.zhang_suen_lut()
+    for pad in (False, True):
+        out = np.asarray(hssh.zhang_suen_thin(jnp.asarray(img), jnp.asarray(prot), pad=pad))
+        np.testing.assert_array_equal(~out[:, 1, 1], lut > 0)
+
+
+def test_island_removal_follows_winding_runs_across_words():
+    # a serpentine wall touching the border at one end only: the flood runs east and west
+    # along 65-cell rows (three packed words) and back, as scipy's labelling says
+    h, w = 17, 65  # the shapes of test_island_removal_matches_connected_components: one compile
+    occ = np.zeros((3, h, w), bool)
+    for r in range(2, h - 2, 2):
+        occ[0, r, 2:w - 2] = True
+        occ[0, r + 1, (w - 3) if (r // 2) % 2 else 2] = True
+    occ[0, 2, 0:2] = True  # the only contact with the border
+    occ[1] = occ[0]
+    occ[1, 2, 0:2] = False  # same wall, no contact: an island
+    occ[1, 5, 0] = True
+    occ[2] = occ[0, :, ::-1]  # mirrored: enters from the east border, first run westward
+    o, _ = hssh.remove_islands(jnp.asarray(occ), jnp.zeros_like(jnp.asarray(occ)))
+    for k in range(3):
+        lab, _ = ndimage.label(occ[k])
+        edge = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))) - {0}
+        np.testing.assert_array_equal(np.asarray(o[k]), occ[k] & np.isin(lab, list(edge)))
+    assert np.asarray(o[0]).sum() == occ[0].sum() and np.asarray(o[1]).sum() == 1
 
 
 def test_protected_cells_survive_thinning():

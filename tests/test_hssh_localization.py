@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -56,7 +58,19 @@ def test_reduced_localization_study(tmp_path):
     assert study.main(["--steps", "8", "--out", str(tmp_path)]) == 0
     report = (tmp_path / "report.md").read_text()
     assert "Published orderings" in report and "not available" in report
-    assert len(list((tmp_path / "units").glob("*.json"))) == 6
+    units = sorted((tmp_path / "units").glob("*.json"))
+    assert len(units) == 6 and "KLD-sampling on" not in report
+    before = {p.name: p.read_bytes() for p in units}
+    # the KLD rows are added beside the stored full-block units, which stay as they are
+    assert study.main(["--steps", "8", "--kld", "--out", str(tmp_path)]) == 0
+    after = {p.name: p.read_bytes() for p in (tmp_path / "units").glob("*.json")}
+    assert len(after) == 12 and all(after[k] == v for k, v in before.items())
+    report = (tmp_path / "report.md").read_text()
+    assert "KLD-sampling on every filter" in report and "holds here (KLD)" in report
+    kld = json.loads(after["run0_large_kld.json"])
+    full = json.loads(before["run0_large.json"])
+    assert kld["raw"] == full["raw"]  # one particle: KLD cannot cut it
+    assert all(1 <= n <= 500 for n in kld["pf_n"]) and kld["raw_n"] == [1] * 8
 
 
 # ---------------------------------------------------------------- KLD-sampling (Fox 2003)

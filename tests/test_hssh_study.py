@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -13,6 +14,33 @@ from pqrm_jax.studies.store import CorruptRecordWarning, Store, StoreError, Stud
 
 def test_registered():
     assert discover()["hssh-plus"] is study
+
+
+# records of the code before the host-stage speed-up (skeleton pruning by tree walks, k-NN side
+# picks by argmin; main 83bb97d): the faster code must give the same records
+RECORDS = Path(__file__).parent / "data" / "hssh_plus_records.json"
+
+
+def _records(side, rot, argv):
+    got = study.run_unit(side, rot, study._config(study._parser().parse_args(argv)))
+    for r in got:
+        r.pop("seconds")
+    return got
+
+
+def test_reduced_unit_records_equal_the_stored_ones():
+    # side 49 of the reduced corpus (2 images)
+    assert _records(49, 30.0, ["--reduced"]) == json.loads(RECORDS.read_text())["reduced"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("side, rot", [(49, 30.0), (59, 25.0), (149, 0.0), (149, 25.0),
+                                       (299, 40.0)])
+def test_unit_records_equal_the_stored_sample(side, rot):
+    stored = [r for r in json.loads(RECORDS.read_text())["records"]
+              if r["side"] == side and r["rotation"] == rot]
+    assert len(stored) == 20
+    assert _records(side, rot, []) == stored
 
 
 def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):

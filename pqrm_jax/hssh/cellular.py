@@ -159,8 +159,12 @@ def _at_least_two(words: list[jax.Array]) -> tuple[jax.Array, jax.Array]:
     return one, two
 
 
-def _set_interior(p: jax.Array, inner: jax.Array) -> jax.Array:
-    return p.at[..., 1:-1, 1:-1].set(inner)
+def _framed(inner: jax.Array, fill: bool) -> jax.Array:
+    """Put the one-row / one-word frame holding ``fill`` back around interior words
+    ``[..., H, NW]`` (a pad fuses with the update; writing into the old array copies it)."""
+    lead = [(0, 0)] * (inner.ndim - 2)
+    return jnp.pad(inner, lead + [(1, 1), (1, 1)],
+                   constant_values=jnp.uint32(_ALL if fill else 0))
 
 
 @jax.jit
@@ -189,9 +193,13 @@ def remove_islands(occupied: jax.Array, unknown: jax.Array) -> tuple[jax.Array, 
     def body(state):
         reached, _ = state
         new = reached
-        for _ in range(8):  # several fronts per loop trip: fewer loop-condition round trips
+        for _ in range(4):  # several fronts per loop trip: fewer loop-condition round trips
             ring, mid = _neighbours(new)
-            new = _set_interior(new, mask & (mid | ring[0] | ring[2] | ring[4] | ring[6]))
+            inner = mask & (mid | ring[0] | ring[2] | ring[4] | ring[6])
+            # run fill toward higher bits (east) inside each word: adding the reached bits
+            # to the mask carries through the rest of each reached run (inner is in mask)
+            inner = (((mask + inner) ^ mask) & mask) | inner
+            new = _framed(inner, False)
         return new, jnp.any(new != reached)
 
     reached, _ = jax.lax.while_loop(lambda s: s[1], body, (seed, jnp.array(True)))
@@ -251,19 +259,28 @@ def squared_distance_transform(occupied: jax.Array, cap: int | None = None) -> j
     return jax.lax.fori_loop(0, n_chunk, body, g2).astype(jnp.int32)
 
 
-def _zs_sub(p: jax.Array, deletable_mask: jax.Array, first: bool) -> jax.Array:
+def _zs_sub(p: jax.Array, deletable_mask: jax.Array, first: bool, fill: bool) -> jax.Array:
     """One parallel Zhang--Suen sub-iteration on a framed packed image (the rules of
-    :func:`zhang_suen_lut` as bitwise word operations, 32 cells per operation)."""
+    :func:`zhang_suen_lut` as bitwise word operations, 32 cells per operation).
+
+    With exactly one 0→1 transition around P the set neighbours form one arc, so
+    ``B(P) >= 2`` is "some two cyclically adjacent neighbours set" and ``B(P) <= 6`` is
+    "some two adjacent neighbours clear" (fewer operations than counting; the equivalence
+    over all 256 neighbourhoods is checked in ``tests/test_hssh.py``).
+    """
     ring, x = _neighbours(p)
-    _, b_ge_2 = _at_least_two(ring)  # at least 2 of the 8 neighbours set
-    _, b_le_6 = _at_least_two([~q for q in ring])  # at least 2 clear
+    pair_set = ring[0] & ring[1]    # some adjacent pair set
+    pair_any = ring[0] | ring[1]    # every adjacent pair has one set (no adjacent pair clear)
+    for k in range(1, 8):
+        pair_set = pair_set | (ring[k] & ring[(k + 1) % 8])
+        pair_any = pair_any & (ring[k] | ring[(k + 1) % 8])
     one, two = _at_least_two([~ring[k] & ring[(k + 1) % 8] for k in range(8)])  # 0->1
     n, e, s, w = ring[0], ring[2], ring[4], ring[6]
-    if first:
-        c = ~(n & e & s) & ~(e & s & w)
-    else:
-        c = ~(n & e & w) & ~(n & s & w)
-    return _set_interior(p, x & ~(b_ge_2 & b_le_6 & one & ~two & c & deletable_mask))
+    if first:  # P2 P4 P6 = P4 P6 P8 = 0
+        c = ~(e & s & (n | w))
+    else:      # P2 P4 P8 = P2 P6 P8 = 0
+        c = ~(n & w & (e | s))
+    return _framed(x & ~(pair_set & ~pair_any & one & ~two & c & deletable_mask), fill)
 
 
 @partial(jax.jit, static_argnames="pad")
@@ -287,7 +304,7 @@ def zhang_suen_thin(fg: jax.Array, protect: jax.Array | None = None,
 
     def body(state):
         p, _ = state
-        q = _zs_sub(_zs_sub(p, inside, True), inside, False)
+        q = _zs_sub(_zs_sub(p, inside, True, pad), inside, False, pad)
         return q, jnp.any(q != p)
 
     out, _ = jax.lax.while_loop(lambda s: s[1], body, (x, jnp.array(True)))

@@ -227,6 +227,26 @@ def _pick_sides(n, pid, cid, pts, tan, cells):
     return left, right, dl, dr
 
 
+def _pick_sides_rows(cid, dd, inside, pts, tan, cells):
+    """:func:`_pick_sides` for candidates given as rows ``[m, k]`` (one per point): the least
+    (distance, row, col) per side as one argmin of a combined integer key, without a sort."""
+    v = cells[cid] - pts[:, None, :]
+    cross = tan[:, None, 1] * (-v[..., 0]) - (-tan[:, None, 0]) * v[..., 1]
+    w = int(cells[:, 1].max()) + 1
+    hw = (int(cells[:, 0].max()) + 1) * w
+    key = dd.astype(np.int64) * hw + cells[cid, 0].astype(np.int64) * w + cells[cid, 1]
+    none = np.iinfo(np.int64).max
+    rows = np.arange(len(cid))
+    out = []
+    for sel in (inside & (cross > 0), inside & (cross < 0)):  # left, right
+        kk = np.where(sel, key, none)
+        j = np.argmin(kk, axis=1)
+        ok = kk[rows, j] < none
+        out.append((np.where(ok, cid[rows, j], -1), np.where(ok, dd[rows, j], -1)))
+    (left, dl), (right, dr) = out
+    return left, right, dl, dr
+
+
 def _closest_sides(points, tangents, radii, kd, cells, slack):
     """Closest left and right obstacle (index into ``cells`` or -1) of each point, searched
     within ``R = r (1 + slack) + sqrt 2``; ties to the lowest (row, col).
@@ -254,8 +274,7 @@ def _closest_sides(points, tangents, radii, kd, cells, slack):
         cid = np.where(have, idx, 0)
         dd = ((cells[cid] - pts[todo][:, None, :]) ** 2).sum(axis=-1)
         inside = have & (np.sqrt(dd) <= reach[todo][:, None])
-        pid = np.broadcast_to(np.arange(m)[:, None], (m, k))
-        lt, rt, dl, dr = _pick_sides(m, pid[inside], cid[inside], pts[todo], tan[todo], cells)
+        lt, rt, dl, dr = _pick_sides_rows(cid, dd, inside, pts[todo], tan[todo], cells)
         whole_ball = inside.sum(axis=1) < k
         far = np.where(inside[:, -1], dd[:, -1], -1)  # the list's farthest in-ball cell
         exact = whole_ball | ((dl >= 0) & (dr >= 0) & (far > dl) & (far > dr))

@@ -128,40 +128,30 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     keep &= ~(is_exit[u] & is_exit[v]) | (u == ci) | (v == ci)
     mst = csgraph.minimum_spanning_tree(
         sparse.coo_matrix((wgt[keep], (u[keep], v[keep])), shape=(n, n)).tocsr())
-    mst = mst.tocoo()
-    seen_idx = np.nonzero(seen_mask)[0].tolist()
-    nbrs: dict[int, set[int]] = {k: set() for k in seen_idx}
-    for a, b in zip(mst.row.tolist(), mst.col.tolist(), strict=True):
-        nbrs[a].add(b)
-        nbrs[b].add(a)
-    exit_list = is_exit.tolist()
-    exit_idx = {k for k in seen_idx if exit_list[k]}
-    if len(nbrs) > 1:  # guard: keep the part holding c
-        comp, stack = {ci}, [ci]
-        while stack:
-            for b in nbrs[stack.pop()]:
-                if b not in comp:
-                    comp.add(b)
-                    stack.append(b)
-        nbrs = {a: nb for a, nb in nbrs.items() if a in comp}
-        exit_idx &= comp
-    terminals = set(exit_idx) | ({ci} if len(exit_idx) <= 1 else set())
-    leaves = [a for a, nb in nbrs.items() if len(nb) <= 1 and a not in terminals]
-    while leaves:
-        a = leaves.pop()
-        if a not in nbrs:
-            continue
-        for b in nbrs.pop(a):
-            nbrs[b].discard(a)
-            if len(nbrs[b]) <= 1 and b not in terminals:
-                leaves.append(b)
+    # the part of the tree holding c; its terminals: the exits (and c itself when there is
+    # at most one exit: the dead-end case)
+    comp = csgraph.breadth_first_order(mst, ci, directed=False, return_predecessors=False)
+    exit_idx = sorted(int(k) for k in comp[is_exit[comp]])
+    terminals = exit_idx if len(exit_idx) > 1 else sorted(set(exit_idx) | {ci})
+    # stripping every non-terminal leaf until none is left leaves the smallest subtree that
+    # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
+    # paths to the root (one walk up the BFS predecessors, each node visited once)
+    root = terminals[0]
+    _, pred = csgraph.breadth_first_order(mst, root, directed=False, return_predecessors=True)
+    pred = pred.tolist()
+    kept: set[int] = set()
+    for t in terminals:
+        while t >= 0 and t not in kept:
+            kept.add(t)
+            t = pred[t] if t != root else -1
+    keep_idx = sorted(kept)
     rl, cl = rows.tolist(), cols.tolist()
     tree = nx.Graph()
-    tree.add_nodes_from((rl[a], cl[a]) for a in nbrs)
+    tree.add_nodes_from((rl[a], cl[a]) for a in keep_idx)
     tree.add_weighted_edges_from(
         ((rl[a], cl[a]), (rl[b], cl[b]), math.hypot(rl[a] - rl[b], cl[a] - cl[b]))
-        for a, nb in nbrs.items() for b in nb if a < b)
-    exits = sorted((rl[a], cl[a]) for a in exit_idx if a in nbrs)
+        for a, b in sorted((min(a, pred[a]), max(a, pred[a])) for a in keep_idx if a != root))
+    exits = sorted((rl[a], cl[a]) for a in exit_idx if a in kept)
     nodes = np.array(sorted(tree.nodes), int).reshape(-1, 2)
     d2 = (nodes[:, 0] - robot_cell[0]) ** 2 + (nodes[:, 1] - robot_cell[1]) ** 2
     c = tuple(int(x) for x in nodes[int(np.argmin(d2))])

@@ -47,6 +47,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--reduced", action="store_true", help="40 steps per run (default 400)")
     p.add_argument("--steps", type=int, default=None, help="steps per run")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--kld", action="store_true",
+                   help="also run the five algorithms with KLD-sampling (extra rows; the "
+                        "full-block units stay as they are)")
     from . import distributed
 
     distributed.add_arguments(p)
@@ -65,13 +68,26 @@ def _route(n_steps: int, side: float) -> np.ndarray:
     return np.concatenate([xy, th[:, None]], axis=1).astype(np.float32)
 
 
-def run_unit(run: int, model: str, cfg: dict) -> dict:
-    """Best likelihoods ``[5, J]`` of the five methods for one run and one action model."""
+def _kld_params(cfg: dict):
+    from ..hssh.localization import KLDParams
+
+    k = cfg["kld"]
+    return KLDParams(epsilon=k["epsilon"], confidence=k["confidence"],
+                     bin_size=tuple(k["bin_size"]), n_min=k["n_min"])
+
+
+def run_unit(run: int, model: str, cfg: dict, kld: bool = False) -> dict:
+    """Best likelihoods ``[5, J]`` of the five methods for one run and one action model.
+
+    With ``kld`` every proposal is cut by KLD-sampling (``cfg["kld"]``, Fox 2003) and the
+    unit also holds the particles scored per step (``"<method>_n"``) and the settings
+    (``"kld"``); the draws are the same keys as the unit without it.
+    """
     import jax
     import jax.numpy as jnp
 
     from ..hssh import squared_distance_transform
-    from ..hssh.localization import METHODS, LocalizeParams, localize
+    from ..hssh.localization import METHODS, LocalizeParams, localize_with_count
     from ..hssh.motion import ACTION_MODELS, sample_motion
     from ..sim import corridors
     from ..sim.lidar import LidarParams, lidar_scan
@@ -99,21 +115,27 @@ def run_unit(run: int, model: str, cfg: dict) -> dict:
         jnp.arange(cfg["steps"] + 1))
     scans = jax.vmap(lambda k, p: lidar_scan(k, p, world, res, params=lp))(keys, true)
     params = LocalizeParams(blocks=cfg["blocks"], block=cfg["block"], sigma=cfg["field_sigma"],
-                            threshold=cfg["threshold"], anneal=cfg["anneal"])
+                            threshold=cfg["threshold"], anneal=cfg["anneal"],
+                            kld=_kld_params(cfg) if kld else None)
     c = jnp.asarray(ACTION_MODELS[model])
     out = {}
     steps = jnp.arange(1, cfg["steps"] + 1)
     pkeys = jax.vmap(lambda j: jax.random.fold_in(jax.random.fold_in(base, 5000 + run), j))(steps)
     step_scans = jax.tree.map(lambda x: x[1:], scans)
     for meth in METHODS:
-        f = jax.vmap(lambda k, pr, po, o, z, meth=meth: localize(
-            k, pr, po, o, z, d2, jnp.zeros(2), res, c, method=meth, params=params)[1])
-        out[meth] = np.asarray(f(pkeys, true[:-1], odom[:-1], odom[1:], step_scans)).tolist()
+        f = jax.vmap(lambda k, pr, po, o, z, meth=meth: localize_with_count(
+            k, pr, po, o, z, d2, jnp.zeros(2), res, c, method=meth, params=params)[1:])
+        lik, n = f(pkeys, true[:-1], odom[:-1], odom[1:], step_scans)
+        out[meth] = np.asarray(lik).tolist()
+        if kld:
+            out[f"{meth}_n"] = np.asarray(n).tolist()
+    if kld:
+        out["kld"] = cfg["kld"]
     return out
 
 
-def _unit_name(run: int, model: str) -> str:
-    return f"units/run{run}_{model}.json"
+def _unit_name(run: int, model: str, kld: bool = False) -> str:
+    return f"units/run{run}_{model}{'_kld' if kld else ''}.json"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -128,42 +150,68 @@ def main(argv: list[str] | None = None) -> int:
            "route": ROUTE, "truth_model": "fitted", "beams": 180, "fov_deg": 180.0,
            "max_range": 8.0, "range_sigma": 0.01, "blocks": 5, "block": 100,
            "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
-           "models": list(MODELS)}
+           "models": list(MODELS),
+           # the extra KLD-sampling rows (B §4.3.2 runs every filter with it; Fox 2003):
+           # B's confidence, error and bins; n_min is this library's choice (B gives none)
+           "kld": {"epsilon": 0.5, "confidence": 0.95, "bin_size": [0.05, 0.05, 0.006],
+                   "n_min": 10}}
     from . import distributed
 
     cluster = distributed.initialize_from(args)  # before any JAX computation
     distributed.agree(cluster, cfg, f"{NAME} config")
-    units = [(r, m) for r in range(2) for m in MODELS]
+    # the five published algorithms as B ran them (full blocks), then the same with KLD
+    units = [(r, m, k) for k in ((False, True) if args.kld else (False,))
+             for r in range(2) for m in MODELS]
 
     def check(u):  # one number per step for every method, else recomputed
         return all(isinstance(u[m], list) and len(u[m]) == steps
                    and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
 
+    def check_kld(u):  # also the counts, and the settings it was computed with
+        return (check(u) and u.get("kld") == cfg["kld"]
+                and all(isinstance(u.get(f"{m}_n"), list) and len(u[f"{m}_n"]) == steps
+                        for m in METHODS))
+
+    def read(st, r, m, k):
+        names = METHODS + tuple(f"{x}_n" for x in METHODS) + ("kld",) if k else METHODS
+        return st.read_json(_unit_name(r, m, k), names, check_kld if k else check)
+
     st = None
 
     def left():  # process 0 only: open the store, list the units not yet written
         nonlocal st
-        st = Store.open(out, NAME, cfg)
-        return [st.read_json(_unit_name(r, m), METHODS, check) is None for r, m in units]
+        # "kld" is not guarded: a directory from before the KLD rows keeps its five-algorithm
+        # units (unchanged by this option); each KLD unit records its settings (check_kld)
+        st = Store.open(out, NAME, cfg, selection=("kld",))
+        return [read(st, *u) is None for u in units]
 
     try:
         mask = distributed.decide(cluster, len(units), left)
         todo = [u for u, m in zip(units, mask, strict=True) if m]
-        for i, rec in tqdm(distributed.map_units(lambda u: run_unit(*u, cfg), todo, cluster,
-                                                 codec="json"),
+
+        def one(u):
+            return run_unit(u[0], u[1], cfg, kld=u[2])
+
+        for i, rec in tqdm(distributed.map_units(one, todo, cluster, codec="json"),
                            total=len(todo), desc="hssh-localization", unit="unit",
                            disable=not cluster.is_main):
             if st is not None:
                 st.write_json(_unit_name(*todo[i]), rec)  # atomic
         if st is None:
             return 0
-        data = {(r, m): st.read_json(_unit_name(r, m), METHODS, check) for r, m in units}
-        if any(v is None for v in data.values()):
+        both = {u: read(st, *u) for u in units}
+        if any(v is None for v in both.values()):
             raise StudyError(f"{NAME}: a unit did not read back as written")
-        _report(data, cfg, out)
-        st.write_results_csv([(f"run{r}_{m}_{meth}", "mean_best_likelihood",
-                               float(np.mean(data[(r, m)][meth])))
-                              for r in range(2) for m in MODELS for meth in METHODS])
+        data = {(r, m): v for (r, m, k), v in both.items() if not k}
+        kdata = {(r, m): v for (r, m, k), v in both.items() if k} or None
+        _report(data, cfg, out, kdata)
+        st.write_results_csv(
+            [(f"run{r}_{m}_{meth}", "mean_best_likelihood", float(np.mean(data[(r, m)][meth])))
+             for r in range(2) for m in MODELS for meth in METHODS]
+            + [(f"run{r}_{m}_{meth}_kld", q, float(np.mean(kdata[(r, m)][meth + suffix])))
+               for r in range(2) for m in MODELS for meth in METHODS
+               for q, suffix in (("mean_best_likelihood", ""), ("mean_particles", "_n"))
+               if kdata])
     finally:
         if st is not None:
             st.close()
@@ -225,7 +273,27 @@ def orderings(data: dict) -> list[tuple[str, str, str]]:
     return checks
 
 
-def _report(data, cfg, out: Path) -> None:
+def kld_effect(data: dict, kdata: dict, model: str) -> list[tuple[str, float, float, float,
+                                                                    float, float]]:
+    """Per method: (name, mean best likelihood with full blocks, with KLD, paired mean
+    difference KLD − full over the steps of both runs, its paired-t p-value, mean particles
+    scored with KLD)."""
+    from scipy import stats
+
+    from ..hssh.localization import METHODS
+
+    rows = []
+    for m in METHODS:
+        a = np.concatenate([data[(r, model)][m] for r in range(2)])
+        b = np.concatenate([kdata[(r, model)][m] for r in range(2)])
+        d = b - a
+        p = float(stats.ttest_rel(b, a).pvalue) if np.any(d != d[0]) else 1.0
+        n = np.concatenate([kdata[(r, model)][f"{m}_n"] for r in range(2)])
+        rows.append((m, float(a.mean()), float(b.mean()), float(d.mean()), p, float(n.mean())))
+    return rows
+
+
+def _report(data, cfg, out: Path, kdata: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -249,6 +317,26 @@ def _report(data, cfg, out: Path) -> None:
               "|---|---|---|"]
     for text, verdict, nums in orderings(data):
         lines.append(f"| {text} | {verdict} | {nums} |")
+    if kdata:
+        k = cfg["kld"]
+        lines += ["", "## KLD-sampling on every filter (Fox 2003; extra rows, `--kld`)", "",
+                  "B runs all its filters with KLD-sampling (confidence "
+                  f"{k['confidence']}, error {k['epsilon']}, bins {k['bin_size']}; "
+                  f"`n_min` = {k['n_min']} is this library's choice). Same keys and log as "
+                  "the full-block rows above, which are unchanged; each proposal block is "
+                  "cut to the first n particles that meet Fox's bound. Particle budget "
+                  f"without KLD: up to {cfg['blocks'] * cfg['block']}.", ""]
+        for model in MODELS:
+            lines += [f"### {model}", "", "| method | full blocks | KLD | KLD − full | "
+                      "mean particles (KLD) |", "|---|---|---|---|---|"]
+            for m, a, b, d, p, n in kld_effect(data, kdata, model):
+                lines.append(f"| {m} | {a:.4f} | {b:.4f} | {d:+.4f}"
+                             f"{'*' if p < 0.01 else ''} (p={p:.2g}) | {n:.1f} |")
+            lines.append("")
+        lines += ["Published orderings with KLD-sampling on:", "",
+                  "| ordering (B) | holds here (KLD) | numbers |", "|---|---|---|"]
+        for text, verdict, nums in orderings(kdata):
+            lines.append(f"| {text} | {verdict} | {nums} |")
     lines += ["", "Mechanisms: grow and shrink-and-grow stop at the first stage with a particle "
               f"above the threshold ({cfg['threshold']}, x{cfg['anneal']} per stage), so grow "
               "often spends 100 of the 500 particles; shrink-and-grow then spends the rest on "
