@@ -508,10 +508,14 @@ def _figures(rows, cfg, out: Path) -> None:
 
 
 def _verdict(k, n, pk, pn, tol=0.03):
+    """A rate within ``tol`` of the published one matches; a published "all correct" claim
+    (``pk == pn``) matches only when every image is correct."""
     if n == 0:
         return "not run"
     if n != pn:
         return f"partial corpus ({n} of {pn} images)"
+    if pk == pn:
+        return "match" if k == n else "mismatch"
     return "match" if abs(k / n - pk / pn) <= tol else "mismatch"
 
 
