@@ -58,6 +58,24 @@ def _launch(argvs: list[list[str]], timeout: float = 300) -> list[subprocess.Com
     return out
 
 
+def _start_and_kill(argv_of, ready, *, wait_s: float, give_up_s: float,
+                    poll_s: float = 0.2) -> None:
+    """Start processes 1 and 0 (``argv_of(i)``); once ``ready()`` kill process 1 and check that
+    process 0 gives up with an error within ``give_up_s`` (no hang)."""
+    procs = [subprocess.Popen(argv_of(i), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=_env(), cwd=ROOT) for i in (1, 0)]
+    deadline = time.monotonic() + wait_s
+    while not ready():
+        assert time.monotonic() < deadline and procs[1].poll() is None, \
+            procs[1].communicate()[1][-2000:] if procs[1].poll() is not None else "timeout"
+        time.sleep(poll_s)
+    procs[0].kill()
+    t_kill = time.monotonic()
+    procs[1].communicate(timeout=give_up_s + 60)  # process 0 must give up, not hang
+    procs[0].communicate()
+    assert procs[1].returncode != 0 and time.monotonic() - t_kill < give_up_s
+
+
 def _same_results(a: Path, b: Path) -> int:
     names = sorted(p.name for p in a.glob("level_*.npz"))
     assert names and names == sorted(p.name for p in b.glob("level_*.npz"))
@@ -218,18 +236,8 @@ def test_killed_process_then_resume_gives_the_one_process_results(tmp_path):
     timeout (no hang); re-running both processes resumes and ends with the 1-process files."""
     one, two = tmp_path / "one", tmp_path / "two"
     port = str(free_port())
-    procs = [subprocess.Popen([sys.executable, "-c", _DRIVER, str(two), "2", str(i), port, "5"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              env=_env(), cwd=ROOT) for i in (1, 0)]
-    deadline = time.monotonic() + 300
-    while not (two / "level_00.npz").exists():
-        assert time.monotonic() < deadline and procs[1].poll() is None
-        time.sleep(0.2)
-    procs[0].kill()
-    t_kill = time.monotonic()
-    procs[1].communicate(timeout=120)  # process 0 must give up, not hang
-    procs[0].communicate()
-    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    _start_and_kill(lambda i: [sys.executable, "-c", _DRIVER, str(two), "2", str(i), port, "5"],
+                    (two / "level_00.npz").exists, wait_s=300, give_up_s=90)
     done = len(list(two.glob("level_*.npz")))
     assert 1 <= done < 6
     _driver_one_and_two(one, two)
@@ -377,18 +385,8 @@ def test_mcclelland_mc_killed_process_then_resume(tmp_path):
     records (measured times excepted)."""
     one, two = tmp_path / "one", tmp_path / "two"
     port = str(free_port())
-    procs = [subprocess.Popen([sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              env=_env(), cwd=ROOT) for i in (1, 0)]
-    deadline = time.monotonic() + 300
-    while not list(two.glob("runs/n*_r*.npz")):
-        assert time.monotonic() < deadline and procs[1].poll() is None
-        time.sleep(0.2)
-    procs[0].kill()
-    t_kill = time.monotonic()
-    procs[1].communicate(timeout=120)
-    procs[0].communicate()
-    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 90
+    _start_and_kill(lambda i: [sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port],
+                    lambda: bool(list(two.glob("runs/n*_r*.npz"))), wait_s=300, give_up_s=90)
     written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
     assert 1 <= len(written) < 8
     port = str(free_port())
@@ -433,18 +431,9 @@ def test_killed_process_then_resume_on_the_shared_mechanism(tmp_path):
     keep the written ones untouched and end with every unit."""
     out = tmp_path / "o"
     port = str(free_port())
-    procs = [subprocess.Popen([sys.executable, "-c", _UNITS_DRIVER, str(out), str(i), port],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              env=_env(), cwd=ROOT) for i in (1, 0)]
-    deadline = time.monotonic() + 120
-    while not list(out.glob("units/u*.json")):
-        assert time.monotonic() < deadline and procs[1].poll() is None
-        time.sleep(0.1)
-    procs[0].kill()
-    t_kill = time.monotonic()
-    procs[1].communicate(timeout=60)
-    procs[0].communicate()
-    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 45
+    _start_and_kill(lambda i: [sys.executable, "-c", _UNITS_DRIVER, str(out), str(i), port],
+                    lambda: bool(list(out.glob("units/u*.json"))), wait_s=120, give_up_s=45,
+                    poll_s=0.1)
     written = {p.name: p.stat().st_mtime_ns for p in out.glob("units/u*.json")}
     assert 1 <= len(written) < 6
     port = str(free_port())
@@ -508,19 +497,8 @@ def _kill_then_resume(tmp_path, argv: list[str], written, total: int,
     two = tmp_path / "two"
     port = str(free_port())
     cmd = [*py, "--out", str(two), "--coordinator", f"127.0.0.1:{port}", "--processes", "2"]
-    procs = [subprocess.Popen([*cmd, "--process-id", str(i)], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
-             for i in (1, 0)]
-    deadline = time.monotonic() + timeout
-    while not (two.exists() and written(two) >= 1):
-        assert time.monotonic() < deadline and procs[1].poll() is None, \
-            procs[1].communicate()[1][-2000:] if procs[1].poll() is not None else "timeout"
-        time.sleep(0.2)
-    procs[0].kill()
-    t_kill = time.monotonic()
-    procs[1].communicate(timeout=240)  # process 0 must give up, not hang
-    procs[0].communicate()
-    assert procs[1].returncode != 0 and time.monotonic() - t_kill < 180
+    _start_and_kill(lambda i: [*cmd, "--process-id", str(i)],
+                    lambda: two.exists() and written(two) >= 1, wait_s=timeout, give_up_s=180)
     done = written(two)
     assert 1 <= done < total, done
     one, two = _one_vs_two(tmp_path, argv, timeout=timeout)
