@@ -51,6 +51,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pqrm_jax import hssh
+
 from .layout import compose, compose_host, inverse_host
 
 __all__ = ["RelocParams", "Relocalization", "occupied_points", "field", "match_pairs",
@@ -118,17 +120,14 @@ def occupied_points(snapshots, origins, poses, resolution: float,
 def field(snapshots, sigma_cells: float = 1.0, threshold: float = 0.4) -> np.ndarray:
     """Likelihood fields ``[S, N, N]``: ``exp(−d² / 2σ²)``, ``d`` cells to the nearest obstacle.
 
-    A snapshot without an obstacle gives a zero field.
+    ``d²`` is the local level's exact squared distance transform
+    (:func:`~pqrm_jax.hssh.cellular.squared_distance_transform`, all snapshots in one call). A
+    snapshot without an obstacle gives a zero field.
     """
-    from scipy.ndimage import distance_transform_edt
-    snaps = np.asarray(snapshots, float)
-    out = np.zeros_like(snaps)
-    for s in range(snaps.shape[0]):
-        occ = snaps[s] > threshold
-        if occ.any():
-            d = distance_transform_edt(~occ)
-            out[s] = np.exp(-d ** 2 / (2 * sigma_cells ** 2))
-    return out
+    occ = np.asarray(snapshots, float) > threshold
+    d2 = np.asarray(hssh.squared_distance_transform(jnp.asarray(occ)), float)
+    return np.where(occ.any(axis=(1, 2))[:, None, None], np.exp(-d2 / (2 * sigma_cells ** 2)),
+                    0.0)
 
 
 def _bilinear(fld, r, c):
