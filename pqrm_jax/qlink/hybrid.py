@@ -35,13 +35,13 @@ from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
 from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
+from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
            "qsr_tables", "uniform_sequence"]
 
 LR, BANDS = 0, 1
-RUNNING, SUCCESS, LINK_NOT_FOUND, REFS_NOT_FOUND, BUDGET = 0, 1, 2, 3, 6
 ENTER, SEARCH = 0, 1
 
 
