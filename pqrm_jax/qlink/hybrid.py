@@ -315,12 +315,10 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
 
     def one(key, path, n, refs0, pos0):
         k_miss, k_noise = jax.random.split(key)
-        l0 = path[0]
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
                 jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
-        del l0
         budget = 3 * (tau + 2) * n + 4
 
         def pair_of(j, vis_j):
