@@ -146,11 +146,6 @@ def search_models(horizon: int = 4, detect_same: float = 0.9):
     return tuple(out)
 
 
-_ORDER_OF = np.full((3, 3), -1, np.int32)
-for _k, (_a, _b, _c) in enumerate(ORDERINGS):
-    _ORDER_OF[_a, _b] = _k
-
-
 def _first(mask):
     """Index of the first True per row (``[K, 3]``) and whether there is one."""
     return np.argmax(mask, 1), mask.any(1)
@@ -188,7 +183,8 @@ def reference_rule(ids_i, kind_i, ids_j, walls):
     t_j, has_j = _first(~is_ref_j)
     target = np.where(has_i, ids_i[rows, t_i], np.where(has_j, ids_j[rows, t_j], -1))
     target = np.where(is_ref_j.sum(1) >= 2, -1, target)
-    order = np.where(has_i & (target >= 0), _ORDER_OF[pos[:, 0], pos[:, 1]], -1)
+    order = np.asarray(jax.vmap(ordering_index)(ids_i, refs[:, 0], refs[:, 1]))
+    order = np.where(has_i & (target >= 0), order, -1)
     return refs.astype(np.int32), target.astype(np.int32), order.astype(np.int32)
 
 
