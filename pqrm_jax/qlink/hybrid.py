@@ -39,7 +39,7 @@ from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
-           "qsr_tables", "uniform_sequence"]
+           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references"]
 
 LR, BANDS = 0, 1
 ENTER, SEARCH = 0, 1
@@ -282,6 +282,46 @@ class _S(NamedTuple):
     trace: jax.Array
 
 
+def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
+    """``[N + 2]`` distances from ``pos [2]`` to every landmark of a hybrid world: the points
+    to their positions, the two walls (the last two ids) to their nearest point
+    (:func:`pqrm_jax.sim.segment_distance`; a wall is in range when any point of it is).
+
+    >>> lm = jnp.array([[3., 4.], [0., 0.], [0., 0.]])      # one point + two wall midpoints
+    >>> walls = jnp.array([[[1., -1.], [1., 1.]], [[-2., 5.], [2., 5.]]])
+    >>> landmark_distances(jnp.zeros(2), lm, walls).tolist()
+    [5.0, 1.0, 5.0]
+    """
+    n = landmarks.shape[0] - 2
+    return jnp.concatenate([jnp.linalg.norm(landmarks[:n] - pos, axis=-1),
+                            _sim.segment_distance(pos, walls)])
+
+
+def _pair(mem, kind_j, vis_j):
+    """(ok, refs [2]) of entering an element with members ``mem [3]`` and visibility
+    ``vis_j [3]``: both walls for a bands element, the first two members seen for LR."""
+    is_bd = kind_j == BANDS
+    ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
+    ok_lr = jnp.sum(vis_j) >= 2
+    first = jnp.argmax(vis_j)
+    second = jnp.argmax(vis_j & (jnp.arange(3) != first))
+    r_lr = jnp.stack([mem[first], mem[second]])
+    return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+
+
+def visible_references(hmap: HybridMap, landmarks, walls, pos,
+                       nav_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(ok [E], refs [E, 2])``: the elements whose references a robot at ``pos [2]`` has in
+    range (exact range test, no misses) and those references — the executive's entry rule
+    (both walls for a bands element, two members for an LR one), for every element at once.
+    """
+    lm = jnp.asarray(landmarks)
+    ids = jnp.asarray(hmap.elements.ids)
+    d = landmark_distances(jnp.asarray(pos, lm.dtype), lm, jnp.asarray(walls, lm.dtype))
+    ok, refs = jax.vmap(_pair)(ids, jnp.asarray(hmap.kind), d[ids] <= nav_range)
+    return np.asarray(ok), np.asarray(refs)
+
+
 def _sel(cond, a, b):
     return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
 
@@ -290,16 +330,13 @@ def _sel(cond, a, b):
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
     lr, bd = calculi.get("lr"), bands_calculus()
-    nw = lm.shape[0] - 2
     tau = plans_lr.shape[-1]
     fdt = lm.dtype
 
     def visible(key, scan, pos, who):
         """[K] who (landmark ids, -1 = none) in range of pos and not missed."""
         w = jnp.maximum(who, 0)
-        d_pt = jnp.linalg.norm(lm[w] - pos, axis=-1)
-        d_wall = _sim.segment_distance(pos, walls)[jnp.clip(w - nw, 0, 1)]
-        d = jnp.where(w >= nw, d_wall, d_pt)
+        d = landmark_distances(pos, lm, walls)[w]
         u = jax.vmap(lambda x: jax.random.uniform(
             jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
         return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
@@ -319,14 +356,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
 
         def pair_of(j, vis_j):
             """(ok, refs [2]) of entering element j with members' visibility vis_j [3]."""
-            mem = ids[j]
-            is_bd = kind[j] == BANDS
-            ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
-            ok_lr = jnp.sum(vis_j) >= 2
-            first = jnp.argmax(vis_j)
-            second = jnp.argmax(vis_j & (jnp.arange(3) != first))
-            r_lr = jnp.stack([mem[first], mem[second]])
-            return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+            return _pair(ids[j], kind[j], vis_j)
 
         def body(s):
             scan = s.stops + 1
