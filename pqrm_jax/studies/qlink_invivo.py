@@ -182,27 +182,10 @@ def _pad(paths):
     return out
 
 
-def _visible_pair(hmap, lm, walls, pos, rng_range, el):
-    """The references the robot sees at ``pos`` for element ``el`` (exact range test), or None."""
-    from ..qlink import hybrid as hy
-
-    ids = np.asarray(hmap.elements.ids)[el]
-    n = lm.shape[0] - 2
-    d = np.linalg.norm(np.asarray(lm)[ids] - pos, axis=1)
-    for i, x in enumerate(ids):
-        if x >= n:
-            a, b = np.asarray(walls)[x - n]
-            t = np.clip(np.dot(pos - a, b - a) / np.dot(b - a, b - a), 0, 1)
-            d[i] = np.linalg.norm(a + t * (b - a) - pos)
-    vis = d <= rng_range
-    if hmap.kind[el] == hy.BANDS:
-        return ids[1:] if vis[1] and vis[2] else None
-    return ids[vis][:2] if vis.sum() >= 2 else None
-
-
 def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     """Drive every trial at ``p_miss`` with up to ``max_replans`` contingency re-plans."""
     import jax
+    import jax.numpy as jnp
     import networkx as nx
 
     from ..qlink import hybrid as hy
@@ -248,11 +231,8 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
             removed[t].add(tuple(int(x) for x in failed[i]))
             gg = g.copy()
             gg.remove_edges_from([e for e in removed[t] if gg.has_edge(*e)])
-            srcs = {}
-            for el in range(len(hmap.kind)):
-                pr = _visible_pair(hmap, lm, walls, fpos[i], cfg.map_range, el)
-                if pr is not None:
-                    srcs[el] = pr
+            ok_el, refs_el = hy.visible_references(hmap, lm, walls, fpos[i], cfg.map_range)
+            srcs = {int(el): refs_el[el] for el in np.flatnonzero(ok_el)}
             goal = pairs[t][1]
             best = None
             for s_el in srcs:
@@ -281,8 +261,8 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     for t in range(b):
         gid = ids[pairs[t][1]]
         cen = true_lm[gid].mean(0)
-        in_range = all(_visible_pair_one(true_lm, walls, final[t], x, cfg.map_range)
-                       for x in gid)
+        dist = np.asarray(hy.landmark_distances(jnp.asarray(final[t], lm.dtype), lm, walls))
+        in_range = bool((dist[gid] <= cfg.map_range).all())
         ok = status[t] == hy.SUCCESS
         attributed = bool(ok and np.linalg.norm(final[t] - cen) <= cfg.attrib_radius
                           and in_range)
@@ -295,15 +275,6 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
                          final_x=float(final[t, 0]), final_y=float(final[t, 1]),
                          trace=[x.tolist() for x in traces[t]]))
     return rows
-
-
-def _visible_pair_one(lm, walls, pos, x, rng_range):
-    n = lm.shape[0] - 2
-    if x >= n:
-        a, b = np.asarray(walls)[x - n]
-        t = np.clip(np.dot(pos - a, b - a) / np.dot(b - a, b - a), 0, 1)
-        return bool(np.linalg.norm(a + t * (b - a) - pos) <= rng_range)
-    return bool(np.linalg.norm(lm[x] - pos) <= rng_range)
 
 
 def checks(cfg: Config, rows: list[dict]) -> list[tuple[str, str, str, bool]]:
