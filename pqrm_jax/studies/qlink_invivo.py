@@ -188,6 +188,7 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     import jax.numpy as jnp
     import networkx as nx
 
+    from ..qlink import FAILURE_REASONS
     from ..qlink import hybrid as hy
 
     hmap, lm, walls, g = world["hmap"], world["landmarks"], world["walls"], world["graph"]
@@ -195,10 +196,10 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     pairs, paths = world["pairs"], [list(p) for p in world["paths"]]
     b = len(pairs)
     key = jax.random.fold_in(jax.random.key(cfg.seed), int(round(p_miss * 1e6)) + 7)
-    pos = np.asarray(lm)[ids[[p[0] for p in paths]]].mean(1)
+    first = [p[0] for p in paths]
+    pos = np.asarray(lm)[ids[first]].mean(1)
     nxt = [p[1] if len(p) > 1 else p[0] for p in paths]
-    refs = hy.reference_rule(ids[[p[0] for p in paths]], hmap.kind[[p[0] for p in paths]],
-                             ids[nxt], hmap.walls)[0]
+    refs = hy.reference_rule(ids[first], hmap.kind[first], ids[nxt], hmap.walls)[0]
     params = hy.HybridParams(cfg.map_range, cfg.sigma, p_miss)
     length = np.zeros(b)
     entered = np.zeros(b, np.int64)
@@ -208,7 +209,7 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     traces = [[] for _ in range(b)]
     removed = [set() for _ in range(b)]
     active = np.arange(b)
-    cur_paths = paths
+    cur_paths = list(paths)     # the planned paths stay for the rows (n_planned)
     for rnd in range(cfg.max_replans + 1):
         keys = jax.vmap(lambda t, r=rnd: jax.random.fold_in(jax.random.fold_in(key, t), r))(
             np.asarray(active))
@@ -251,7 +252,6 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
         if not nxt_active:
             break
         for t in nxt_active:
-            cur_paths = list(cur_paths)
             cur_paths[t] = nxt_paths[t]
             refs[t] = nxt_refs[t]
             pos[t] = final[t]
@@ -266,7 +266,6 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
         ok = status[t] == hy.SUCCESS
         attributed = bool(ok and np.linalg.norm(final[t] - cen) <= cfg.attrib_radius
                           and in_range)
-        from ..qlink import FAILURE_REASONS
         rows.append(dict(p_miss=p_miss, trial=t, start_element=pairs[t][0],
                          goal_element=pairs[t][1], n_planned=len(paths[t]),
                          n_entered=int(entered[t]), replans=int(replans[t]), success=int(ok),
