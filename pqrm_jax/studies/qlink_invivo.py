@@ -106,20 +106,23 @@ FIELDS = ("p_miss", "trial", "start_element", "goal_element", "n_planned", "n_en
 
 
 def make_world(cfg: Config):
-    """``(points [N, 2], walls [2, 2, 2])``: uniform points, two walls facing across the
-    centre (perpendicular to the line of their midpoints)."""
+    """``(points [N, 2], walls [2, 2, 2])``: uniform points
+    (:func:`pqrm_jax.sim.uniform_landmarks`), two walls facing across the centre
+    (perpendicular to the line of their midpoints)."""
     import jax
     import jax.numpy as jnp
 
+    from .. import sim
+
     w, h = cfg.size
-    pts = jax.random.uniform(jax.random.fold_in(jax.random.key(cfg.seed), 1), (cfg.points, 2),
-                             jnp.float32) * jnp.array([w, h], jnp.float32)
+    pts = sim.uniform_landmarks(jax.random.fold_in(jax.random.key(cfg.seed), 1), cfg.points,
+                                (w, h))
     half = cfg.wall_length / 2
     a = np.array([w / 2 - cfg.wall_gap / 2, h / 2])
     b = np.array([w / 2 + cfg.wall_gap / 2, h / 2])
     walls = np.array([[a + [0, -half], a + [0, half]], [b + [0, -half], b + [0, half]]],
                      np.float32)
-    return pts, jnp.asarray(walls)
+    return pts, jnp.asarray(walls, pts.dtype)
 
 
 _NOT_BUILD = ("p_miss", "max_replans", "attrib_radius")   # fields build() does not read
