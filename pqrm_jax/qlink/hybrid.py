@@ -316,10 +316,16 @@ def visible_references(hmap: HybridMap, landmarks, walls, pos,
     (both walls for a bands element, two members for an LR one), for every element at once.
     """
     lm = jnp.asarray(landmarks)
-    ids = jnp.asarray(hmap.elements.ids)
-    d = landmark_distances(jnp.asarray(pos, lm.dtype), lm, jnp.asarray(walls, lm.dtype))
-    ok, refs = jax.vmap(_pair)(ids, jnp.asarray(hmap.kind), d[ids] <= nav_range)
+    ok, refs = _visible_references(jnp.asarray(hmap.elements.ids), jnp.asarray(hmap.kind), lm,
+                                   jnp.asarray(walls, lm.dtype), jnp.asarray(pos, lm.dtype),
+                                   float(nav_range))
     return np.asarray(ok), np.asarray(refs)
+
+
+@jax.jit
+def _visible_references(ids, kind, lm, walls, pos, nav_range):
+    d = landmark_distances(pos, lm, walls)
+    return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
 
 
 def _sel(cond, a, b):
