@@ -35,13 +35,13 @@ from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
 from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
+from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
-           "qsr_tables", "uniform_sequence"]
+           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references"]
 
 LR, BANDS = 0, 1
-RUNNING, SUCCESS, LINK_NOT_FOUND, REFS_NOT_FOUND, BUDGET = 0, 1, 2, 3, 6
 ENTER, SEARCH = 0, 1
 
 
@@ -146,11 +146,6 @@ def search_models(horizon: int = 4, detect_same: float = 0.9):
     return tuple(out)
 
 
-_ORDER_OF = np.full((3, 3), -1, np.int32)
-for _k, (_a, _b, _c) in enumerate(ORDERINGS):
-    _ORDER_OF[_a, _b] = _k
-
-
 def _first(mask):
     """Index of the first True per row (``[K, 3]``) and whether there is one."""
     return np.argmax(mask, 1), mask.any(1)
@@ -188,7 +183,8 @@ def reference_rule(ids_i, kind_i, ids_j, walls):
     t_j, has_j = _first(~is_ref_j)
     target = np.where(has_i, ids_i[rows, t_i], np.where(has_j, ids_j[rows, t_j], -1))
     target = np.where(is_ref_j.sum(1) >= 2, -1, target)
-    order = np.where(has_i & (target >= 0), _ORDER_OF[pos[:, 0], pos[:, 1]], -1)
+    order = np.asarray(jax.vmap(ordering_index)(ids_i, refs[:, 0], refs[:, 1]))
+    order = np.where(has_i & (target >= 0), order, -1)
     return refs.astype(np.int32), target.astype(np.int32), order.astype(np.int32)
 
 
@@ -286,6 +282,52 @@ class _S(NamedTuple):
     trace: jax.Array
 
 
+def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
+    """``[N + 2]`` distances from ``pos [2]`` to every landmark of a hybrid world: the points
+    to their positions, the two walls (the last two ids) to their nearest point
+    (:func:`pqrm_jax.sim.segment_distance`; a wall is in range when any point of it is).
+
+    >>> lm = jnp.array([[3., 4.], [0., 0.], [0., 0.]])      # one point + two wall midpoints
+    >>> walls = jnp.array([[[1., -1.], [1., 1.]], [[-2., 5.], [2., 5.]]])
+    >>> landmark_distances(jnp.zeros(2), lm, walls).tolist()
+    [5.0, 1.0, 5.0]
+    """
+    n = landmarks.shape[0] - 2
+    return jnp.concatenate([jnp.linalg.norm(landmarks[:n] - pos, axis=-1),
+                            _sim.segment_distance(pos, walls)])
+
+
+def _pair(mem, kind_j, vis_j):
+    """(ok, refs [2]) of entering an element with members ``mem [3]`` and visibility
+    ``vis_j [3]``: both walls for a bands element, the first two members seen for LR."""
+    is_bd = kind_j == BANDS
+    ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
+    ok_lr = jnp.sum(vis_j) >= 2
+    first = jnp.argmax(vis_j)
+    second = jnp.argmax(vis_j & (jnp.arange(3) != first))
+    r_lr = jnp.stack([mem[first], mem[second]])
+    return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+
+
+def visible_references(hmap: HybridMap, landmarks, walls, pos,
+                       nav_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(ok [E], refs [E, 2])``: the elements whose references a robot at ``pos [2]`` has in
+    range (exact range test, no misses) and those references — the executive's entry rule
+    (both walls for a bands element, two members for an LR one), for every element at once.
+    """
+    lm = jnp.asarray(landmarks)
+    ok, refs = _visible_references(jnp.asarray(hmap.elements.ids), jnp.asarray(hmap.kind), lm,
+                                   jnp.asarray(walls, lm.dtype), jnp.asarray(pos, lm.dtype),
+                                   float(nav_range))
+    return np.asarray(ok), np.asarray(refs)
+
+
+@jax.jit
+def _visible_references(ids, kind, lm, walls, pos, nav_range):
+    d = landmark_distances(pos, lm, walls)
+    return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
+
+
 def _sel(cond, a, b):
     return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
 
@@ -294,16 +336,13 @@ def _sel(cond, a, b):
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
     lr, bd = calculi.get("lr"), bands_calculus()
-    nw = lm.shape[0] - 2
     tau = plans_lr.shape[-1]
     fdt = lm.dtype
 
     def visible(key, scan, pos, who):
         """[K] who (landmark ids, -1 = none) in range of pos and not missed."""
         w = jnp.maximum(who, 0)
-        d_pt = jnp.linalg.norm(lm[w] - pos, axis=-1)
-        d_wall = _sim.segment_distance(pos, walls)[jnp.clip(w - nw, 0, 1)]
-        d = jnp.where(w >= nw, d_wall, d_pt)
+        d = landmark_distances(pos, lm, walls)[w]
         u = jax.vmap(lambda x: jax.random.uniform(
             jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
         return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
@@ -315,24 +354,15 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
 
     def one(key, path, n, refs0, pos0):
         k_miss, k_noise = jax.random.split(key)
-        l0 = path[0]
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
                 jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
-        del l0
         budget = 3 * (tau + 2) * n + 4
 
         def pair_of(j, vis_j):
             """(ok, refs [2]) of entering element j with members' visibility vis_j [3]."""
-            mem = ids[j]
-            is_bd = kind[j] == BANDS
-            ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
-            ok_lr = jnp.sum(vis_j) >= 2
-            first = jnp.argmax(vis_j)
-            second = jnp.argmax(vis_j & (jnp.arange(3) != first))
-            r_lr = jnp.stack([mem[first], mem[second]])
-            return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+            return _pair(ids[j], kind[j], vis_j)
 
         def body(s):
             scan = s.stops + 1
