@@ -34,8 +34,8 @@ import numpy as np
 from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
-from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
-from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS
+from .elements import ORDERINGS, MapElements, co_observed_triplets, fuse, ordering_index
+from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS, where_tree
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
@@ -70,11 +70,6 @@ class HybridMap(NamedTuple):
     elements: MapElements
     kind: np.ndarray
     walls: tuple[int, int]
-
-
-def _fuse(p, mask, floor):
-    logp = jnp.log(jnp.maximum(p, floor)) * mask[:, :, None, None]
-    return jax.nn.softmax(jnp.sum(logp, axis=1), axis=-1)
 
 
 def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigma: float,
@@ -129,7 +124,7 @@ def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigm
         rows = flat.reshape(e, k * 6, 3, 2)[sel].reshape(-1, 3, 2)
         p = pqrm.state_probabilities(jax.random.fold_in(k_map, kd), calc, rows, float(sigma),
                                      num_samples).reshape(-1, k, 6, q)
-        out[sel, :, :q] = np.asarray(_fuse(p, mask[sel], floor))
+        out[sel, :, :q] = np.asarray(fuse(p, mask[sel], floor))
     el = MapElements(jnp.asarray(ids), jnp.asarray(out), n + 2)
     return HybridMap(el, kind, (n, n + 1)), lm, visible
 
@@ -328,10 +323,6 @@ def _visible_references(ids, kind, lm, walls, pos, nav_range):
     return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
 
 
-def _sel(cond, a, b):
-    return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
-
-
 @partial(jax.jit, static_argnames=("trace_len",))
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
@@ -399,7 +390,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             centre = jnp.mean(s.refs_xy, axis=0)
             s_search = s._replace(pos=centre, length=s.length + jnp.linalg.norm(centre - s.pos),
                                   phase=jnp.int32(SEARCH), c=jnp.int32(0), e=tgt, seq=seq)
-            s_enter = _sel(ok, s_trans, s_search)
+            s_enter = where_tree(ok, s_trans, s_search)
             # ---- SEARCH: sweep the commanded state from the centre
             cmd = s.seq[jnp.minimum(s.c, tau - 1)]
             a, b = s.refs_xy[0], s.refs_xy[1]
@@ -417,13 +408,13 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             vis_at_e = visible(k_miss, scan + (1 << 20), e_xy, mem_n)
             ok_e, refs_e = pair_of(nxt, vis_at_e)
             s_at_e = s._replace(pos=e_xy, length=s.length + jnp.linalg.norm(e_xy - s.pos))
-            s_e = _sel(ok_e, enter_next(s_at_e, refs_e),
+            s_e = where_tree(ok_e, enter_next(s_at_e, refs_e),
                        s_at_e._replace(status=jnp.int32(REFS_NOT_FOUND)))
             c2 = s.c + 1
-            s_miss = _sel(c2 < tau, s._replace(c=c2),
+            s_miss = where_tree(c2 < tau, s._replace(c=c2),
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
-            s_sweep = _sel(ok_sw, enter_next(s, refs_sw), _sel(e_seen, s_e, s_miss))
-            out = _sel(goal_stage, s_goal, _sel(s.phase == ENTER, s_enter, s_sweep))
+            s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
+            out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
             out = out._replace(stops=scan,
                                trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
                                    jnp.where(scan < trace_len, out.pos,
