@@ -1,12 +1,12 @@
 """Re-localisation at revisits batched over pairs vs one pair at a time (B §9.2).
 
-:func:`pqrm_jax.hssh_global.relocalize.match_pairs` (``vmap`` over snapshot pairs, the
-coarse-to-fine search over a small pose window) against the same jitted function called once per
-pair (compiled once). The snapshots are synthetic LPMs of T junctions (45 × 45 cells, 14 per
-corridor width, as in the simulator), each current snapshot the stored one seen from a known
-offset; the recovered offsets are checked against it and the batched and looped results against
-each other. Compile time is excluded (one warm-up call each). Writes
-``benchmarks/results/hssh_reloc.json``.
+:func:`pqrm_jax.hssh_global.relocalize.match_pairs` (all pairs in one jitted call: ``lax.map``
+over the pairs, ``vmap`` over the candidates of the coarse-to-fine search over a small pose
+window) against the same jitted function called once per pair (compiled once). The snapshots
+are synthetic LPMs of T junctions (45 × 45 cells, 14 per corridor width, as in the simulator),
+each current snapshot the stored one seen from a known offset; the recovered offsets are
+checked against it and the batched and looped results against each other. Compile time is
+excluded (one warm-up call each). Writes ``benchmarks/results/hssh_reloc.json``.
 
     .venv/bin/python benchmarks/bench_hssh_reloc.py [--quick]
 """

@@ -204,32 +204,12 @@ def _tangents(nodes: np.ndarray, k: int = 2) -> np.ndarray:
 _K_NEAR = (32, 256)  # neighbours fetched per point by the rounds of _closest_sides
 
 
-def _pick_sides(n, pid, cid, pts, tan, cells):
-    """Per (point, side): the candidate with the least (distance, row, col); -1 if none.
-    Also returns each pick's squared distance (-1 where none)."""
-    left, right = np.full(n, -1), np.full(n, -1)
-    dl, dr = np.full(n, -1), np.full(n, -1)
-    v = cells[cid] - pts[pid]
-    # screen frame: x = col, y = -row; cross > 0 means counter-clockwise (left)
-    cross = tan[pid, 1] * (-v[:, 0]) - (-tan[pid, 0]) * v[:, 1]
-    d2 = (v**2).sum(axis=1)
-    side = np.where(cross > 0, 0, np.where(cross < 0, 1, -1))
-    ok = side >= 0
-    pid, cid, side, d2 = pid[ok], cid[ok], side[ok], d2[ok]
-    order = np.lexsort((cells[cid, 1], cells[cid, 0], d2, side, pid))
-    pid, cid, side, d2 = pid[order], cid[order], side[order], d2[order]
-    first = np.ones(len(pid), bool)
-    first[1:] = (pid[1:] != pid[:-1]) | (side[1:] != side[:-1])
-    for out, dist, sd in ((left, dl, 0), (right, dr, 1)):
-        sel = first & (side == sd)
-        out[pid[sel]] = cid[sel]
-        dist[pid[sel]] = d2[sel]
-    return left, right, dl, dr
-
-
 def _pick_sides_rows(cid, dd, inside, pts, tan, cells):
-    """:func:`_pick_sides` for candidates given as rows ``[m, k]`` (one per point): the least
-    (distance, row, col) per side as one argmin of a combined integer key, without a sort."""
+    """Per (point, side): the candidate with the least (distance, row, col); -1 if none.
+
+    Candidates are rows ``cid [m, k]`` (one per point, ``inside`` marks the real ones, ``dd``
+    their squared distances); the pick is one argmin of a combined integer key, without a
+    sort. Also returns each pick's squared distance (-1 where none)."""
     v = cells[cid] - pts[:, None, :]
     cross = tan[:, None, 1] * (-v[..., 0]) - (-tan[:, None, 0]) * v[..., 1]
     w = int(cells[:, 1].max()) + 1
@@ -288,13 +268,15 @@ def _closest_sides(points, tangents, radii, kd, cells, slack):
 
 def _closest_sides_ball(pts, tan, reach, kd, cells):
     """Exhaustive form of :func:`_closest_sides`: every obstacle cell within ``reach``
-    (one vectorised ball query, one sort of all candidates)."""
+    (one vectorised ball query, padded to rows of the largest ball)."""
     n = len(pts)
     cand = kd.query_ball_point(pts, reach)
     lens = np.fromiter((len(c) for c in cand), int, count=n)
-    pid = np.repeat(np.arange(n), lens)
-    cid = np.fromiter((k for c in cand for k in c), int, count=int(lens.sum()))
-    left, right, _, _ = _pick_sides(n, pid, cid, pts, tan, cells)
+    inside = np.arange(max(int(lens.max(initial=0)), 1))[None, :] < lens[:, None]
+    cid = np.zeros(inside.shape, int)
+    cid[inside] = np.fromiter((k for c in cand for k in c), int, count=int(lens.sum()))
+    dd = ((cells[cid] - pts[:, None, :]) ** 2).sum(axis=-1)
+    left, right, _, _ = _pick_sides_rows(cid, dd, inside, pts, tan, cells)
     return left, right
 
 

@@ -32,50 +32,56 @@ import numpy as np
 from .tree import MapHypothesis
 
 
+def _wrap(xp, t):
+    return xp.mod(t + np.pi, 2 * np.pi) - np.pi
+
+
+def _compose(xp, a, b):
+    """``a ⊕ b`` in array module ``xp`` (one formula for :func:`compose` and
+    :func:`compose_host`)."""
+    c, s = xp.cos(a[..., 2]), xp.sin(a[..., 2])
+    return xp.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1],
+                     _wrap(xp, a[..., 2] + b[..., 2])], -1)
+
+
+def _inverse(xp, a):
+    c, s = xp.cos(a[..., 2]), xp.sin(a[..., 2])
+    return xp.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1],
+                     _wrap(xp, -a[..., 2])], -1)
+
+
 def wrap(t):
     """Angle wrapped to ``[-π, π)``."""
-    return jnp.mod(t + jnp.pi, 2 * jnp.pi) - jnp.pi
+    return _wrap(jnp, jnp.asarray(t))
 
 
 def compose(a, b):
     """``a ⊕ b`` for SE(2) poses ``[..., 3]`` (Smith, Self & Cheeseman; B §9.1)."""
-    a, b = jnp.asarray(a), jnp.asarray(b)
-    c, s = jnp.cos(a[..., 2]), jnp.sin(a[..., 2])
-    return jnp.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
-                      a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                      wrap(a[..., 2] + b[..., 2])], -1)
+    return _compose(jnp, jnp.asarray(a), jnp.asarray(b))
 
 
 def inverse(a):
     """``⊖a`` for SE(2) poses ``[..., 3]``."""
-    a = jnp.asarray(a)
-    c, s = jnp.cos(a[..., 2]), jnp.sin(a[..., 2])
-    return jnp.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1],
-                      wrap(-a[..., 2])], -1)
+    return _inverse(jnp, jnp.asarray(a))
 
 
 def compose_host(a, b) -> np.ndarray:
-    """:func:`compose` in NumPy (float64) for host-side bookkeeping.
+    """:func:`compose` in NumPy (float64) for host-side bookkeeping (the same formula).
 
-    Eager JAX ops compile once per input shape, so point clouds of varying size (LPM snapshots)
-    cost a compile each through :func:`compose`; this one does not.
+    Eager JAX ops compile once per input shape and dispatch one small program per operation,
+    so point clouds of varying size (LPM snapshots) and per-travel loops cost a compile or a
+    dispatch each through :func:`compose`, in float32; this one runs in NumPy, in float64.
 
     >>> compose_host([1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]).round(6).tolist()
     [1.0, 1.0, 1.570796]
     """
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
-                     a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                     np.mod(a[..., 2] + b[..., 2] + np.pi, 2 * np.pi) - np.pi], -1)
+    return _compose(np, np.asarray(a, float), np.asarray(b, float))
 
 
 def inverse_host(a) -> np.ndarray:
     """:func:`inverse` in NumPy (float64), see :func:`compose_host`."""
-    a = np.asarray(a, float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1],
-                     np.mod(-a[..., 2] + np.pi, 2 * np.pi) - np.pi], -1)
+    return _inverse(np, np.asarray(a, float))
 
 
 class LayoutProblem(NamedTuple):

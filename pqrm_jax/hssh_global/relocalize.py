@@ -51,6 +51,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pqrm_jax import hssh
+
 from .layout import compose, compose_host, inverse_host
 
 __all__ = ["RelocParams", "Relocalization", "occupied_points", "field", "match_pairs",
@@ -118,17 +120,14 @@ def occupied_points(snapshots, origins, poses, resolution: float,
 def field(snapshots, sigma_cells: float = 1.0, threshold: float = 0.4) -> np.ndarray:
     """Likelihood fields ``[S, N, N]``: ``exp(−d² / 2σ²)``, ``d`` cells to the nearest obstacle.
 
-    A snapshot without an obstacle gives a zero field.
+    ``d²`` is the local level's exact squared distance transform
+    (:func:`~pqrm_jax.hssh.cellular.squared_distance_transform`, all snapshots in one call). A
+    snapshot without an obstacle gives a zero field.
     """
-    from scipy.ndimage import distance_transform_edt
-    snaps = np.asarray(snapshots, float)
-    out = np.zeros_like(snaps)
-    for s in range(snaps.shape[0]):
-        occ = snaps[s] > threshold
-        if occ.any():
-            d = distance_transform_edt(~occ)
-            out[s] = np.exp(-d ** 2 / (2 * sigma_cells ** 2))
-    return out
+    occ = np.asarray(snapshots, float) > threshold
+    d2 = np.asarray(hssh.squared_distance_transform(jnp.asarray(occ)), float)
+    return np.where(occ.any(axis=(1, 2))[:, None, None], np.exp(-d2 / (2 * sigma_cells ** 2)),
+                    0.0)
 
 
 def _bilinear(fld, r, c):
@@ -210,23 +209,20 @@ def match_pairs(pts, mask, fields, origins, poses, c0, resolution: float, width:
 
 
 def _pairs(hypotheses):
-    """Unique ``(i, j, δ_i − δ_j)`` revisit pairs over hypotheses, and each hypothesis's keys."""
+    """Unique ``(i, j, δ_i − δ_j)`` revisit pairs over hypotheses (keys, in first-seen order),
+    and ``[H, n+1]`` each visit's pair index (-1 at first visits)."""
     keys: dict = {}
-    per_h = []
-    for h in hypotheses:
+    idx = np.full((len(hypotheses), len(hypotheses[0].visits)), -1)
+    for hk, h in enumerate(hypotheses):
         first: dict = {}
-        row = []
         for i, (p, e) in enumerate(h.visits):
             if p not in first:
                 first[p] = (i, e)
-                row.append(None)
                 continue
             j, ej = first[p]
             key = (i, j, round(float(h.bearings[p][e] - h.bearings[p][ej]), 9))
-            keys.setdefault(key, len(keys))
-            row.append(key)
-        per_h.append(row)
-    return keys, per_h
+            idx[hk, i] = keys.setdefault(key, len(keys))
+    return list(keys), idx
 
 
 class Relocalization(NamedTuple):
@@ -269,12 +265,11 @@ def visit_offsets(sw, se, hypotheses, params: RelocParams | None = None) -> Relo
         raise ValueError("hypothesis and simulator experience come from different explorations")
     width = float(sw.width)
     res = width / sw.params.cells
-    keys, per_h = _pairs(hypotheses)
+    order, idx = _pairs(hypotheses)
     offsets = np.zeros((len(hypotheses), n, 3))
     score = np.full((len(hypotheses), n), np.nan)
     used = np.zeros((len(hypotheses), n), bool)
-    if keys:
-        order = sorted(keys, key=keys.get)
+    if order:
         cur = np.array([k[0] for k in order])
         sto = np.array([k[1] for k in order])
         c0 = np.array([[0.0, 0.0, k[2]] for k in order])
@@ -292,12 +287,8 @@ def visit_offsets(sw, se, hypotheses, params: RelocParams | None = None) -> Relo
         ok = s >= params.min_score
         r = compose_host(np.concatenate([np.zeros((len(order), 2)), -c0[:, 2:]], 1), c)
         r[~ok] = 0.0
-        for hk, row in enumerate(per_h):
-            for i, key in enumerate(row):
-                if key is None:
-                    continue
-                u = keys[key]
-                offsets[hk, i], score[hk, i], used[hk, i] = r[u], s[u], ok[u]
+        rev = idx >= 0
+        offsets[rev], score[rev], used[rev] = r[idx[rev]], s[idx[rev]], ok[idx[rev]]
     odo = np.asarray(se.experience.odometry, float).reshape(-1, 3)
     lam = compose_host(compose_host(offsets[:, :-1], np.broadcast_to(odo, offsets[:, 1:].shape)),
                       inverse_host(offsets[:, 1:]))

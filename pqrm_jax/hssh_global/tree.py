@@ -45,6 +45,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import networkx as nx
 import numpy as np
 
 from .star import view_match
@@ -293,6 +294,9 @@ def is_planar(h: MapHypothesis) -> bool:
     faces are the orbits of "cross the corridor, then turn to the next gateway clockwise";
     the embedding is planar iff ``V − E + F = 2 C`` (Euler, ``C`` connected components).
     Used as the optional consistency filter behind B's "46 → 1 with planarity" figure.
+    (``networkx.check_planarity`` asks whether *some* embedding is planar, ignoring the stars'
+    orders, and ``networkx.PlanarEmbedding`` holds neither parallel corridors nor loops, so the
+    faces are traced here.)
 
     >>> from pqrm_jax.hssh_global.world import office_world, explore
     >>> w = office_world()
@@ -329,17 +333,10 @@ def is_planar(h: MapHypothesis) -> bool:
             seen.add(d)
             d = nxt[partner[d]]
     # connected components over places (stubs hang on their place)
-    parent = list(range(h.n_places))
-
-    def find(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for (p, _), (q, _) in h.edges.items():
-        parent[find(p)] = find(q)
-    comps = len({find(p) for p in range(h.n_places)})
+    g = nx.Graph()
+    g.add_nodes_from(range(h.n_places))
+    g.add_edges_from((p, q) for (p, _), (q, _) in h.edges.items())
+    comps = nx.number_connected_components(g)
     return v - e_n + faces == 2 * comps
 
 

@@ -29,7 +29,7 @@ from .. import calculi, pqrm
 from .. import sim as _sim
 
 __all__ = ["ORDERINGS", "MapElements", "co_observed_triplets", "from_mapping_run",
-           "exact_elements", "ordering_index", "incidence", "check_elements"]
+           "exact_elements", "ordering_index", "incidence", "check_elements", "fuse"]
 
 ORDERINGS = np.array([(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)],
                      np.int32)
@@ -126,8 +126,9 @@ def co_observed_triplets(visible: np.ndarray, max_obs: int) -> tuple[np.ndarray,
     return ids, obs
 
 
-def _fuse(probs, mask, floor):
-    """Bayes fusion (P eq. 2.10) of ``[E, K, 6, Q]`` measurement likelihoods under ``mask``."""
+def fuse(probs: jax.Array, mask: jax.Array, floor: float) -> jax.Array:
+    """Bayes fusion (P eq. 2.10) of ``[E, K, 6, Q]`` measurement likelihoods under ``mask``
+    ``[E, K]`` (each likelihood floored at ``floor``): the ``[E, 6, Q]`` posteriors."""
     logp = jnp.log(jnp.maximum(probs, floor)) * mask[:, :, None, None]
     return jax.nn.softmax(jnp.sum(logp, axis=1), axis=-1)
 
@@ -182,7 +183,7 @@ def from_mapping_run(key: jax.Array, landmarks: jax.Array, poses: jax.Array,
     flat = means.reshape(e * k * 6, 3, 2)
     p = pqrm.state_probabilities(k_map, calc, flat, float(sensor.sigma), num_samples)
     p = p.reshape(e, k, 6, calc.num_states)
-    probs = _fuse(p, jnp.asarray(which >= 0, p.dtype), floor)
+    probs = fuse(p, jnp.asarray(which >= 0, p.dtype), floor)
     return MapElements(jnp.asarray(ids), probs, int(landmarks.shape[0])), visible
 
 

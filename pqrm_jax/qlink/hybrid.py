@@ -34,14 +34,14 @@ import numpy as np
 from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
-from .elements import ORDERINGS, MapElements, co_observed_triplets, ordering_index
+from .elements import ORDERINGS, MapElements, co_observed_triplets, fuse, ordering_index
+from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS, where_tree
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
-           "qsr_tables", "uniform_sequence"]
+           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references"]
 
 LR, BANDS = 0, 1
-RUNNING, SUCCESS, LINK_NOT_FOUND, REFS_NOT_FOUND, BUDGET = 0, 1, 2, 3, 6
 ENTER, SEARCH = 0, 1
 
 
@@ -70,11 +70,6 @@ class HybridMap(NamedTuple):
     elements: MapElements
     kind: np.ndarray
     walls: tuple[int, int]
-
-
-def _fuse(p, mask, floor):
-    logp = jnp.log(jnp.maximum(p, floor)) * mask[:, :, None, None]
-    return jax.nn.softmax(jnp.sum(logp, axis=1), axis=-1)
 
 
 def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigma: float,
@@ -129,7 +124,7 @@ def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigm
         rows = flat.reshape(e, k * 6, 3, 2)[sel].reshape(-1, 3, 2)
         p = pqrm.state_probabilities(jax.random.fold_in(k_map, kd), calc, rows, float(sigma),
                                      num_samples).reshape(-1, k, 6, q)
-        out[sel, :, :q] = np.asarray(_fuse(p, mask[sel], floor))
+        out[sel, :, :q] = np.asarray(fuse(p, mask[sel], floor))
     el = MapElements(jnp.asarray(ids), jnp.asarray(out), n + 2)
     return HybridMap(el, kind, (n, n + 1)), lm, visible
 
@@ -144,11 +139,6 @@ def search_models(horizon: int = 4, detect_same: float = 0.9):
         out.append(_pomdp.SearchPOMDP(jnp.ones((q, q), bool), jnp.asarray(det), 1.0,
                                       int(horizon)))
     return tuple(out)
-
-
-_ORDER_OF = np.full((3, 3), -1, np.int32)
-for _k, (_a, _b, _c) in enumerate(ORDERINGS):
-    _ORDER_OF[_a, _b] = _k
 
 
 def _first(mask):
@@ -188,7 +178,8 @@ def reference_rule(ids_i, kind_i, ids_j, walls):
     t_j, has_j = _first(~is_ref_j)
     target = np.where(has_i, ids_i[rows, t_i], np.where(has_j, ids_j[rows, t_j], -1))
     target = np.where(is_ref_j.sum(1) >= 2, -1, target)
-    order = np.where(has_i & (target >= 0), _ORDER_OF[pos[:, 0], pos[:, 1]], -1)
+    order = np.asarray(jax.vmap(ordering_index)(ids_i, refs[:, 0], refs[:, 1]))
+    order = np.where(has_i & (target >= 0), order, -1)
     return refs.astype(np.int32), target.astype(np.int32), order.astype(np.int32)
 
 
@@ -286,24 +277,63 @@ class _S(NamedTuple):
     trace: jax.Array
 
 
-def _sel(cond, a, b):
-    return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
+def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
+    """``[N + 2]`` distances from ``pos [2]`` to every landmark of a hybrid world: the points
+    to their positions, the two walls (the last two ids) to their nearest point
+    (:func:`pqrm_jax.sim.segment_distance`; a wall is in range when any point of it is).
+
+    >>> lm = jnp.array([[3., 4.], [0., 0.], [0., 0.]])      # one point + two wall midpoints
+    >>> walls = jnp.array([[[1., -1.], [1., 1.]], [[-2., 5.], [2., 5.]]])
+    >>> landmark_distances(jnp.zeros(2), lm, walls).tolist()
+    [5.0, 1.0, 5.0]
+    """
+    n = landmarks.shape[0] - 2
+    return jnp.concatenate([jnp.linalg.norm(landmarks[:n] - pos, axis=-1),
+                            _sim.segment_distance(pos, walls)])
+
+
+def _pair(mem, kind_j, vis_j):
+    """(ok, refs [2]) of entering an element with members ``mem [3]`` and visibility
+    ``vis_j [3]``: both walls for a bands element, the first two members seen for LR."""
+    is_bd = kind_j == BANDS
+    ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
+    ok_lr = jnp.sum(vis_j) >= 2
+    first = jnp.argmax(vis_j)
+    second = jnp.argmax(vis_j & (jnp.arange(3) != first))
+    r_lr = jnp.stack([mem[first], mem[second]])
+    return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+
+
+def visible_references(hmap: HybridMap, landmarks, walls, pos,
+                       nav_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(ok [E], refs [E, 2])``: the elements whose references a robot at ``pos [2]`` has in
+    range (exact range test, no misses) and those references — the executive's entry rule
+    (both walls for a bands element, two members for an LR one), for every element at once.
+    """
+    lm = jnp.asarray(landmarks)
+    ok, refs = _visible_references(jnp.asarray(hmap.elements.ids), jnp.asarray(hmap.kind), lm,
+                                   jnp.asarray(walls, lm.dtype), jnp.asarray(pos, lm.dtype),
+                                   float(nav_range))
+    return np.asarray(ok), np.asarray(refs)
+
+
+@jax.jit
+def _visible_references(ids, kind, lm, walls, pos, nav_range):
+    d = landmark_distances(pos, lm, walls)
+    return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
 
 
 @partial(jax.jit, static_argnames=("trace_len",))
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
     lr, bd = calculi.get("lr"), bands_calculus()
-    nw = lm.shape[0] - 2
     tau = plans_lr.shape[-1]
     fdt = lm.dtype
 
     def visible(key, scan, pos, who):
         """[K] who (landmark ids, -1 = none) in range of pos and not missed."""
         w = jnp.maximum(who, 0)
-        d_pt = jnp.linalg.norm(lm[w] - pos, axis=-1)
-        d_wall = _sim.segment_distance(pos, walls)[jnp.clip(w - nw, 0, 1)]
-        d = jnp.where(w >= nw, d_wall, d_pt)
+        d = landmark_distances(pos, lm, walls)[w]
         u = jax.vmap(lambda x: jax.random.uniform(
             jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
         return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
@@ -315,24 +345,15 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
 
     def one(key, path, n, refs0, pos0):
         k_miss, k_noise = jax.random.split(key)
-        l0 = path[0]
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
                 jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
-        del l0
         budget = 3 * (tau + 2) * n + 4
 
         def pair_of(j, vis_j):
             """(ok, refs [2]) of entering element j with members' visibility vis_j [3]."""
-            mem = ids[j]
-            is_bd = kind[j] == BANDS
-            ok_bd = vis_j[1] & vis_j[2]               # walls are the two largest ids
-            ok_lr = jnp.sum(vis_j) >= 2
-            first = jnp.argmax(vis_j)
-            second = jnp.argmax(vis_j & (jnp.arange(3) != first))
-            r_lr = jnp.stack([mem[first], mem[second]])
-            return jnp.where(is_bd, ok_bd, ok_lr), jnp.where(is_bd, mem[1:], r_lr)
+            return _pair(ids[j], kind[j], vis_j)
 
         def body(s):
             scan = s.stops + 1
@@ -369,7 +390,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             centre = jnp.mean(s.refs_xy, axis=0)
             s_search = s._replace(pos=centre, length=s.length + jnp.linalg.norm(centre - s.pos),
                                   phase=jnp.int32(SEARCH), c=jnp.int32(0), e=tgt, seq=seq)
-            s_enter = _sel(ok, s_trans, s_search)
+            s_enter = where_tree(ok, s_trans, s_search)
             # ---- SEARCH: sweep the commanded state from the centre
             cmd = s.seq[jnp.minimum(s.c, tau - 1)]
             a, b = s.refs_xy[0], s.refs_xy[1]
@@ -387,13 +408,13 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             vis_at_e = visible(k_miss, scan + (1 << 20), e_xy, mem_n)
             ok_e, refs_e = pair_of(nxt, vis_at_e)
             s_at_e = s._replace(pos=e_xy, length=s.length + jnp.linalg.norm(e_xy - s.pos))
-            s_e = _sel(ok_e, enter_next(s_at_e, refs_e),
+            s_e = where_tree(ok_e, enter_next(s_at_e, refs_e),
                        s_at_e._replace(status=jnp.int32(REFS_NOT_FOUND)))
             c2 = s.c + 1
-            s_miss = _sel(c2 < tau, s._replace(c=c2),
+            s_miss = where_tree(c2 < tau, s._replace(c=c2),
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
-            s_sweep = _sel(ok_sw, enter_next(s, refs_sw), _sel(e_seen, s_e, s_miss))
-            out = _sel(goal_stage, s_goal, _sel(s.phase == ENTER, s_enter, s_sweep))
+            s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
+            out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
             out = out._replace(stops=scan,
                                trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
                                    jnp.where(scan < trace_len, out.pos,

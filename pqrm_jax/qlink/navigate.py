@@ -42,7 +42,7 @@ from .elements import MapElements, ordering_index
 
 __all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
            "step_budget", "replan_inputs", "localize", "start_tables", "start_poses",
-           "PairResult", "navigate_pairs", "qsr_plans"]
+           "PairResult", "navigate_pairs", "qsr_plans", "where_tree"]
 
 RUNNING, SUCCESS = 0, 1
 LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
@@ -131,7 +131,8 @@ def qsr_plans(elements: MapElements, model: _pomdp.SearchPOMDP) -> jax.Array:
     return seq.reshape(e, o, q, -1).astype(jnp.int32)
 
 
-def _sel(cond, a, b):
+def where_tree(cond: jax.Array, a, b):
+    """``jnp.where(cond, ·, ·)`` leaf by leaf over two pytrees of one structure."""
     return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
 
 
@@ -261,7 +262,7 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         s_plan_circ = s._replace(phase=jnp.int32(CIRCLE), e=link, e_xy=ref_pos,
                                  motion=tr.circle_motion(
                                      pos, ref_pos, params.circle_margin * params.nav_range))
-        s_plan = _sel(link_is_ref, s_plan_circ, s_plan_arc)
+        s_plan = where_tree(link_is_ref, s_plan_circ, s_plan_arc)
         # --- MOVE along the current motion
         u, mot = tr.motion_control(s.pose, s.motion, v_max, w_max, dt)
         new_pose = _sim.step(_sim.RoverState(s.pose, jnp.zeros((), fdt)), u,
@@ -276,15 +277,15 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
                                                                 params.map_range, lo2))
         arc_fail = jnp.where(goal_stage, GOAL_NOT_FOUND, LINK_NOT_FOUND)
         circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
-        s_arc_end = _sel(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
+        s_arc_end = where_tree(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
         s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
-        s_moved = _sel(finished & (s.phase == ARC), s_arc_end,
-                       _sel(finished & (s.phase == CIRCLE), s_circ_end, s_move))
+        s_moved = where_tree(finished & (s.phase == ARC), s_arc_end,
+                       where_tree(finished & (s.phase == CIRCLE), s_circ_end, s_move))
         # --- priority: goal > transition > link seen > plan > move
-        out = _sel(done_goal, s._replace(status=jnp.int32(SUCCESS)),
-                   _sel(trans, s_trans,
-                        _sel(see_e, s_circ,
-                             _sel(s.phase == PLAN, s_plan, s_moved))))
+        out = where_tree(done_goal, s._replace(status=jnp.int32(SUCCESS)),
+                   where_tree(trans, s_trans,
+                        where_tree(see_e, s_circ,
+                             where_tree(s.phase == PLAN, s_plan, s_moved))))
         out = out._replace(steps=s.steps + 1)
         if record:
             out = out._replace(trace=out.trace.at[jnp.minimum(s.steps, record - 1)].set(
@@ -328,7 +329,7 @@ def _pool(trials: _Trial, n_valid, init, body, width: int, refill_at: int) -> Na
     out0 = jax.tree.map(lambda x: jnp.zeros((q,) + x.shape[1:], x.dtype), _result(s0))
 
     def step_lane(s, t):
-        return _sel(s.status == RUNNING, body(s, t), s)
+        return where_tree(s.status == RUNNING, body(s, t), s)
 
     def refill(c):
         t, s, idx, act, nxt, out = c

@@ -33,7 +33,6 @@ __all__ = ["exact_vectors", "exact_forms", "exact_signs", "decide_state", "oracl
            "settle_undecided"]
 
 
-
 def exact_vectors(bearings) -> list[tuple[Fraction, Fraction]]:
     """Exact rational *unit* vectors of 3 bearings (within ~1e-16 of ``(cos θ, sin θ)``).
 

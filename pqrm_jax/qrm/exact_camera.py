@@ -178,13 +178,12 @@ def form_values(spec: QRMSpec, w, d):
         relation of a slot triple is XY:Z with its slots permuted to ``CYCLIC[o]``
         (:func:`exact_sets`).
     """
-    X, Y, Z = 0, 1, 2
     cw, sw = w
     eps = jnp.finfo(cw.dtype).eps
-    dX, dY, dZ = d[X], d[Y], d[Z]
-    PXx, PXy = dX * cw[X], dX * sw[X]
-    Dx, Dy = dY * cw[Y] - PXx, dY * sw[Y] - PXy
-    Ex, Ey = dZ * cw[Z] - PXx, dZ * sw[Z] - PXy
+    dX, dY, dZ = d
+    PXx, PXy = dX * cw[0], dX * sw[0]
+    Dx, Dy = dY * cw[1] - PXx, dY * sw[1] - PXy
+    Ex, Ey = dZ * cw[2] - PXx, dZ * sw[2] - PXy
     aX, aY, aZ = jnp.abs(dX), jnp.abs(dY), jnp.abs(dZ)
     nD, nE = jnp.abs(Dx) + jnp.abs(Dy), jnp.abs(Ex) + jnp.abs(Ey)
     eD = 2 * eps * (aX + aY) + eps * nD

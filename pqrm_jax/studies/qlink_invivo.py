@@ -106,20 +106,23 @@ FIELDS = ("p_miss", "trial", "start_element", "goal_element", "n_planned", "n_en
 
 
 def make_world(cfg: Config):
-    """``(points [N, 2], walls [2, 2, 2])``: uniform points, two walls facing across the
-    centre (perpendicular to the line of their midpoints)."""
+    """``(points [N, 2], walls [2, 2, 2])``: uniform points
+    (:func:`pqrm_jax.sim.uniform_landmarks`), two walls facing across the centre
+    (perpendicular to the line of their midpoints)."""
     import jax
     import jax.numpy as jnp
 
+    from .. import sim
+
     w, h = cfg.size
-    pts = jax.random.uniform(jax.random.fold_in(jax.random.key(cfg.seed), 1), (cfg.points, 2),
-                             jnp.float32) * jnp.array([w, h], jnp.float32)
+    pts = sim.uniform_landmarks(jax.random.fold_in(jax.random.key(cfg.seed), 1), cfg.points,
+                                (w, h))
     half = cfg.wall_length / 2
     a = np.array([w / 2 - cfg.wall_gap / 2, h / 2])
     b = np.array([w / 2 + cfg.wall_gap / 2, h / 2])
     walls = np.array([[a + [0, -half], a + [0, half]], [b + [0, -half], b + [0, half]]],
                      np.float32)
-    return pts, jnp.asarray(walls)
+    return pts, jnp.asarray(walls, pts.dtype)
 
 
 _NOT_BUILD = ("p_miss", "max_replans", "attrib_radius")   # fields build() does not read
@@ -182,29 +185,13 @@ def _pad(paths):
     return out
 
 
-def _visible_pair(hmap, lm, walls, pos, rng_range, el):
-    """The references the robot sees at ``pos`` for element ``el`` (exact range test), or None."""
-    from ..qlink import hybrid as hy
-
-    ids = np.asarray(hmap.elements.ids)[el]
-    n = lm.shape[0] - 2
-    d = np.linalg.norm(np.asarray(lm)[ids] - pos, axis=1)
-    for i, x in enumerate(ids):
-        if x >= n:
-            a, b = np.asarray(walls)[x - n]
-            t = np.clip(np.dot(pos - a, b - a) / np.dot(b - a, b - a), 0, 1)
-            d[i] = np.linalg.norm(a + t * (b - a) - pos)
-    vis = d <= rng_range
-    if hmap.kind[el] == hy.BANDS:
-        return ids[1:] if vis[1] and vis[2] else None
-    return ids[vis][:2] if vis.sum() >= 2 else None
-
-
 def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     """Drive every trial at ``p_miss`` with up to ``max_replans`` contingency re-plans."""
     import jax
+    import jax.numpy as jnp
     import networkx as nx
 
+    from ..qlink import FAILURE_REASONS
     from ..qlink import hybrid as hy
 
     hmap, lm, walls, g = world["hmap"], world["landmarks"], world["walls"], world["graph"]
@@ -212,10 +199,10 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     pairs, paths = world["pairs"], [list(p) for p in world["paths"]]
     b = len(pairs)
     key = jax.random.fold_in(jax.random.key(cfg.seed), int(round(p_miss * 1e6)) + 7)
-    pos = np.asarray(lm)[ids[[p[0] for p in paths]]].mean(1)
+    first = [p[0] for p in paths]
+    pos = np.asarray(lm)[ids[first]].mean(1)
     nxt = [p[1] if len(p) > 1 else p[0] for p in paths]
-    refs = hy.reference_rule(ids[[p[0] for p in paths]], hmap.kind[[p[0] for p in paths]],
-                             ids[nxt], hmap.walls)[0]
+    refs = hy.reference_rule(ids[first], hmap.kind[first], ids[nxt], hmap.walls)[0]
     params = hy.HybridParams(cfg.map_range, cfg.sigma, p_miss)
     length = np.zeros(b)
     entered = np.zeros(b, np.int64)
@@ -225,7 +212,7 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     traces = [[] for _ in range(b)]
     removed = [set() for _ in range(b)]
     active = np.arange(b)
-    cur_paths = paths
+    cur_paths = list(paths)     # the planned paths stay for the rows (n_planned)
     for rnd in range(cfg.max_replans + 1):
         keys = jax.vmap(lambda t, r=rnd: jax.random.fold_in(jax.random.fold_in(key, t), r))(
             np.asarray(active))
@@ -248,11 +235,8 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
             removed[t].add(tuple(int(x) for x in failed[i]))
             gg = g.copy()
             gg.remove_edges_from([e for e in removed[t] if gg.has_edge(*e)])
-            srcs = {}
-            for el in range(len(hmap.kind)):
-                pr = _visible_pair(hmap, lm, walls, fpos[i], cfg.map_range, el)
-                if pr is not None:
-                    srcs[el] = pr
+            ok_el, refs_el = hy.visible_references(hmap, lm, walls, fpos[i], cfg.map_range)
+            srcs = {int(el): refs_el[el] for el in np.flatnonzero(ok_el)}
             goal = pairs[t][1]
             best = None
             for s_el in srcs:
@@ -271,7 +255,6 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
         if not nxt_active:
             break
         for t in nxt_active:
-            cur_paths = list(cur_paths)
             cur_paths[t] = nxt_paths[t]
             refs[t] = nxt_refs[t]
             pos[t] = final[t]
@@ -281,12 +264,11 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
     for t in range(b):
         gid = ids[pairs[t][1]]
         cen = true_lm[gid].mean(0)
-        in_range = all(_visible_pair_one(true_lm, walls, final[t], x, cfg.map_range)
-                       for x in gid)
+        dist = np.asarray(hy.landmark_distances(jnp.asarray(final[t], lm.dtype), lm, walls))
+        in_range = bool((dist[gid] <= cfg.map_range).all())
         ok = status[t] == hy.SUCCESS
         attributed = bool(ok and np.linalg.norm(final[t] - cen) <= cfg.attrib_radius
                           and in_range)
-        from ..qlink import FAILURE_REASONS
         rows.append(dict(p_miss=p_miss, trial=t, start_element=pairs[t][0],
                          goal_element=pairs[t][1], n_planned=len(paths[t]),
                          n_entered=int(entered[t]), replans=int(replans[t]), success=int(ok),
@@ -295,15 +277,6 @@ def run_setting(cfg: Config, world: dict, p_miss: float) -> list[dict]:
                          final_x=float(final[t, 0]), final_y=float(final[t, 1]),
                          trace=[x.tolist() for x in traces[t]]))
     return rows
-
-
-def _visible_pair_one(lm, walls, pos, x, rng_range):
-    n = lm.shape[0] - 2
-    if x >= n:
-        a, b = np.asarray(walls)[x - n]
-        t = np.clip(np.dot(pos - a, b - a) / np.dot(b - a, b - a), 0, 1)
-        return bool(np.linalg.norm(a + t * (b - a) - pos) <= rng_range)
-    return bool(np.linalg.norm(lm[x] - pos) <= rng_range)
 
 
 def checks(cfg: Config, rows: list[dict]) -> list[tuple[str, str, str, bool]]:
