@@ -10,8 +10,29 @@ import json
 
 import pytest
 
-from pqrm_jax.studies import qlink
+from pqrm_jax.studies import chunking, qlink
 from pqrm_jax.studies.store import StudyError
+
+
+def test_fit_is_pick_chunk_then_cpu_cap_then_balance():
+    """The shared tail of the studies' ``auto_chunk``: None without memory figures (the
+    study's fallback), the CPU cap only on a CPU backend, the calls evened out on request,
+    a device too small for one lane refused naming the option."""
+    import jax
+
+    mib = 1 << 20
+    assert chunking.fit(mib, 100 * mib, total=300, option="--chunk") == 32
+    assert chunking.fit(mib, 100 * mib, total=300, option="--chunk", even=True) == 30
+    cpu = jax.local_devices()[0].platform == "cpu"
+    assert chunking.fit(mib, 100 * mib, total=300, option="--chunk", cpu_cap=8) == \
+        (8 if cpu else 32)
+    assert chunking.fit(mib, 100 * mib, total=20, devices=4, option="--chunk") == 20
+    assert chunking.fit(None, 100 * mib, total=300, option="--chunk") is None
+    assert chunking.fit(0, 100 * mib, total=300, option="--chunk") is None
+    assert chunking.fit(mib, None, total=300, option="--chunk") is None
+    assert chunking.budget(1000) == 1000
+    with pytest.raises(StudyError, match="--chunk-cells cannot go below one lane"):
+        chunking.fit(1 << 30, 100 * mib, total=4, option="--chunk-cells")
 
 
 @pytest.mark.slow

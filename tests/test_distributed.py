@@ -89,13 +89,14 @@ def _same_results(a: Path, b: Path) -> int:
     return len(names)
 
 
-def _driver_one_and_two(one: Path, two: Path) -> list[subprocess.CompletedProcess]:
-    """The padgett driver as 1 process into ``one`` and as 2 processes into ``two``, at once;
-    every process must succeed."""
+def _driver_one_and_two(one: Path, two: Path, driver: str = _DRIVER,
+                        timeout: float = 300) -> list[subprocess.CompletedProcess]:
+    """A study driver (default: the padgett one) as 1 process into ``one`` and as 2 processes
+    into ``two``, at once; every process must succeed."""
     port = str(free_port())
-    rs = _launch([[sys.executable, "-c", _DRIVER, str(one), "1", "0", "0"]]
-                 + [[sys.executable, "-c", _DRIVER, str(two), "2", str(i), port]
-                    for i in (1, 0)])
+    rs = _launch([[sys.executable, "-c", driver, str(one), "1", "0", "0"]]
+                 + [[sys.executable, "-c", driver, str(two), "2", str(i), port]
+                    for i in (1, 0)], timeout=timeout)
     for r in rs:
         assert r.returncode == 0, r.stderr[-2000:]
     return rs
@@ -345,12 +346,7 @@ M.run_study(cfg, Path(out), no_progress=True, cluster=cluster)
 @pytest.mark.slow
 def test_mars_yard_two_processes_equal_one(tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
-    port = str(free_port())
-    rs = _launch([[sys.executable, "-c", _MARS_DRIVER, str(one), "1", "0", "0"]]
-                 + [[sys.executable, "-c", _MARS_DRIVER, str(two), "2", str(i), port]
-                    for i in (1, 0)], timeout=600)
-    for r in rs:
-        assert r.returncode == 0, r.stderr[-2000:]
+    _driver_one_and_two(one, two, _MARS_DRIVER, timeout=600)
     assert _same_study_files(one, two) == 6  # 3 traverses, config, marker, results.csv
     assert (two / "fig11.png").exists()  # traverse 0's figures, drawn by process 0
 
@@ -389,12 +385,7 @@ def test_mcclelland_mc_killed_process_then_resume(tmp_path):
                     lambda: bool(list(two.glob("runs/n*_r*.npz"))), wait_s=300, give_up_s=90)
     written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
     assert 1 <= len(written) < 8
-    port = str(free_port())
-    rs = _launch([[sys.executable, "-c", _MCC_DRIVER, str(one), "1", "0", "0"]]
-                 + [[sys.executable, "-c", _MCC_DRIVER, str(two), "2", str(i), port]
-                    for i in (1, 0)])
-    for r in rs:
-        assert r.returncode == 0, r.stderr[-2000:]
+    _driver_one_and_two(one, two, _MCC_DRIVER)
     assert _same_study_files(one, two) == 10  # 8 runs, config, marker
 
 

@@ -132,7 +132,7 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         if ep.nondetection:  # EXTENSION (docs/bsp.md §non-detection); off in the thesis model
             unseen = (avail & lm_mask & (idx != i) & (idx != j)
                       & ~(vis[i] & vis[j] & vis))
-            pred = predict(models, sf, a)
+            pred = nothing.robot  # the prediction (the robot's state when it looked)
             rows_ij, bad = non_detection(models, sf, pred, nb_.trip[i, j], unseen)
             # the reversed ordering ji:k is INVERSE of ij:k, an exact permutation P = U[2]
             # (P = Pᵀ = P⁻¹): update it in the ij order with the same likelihood

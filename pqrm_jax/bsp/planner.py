@@ -101,7 +101,7 @@ class _Level(NamedTuple):
     w: jax.Array  # [N, na, nb]
     goal: jax.Array  # [N, na, nb]
     anyobs: jax.Array  # [N, na]
-    seen: jax.Array  # [N, na] P(some observable candidate seen | a), clipped to 1
+    seen: jax.Array  # [N, na] P(some observable candidate seen | a): 1 without nothing_seen
     frames: jax.Array  # [N, na, nb, 3, 2]
     robots: jax.Array  # [N, na, nb, 3, Q]
 
@@ -125,11 +125,11 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
     hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
     wsum = wt.sum(1)
-    proxy = costs + jnp.where(wsum > 0, (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0), h_f + cb)
-    if pp.nothing_seen:  # EXTENSION: the candidates' events may overlap, so clip at 1
-        ps = jnp.clip(wsum, 0.0, 1.0)
-        proxy = costs + jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
-                                  + (1.0 - ps) * (h_f + cb), h_f + cb)
+    # P(some candidate seen | a): 1 in the thesis model (the candidate weights renormalised,
+    # §Z-24); the nothing-seen EXTENSION clips the sum at 1 (the events may overlap)
+    ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
+    proxy = costs + jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
+                              + (1.0 - ps) * (h_f + cb), h_f + cb)
     score = -proxy
     _, acts = jax.lax.top_k(score, pp.n_actions)
     wa = wt[acts]  # [na, L]
@@ -159,7 +159,7 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
     return _Level(cost=costs[acts], acts=acts, ks=ks, w=w,
                   goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs,
-                  seen=jnp.clip(wsum[acts], 0.0, 1.0), frames=fr, robots=rb)
+                  seen=ps[acts], frames=fr, robots=rb)
 
 
 def sample_index(key, weights) -> jax.Array:
@@ -218,11 +218,9 @@ def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, ke
         v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
         vb = jnp.where(out.goal, 0.0, v.min(-1))
         stuck = leaf_values(fg, parent_frames, cb, lam, pp.rho)[:, None] + cb
-        if pp.nothing_seen:  # EXTENSION (docs/bsp.md §nothing-seen)
-            q = out.cost + jnp.where(out.anyobs, out.seen * (out.w * vb).sum(-1)
-                                     + (1.0 - out.seen) * stuck, stuck)
-        else:
-            q = out.cost + jnp.where(out.anyobs, (out.w * vb).sum(-1), stuck)
+        # seen = 1 unless the nothing-seen EXTENSION is on (docs/bsp.md §nothing-seen)
+        q = out.cost + jnp.where(out.anyobs, out.seen * (out.w * vb).sum(-1)
+                                 + (1.0 - out.seen) * stuck, stuck)
         values = q.min(-1)
         links = v.argmin(-1)
     root = levels[0][1]

@@ -48,8 +48,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FRACTION", "available_bytes", "check_fits", "pick_chunk", "program_bytes",
-           "balance", "resolve", "stored_chunk"]
+__all__ = ["FRACTION", "available_bytes", "budget", "check_fits", "fit", "pick_chunk",
+           "program_bytes", "balance", "resolve", "stored_chunk"]
 
 #: share of a device's available memory one chunk may use: XLA's own runtime buffers, the
 #: host-side copies of the results and other processes on the machine need the rest
@@ -91,6 +91,16 @@ def available_bytes(device: Any = None) -> int | None:
         return None
     same = [d for d in jax.local_devices() if d.platform == device.platform]
     return host // max(len(same), 1)
+
+
+def budget(memory_bytes: int | None = None) -> int | None:
+    """``memory_bytes`` when given (tests, users sharing a device), else
+    :func:`available_bytes` of the first local device.
+
+    >>> budget(1 << 20)
+    1048576
+    """
+    return available_bytes() if memory_bytes is None else memory_bytes
 
 
 def program_bytes(compiled: Any) -> int | None:
@@ -139,6 +149,43 @@ def pick_chunk(per_lane_bytes: float, budget_bytes: int, *, total: int, devices:
     need = -(-total // devices)
     lanes = 1 << (per_device.bit_length() - 1)  # largest power of two <= per_device
     return devices * min(lanes, need)
+
+
+def fit(per_lane_bytes: float | None, budget_bytes: int | None, *, total: int,
+        devices: int = 1, option: str, cpu_cap: int | None = None,
+        even: bool = False) -> int | None:
+    """The chunk a study's probe allows: :func:`pick_chunk`, at most ``cpu_cap`` on the CPU
+    backend (where the caches, not the memory, bound it), then :func:`balance` (if ``even``).
+
+    Args:
+        per_lane_bytes: one lane's bytes on one device from the study's probe program
+            (None or 0 when the backend gives no memory analysis).
+        budget_bytes: :func:`budget` (None when neither the device nor the OS says).
+        total, devices, option: as for :func:`pick_chunk`.
+        cpu_cap: the most lanes per call on a CPU backend (None: no cap).
+        even: even the calls out over ``total`` (:func:`balance`).
+
+    Returns:
+        The chunk, or None without memory figures (the caller's fallback applies).
+
+    Raises:
+        StudyError: not even one lane per device fits (:func:`pick_chunk`).
+
+    >>> fit(1 << 20, 100 << 20, total=300, option="--chunk", even=True)  # 32 -> 10 calls of 30
+    30
+    >>> fit(None, 100 << 20, total=300, option="--chunk") is None
+    True
+    """
+    if not per_lane_bytes or budget_bytes is None:
+        return None
+    chunk = pick_chunk(per_lane_bytes, budget_bytes, total=total, devices=devices,
+                       option=option)
+    if cpu_cap is not None:
+        import jax
+
+        if jax.local_devices()[0].platform == "cpu":
+            chunk = min(chunk, cpu_cap)
+    return balance(chunk, total, devices) if even else chunk
 
 
 def check_fits(nbytes: int | None, budget_bytes: int | None, *, option: str, what: str,

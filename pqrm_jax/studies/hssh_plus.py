@@ -232,14 +232,13 @@ def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, clust
 
     side = max(sizes)
     per_grid = grid_bytes(side, cfg)
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
+    budget = chunking.budget(memory_bytes)
     n = len(cfg["noise_levels"])
 
     def size() -> int:
-        if not per_grid or budget is None:
+        grids = chunking.fit(per_grid, budget, total=n, option="--chunk-cells")
+        if grids is None:
             return CHUNK_CELLS
-        grids = chunking.pick_chunk(per_grid, budget, total=n, devices=1,
-                                    option="--chunk-cells")
         cells = grids * side * side
         if jax.local_devices()[0].platform == "cpu":
             cells = min(cells, CHUNK_CELLS)

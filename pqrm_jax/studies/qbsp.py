@@ -318,8 +318,8 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int],
 
     lanes, pp, ep = _chunk_lanes(cfg, models, envs, ids)
     compiled = chunk_program(cfg, models, D1, lanes, pp, ep)
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
-    chunking.check_fits(chunking.program_bytes(compiled), budget, option="--chunk",
+    chunking.check_fits(chunking.program_bytes(compiled), chunking.budget(memory_bytes),
+                        option="--chunk",
                         what=f"{NAME}: a chunk of {cfg['chunk']} environments "
                              f"({4 * cfg['chunk']} lanes)")
     t0 = time.perf_counter()
@@ -369,14 +369,12 @@ def auto_chunk(cfg: dict, models, D1, memory_bytes: int | None = None) -> int:
     env = make_env(probe, probe["seed"], 0, probe["size"])
     lanes, pp, ep = _chunk_lanes(probe, models, [env], [0])
     nbytes = chunking.program_bytes(chunk_program(probe, models, D1, lanes, pp, ep))
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
-    if not nbytes or budget is None:
+    budget = chunking.budget(memory_bytes)
+    per_env = (nbytes or 0) * lane_devices(len(COMBO_ORDER))  # 4 lanes split over d devices
+    chunk = chunking.fit(per_env, budget, total=cfg["envs"], devices=len(jax.local_devices()),
+                         option="--chunk", even=True)
+    if chunk is None:
         return FALLBACK_CHUNK
-    ndev = len(jax.local_devices())
-    per_env = nbytes * lane_devices(len(COMBO_ORDER))  # 4 lanes split over d devices
-    chunk = chunking.pick_chunk(per_env, budget, total=cfg["envs"], devices=ndev,
-                                option="--chunk")
-    chunk = chunking.balance(chunk, cfg["envs"], ndev)
     print(f"{NAME}: --chunk {chunk} environments per call, sized from the memory "
           f"({per_env / 2**20:.1f} MiB per environment and device, "
           f"{budget / 2**20:.0f} MiB available)")

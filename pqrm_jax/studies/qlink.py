@@ -398,12 +398,10 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
                             np.ones(q, np.int32), params, model, chunk=1, plans=plans,
                             compile_only=True)
     nbytes = chunking.program_bytes(compiled)
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
-    if not nbytes or budget is None:
+    budget = chunking.budget(memory_bytes)
+    lanes = chunking.fit(nbytes, budget, total=len(pairs), option="--chunk", cpu_cap=CPU_CHUNK)
+    if lanes is None:
         return CPU_CHUNK
-    lanes = chunking.pick_chunk(nbytes, budget, total=len(pairs), devices=1, option="--chunk")
-    if jax.local_devices()[0].platform == "cpu":
-        lanes = min(lanes, CPU_CHUNK)
     print(f"{NAME}: world {w}: --chunk {lanes} pool lanes sized from the memory "
           f"({nbytes / 2**20:.1f} MiB per lane, {budget / 2**20:.0f} MiB available)")
     return lanes
