@@ -295,8 +295,8 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
         keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
         _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
     compiled = _AOT[key][1]
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
-    chunking.check_fits(chunking.program_bytes(compiled), budget, option="--chunk-runs",
+    chunking.check_fits(chunking.program_bytes(compiled), chunking.budget(memory_bytes),
+                        option="--chunk-runs",
                         what=f"{NAME}: a chunk of {chunk} runs "
                              f"({chunk // len(jax.local_devices())} per device)")
     return compiled, sharding
@@ -319,10 +319,9 @@ def auto_chunk_runs(cfg: Config, *, memory_bytes: int | None = None) -> int:
     probe = dataclasses.replace(cfg, chunk_runs=per_device * ndev)
     compiled, _ = chunk_program(probe, per_device * ndev, memory_bytes=memory_bytes)
     nbytes = chunking.program_bytes(compiled)
-    budget = chunking.available_bytes() if memory_bytes is None else memory_bytes
-    if not nbytes or budget is None:
-        return FALLBACK_CHUNK
-    return chunking.pick_chunk(nbytes / per_device, budget, total=cfg.runs, devices=ndev)
+    chunk = chunking.fit(nbytes and nbytes / per_device, chunking.budget(memory_bytes),
+                         total=cfg.runs, devices=ndev, option="--chunk-runs")
+    return FALLBACK_CHUNK if chunk is None else chunk
 
 
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
@@ -494,34 +493,21 @@ def results_rows(lines: list[dict]) -> list[tuple[str, str, float]]:
     return tidy_rows(lines, unit=lambda r: f"level_{r['level']:02d}", skip=("level",))
 
 
-def _stored_chunk(out: Path) -> int | None:
-    """The chunk of the layout stored in ``out/config.json`` (None when there is none)."""
-    try:
-        chunk = json.loads((Path(out) / "config.json").read_text())["layout"]["chunk"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return chunk if isinstance(chunk, int) and chunk >= 1 else None
-
-
 def resolve_chunk(cfg: Config, out: Path, *, fresh: bool = False, cluster=None,
                   memory_bytes: int | None = None) -> Config:
     """``cfg`` with an explicit ``chunk_runs``, the same on every process.
 
     Given by the user: kept. Else process 0 reuses the chunk stored in ``out`` (a resume
     keeps its layout, hence its float bits, whatever the free memory is now) or sizes a new
-    one from the device memory (:func:`auto_chunk_runs`), and broadcasts it.
+    one from the device memory (:func:`auto_chunk_runs`), and broadcasts it
+    (:func:`~pqrm_jax.studies.chunking.resolve`).
     """
-    from . import distributed
+    from . import chunking
 
     if cfg.chunk_runs is not None:
         return cfg
-    cluster = cluster or distributed.current()
-
-    def choose():
-        stored = None if fresh else _stored_chunk(out)
-        return [stored or auto_chunk_runs(cfg, memory_bytes=memory_bytes)]
-
-    chunk = int(distributed.decide(cluster, 1, choose)[0])
+    chunk = chunking.resolve(None, out, lambda: auto_chunk_runs(cfg, memory_bytes=memory_bytes),
+                             fresh=fresh, cluster=cluster)
     return dataclasses.replace(cfg, chunk_runs=chunk)
 
 
