@@ -69,7 +69,9 @@ REASONS = {
                  "corridor widths / rad (the mean revisit jitter without it is 0.11 w and "
                  "0.024 rad, single revisits stray up to 0.8 w: a ±0.3 w window clamped one in "
                  "world 0), candidates per axis, coarse-to-fine levels, likelihood-field sd in "
-                 "LPM cells, least match score to apply a correction",
+                 "LPM cells, least match score to apply a correction; window shrink per "
+                 "level, the LPM's occupied log-odds threshold and the obstacle points kept "
+                 "per snapshot (padding) are RelocParams' defaults",
     "sim_layout_sigma": "odometry sd assumed by the relaxation of simulator runs (x, y per unit, "
                         "θ per corridor); above the dead-reckoning noise because entry bearings "
                         "from tilted gateways carry a few degrees of error",
@@ -93,7 +95,8 @@ def config_for(a) -> dict:
                 "sim_width": 0.2, "sim_sigma_v": 0.02, "sim_sigma_w": 0.02,
                 "sim_layout_sigma": [0.02, 0.02],
                 "sim_reloc": {"window_xy": 0.8, "window_theta": 0.12, "steps": 9, "levels": 4,
-                              "sigma_cells": 1.0, "min_score": 0.3},
+                              "zoom": 3.0, "sigma_cells": 1.0, "threshold": 0.4,
+                              "min_score": 0.3, "max_points": 512},
                 "seed": a.seed, "reasons": REASONS})
     return cfg
 
