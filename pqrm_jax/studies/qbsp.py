@@ -355,7 +355,7 @@ def auto_chunk(cfg: dict, models, D1, memory_bytes: int | None = None) -> int:
     of one environment (XLA's memory analysis, its fixed part counted for every
     environment); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of
     two per device that fits, capped at ``cfg["envs"]``, and the chunks are then evened out
-    (:func:`~pqrm_jax.studies.chunking.balance`). Without memory figures: 250.
+    (:func:`~pqrm_jax.studies.chunking.balance`). Without memory figures: :data:`FALLBACK_CHUNK`.
     """
     import copy
 

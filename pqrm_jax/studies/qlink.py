@@ -488,7 +488,7 @@ def compute_world(cfg: Config, w: int, arrays_missing: bool, trials_missing: tup
     if cfg.chunk is None:  # the world's stored chunk (a resume keeps it), else sized now
         cfg = dataclasses.replace(cfg, chunk=chunk or auto_chunk(cfg, w, lm, el, pairs, detect,
                                                                  plans, memory_bytes))
-    info = {"chunk": cfg.chunk,"elements": int(el.ids.shape[0]), "mapped_landmarks": int(len(lms)),
+    info = {"chunk": cfg.chunk, "elements": int(el.ids.shape[0]), "mapped_landmarks": int(len(lms)),
             "pairs": int(len(pairs)), "map_s": round(t_map, 1),
             "detection": None if detect is None else np.round(detect, 3).tolist(),
             "setting_s": {}}
