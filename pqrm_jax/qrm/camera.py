@@ -153,8 +153,8 @@ def measure_triples(
     float32 0.6–4.5 % of relations at bearing spreads ≥ 0.3 rad) are kept and counted in
     ``undecided``. At ``tol = 0``, ``exact=True`` decides those with z3 on the exact
     polynomial systems (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets
-    are exactly the feasible sets; ``exact_decisions`` counts the z3 calls. ``exact=False``, any traced call
-    and ``tol > 0`` return the kernel's sets with the undecided states kept (sound; with a
+    are exactly the feasible sets; ``exact_decisions`` counts the z3 calls. ``exact=False``,
+    any traced call and ``tol > 0`` return the kernel's sets with the undecided states kept (sound; with a
     tolerance every kept state not counted undecided has a witness at the given bearings,
     and the undecided ones are the states only the tolerance could make feasible that the
     kernel can neither witness nor exclude; docs/qrm.md §camera).
