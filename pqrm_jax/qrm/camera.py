@@ -154,10 +154,10 @@ def measure_triples(
     ``undecided``. At ``tol = 0``, ``exact=True`` decides those with z3 on the exact
     polynomial systems (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets
     are exactly the feasible sets; ``exact_decisions`` counts the z3 calls. ``exact=False``,
-    any traced call and ``tol > 0`` return the kernel's sets with the undecided states kept (sound; with a
-    tolerance every kept state not counted undecided has a witness at the given bearings,
-    and the undecided ones are the states only the tolerance could make feasible that the
-    kernel can neither witness nor exclude; docs/qrm.md §camera).
+    any traced call and ``tol > 0`` return the kernel's sets with the undecided states kept
+    (sound; with a tolerance every kept state not counted undecided has a witness at the
+    given bearings, and the undecided ones are those the kernel can neither witness nor
+    exclude; docs/qrm.md §camera).
 
     Bearings all equal (three landmarks on one ray): the points are collinear for every
     range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
