@@ -105,16 +105,25 @@ def exact_state(spec, P, X, Y, Z) -> int:
     return int(spec.atom_state[atom]) if atom >= 0 else -1
 
 
-def check_kind(kind, dtype, layouts, images, seed, tols):
+def programs(dtype, tols):
+    """The compiled measurement (vmapped over images) and mapper update of each tolerance."""
+    spec = qrm_spec("edc")
+    meas = {t: jax.jit(jax.vmap(lambda b, r, v, t=t: C.measure_image_kernel(
+        spec, b, r, v, None, jnp.asarray(t, dtype), n=N))) for t in tols}
+    mappers = {t: qrm.mapper(spec, N, n=N, tol=t) for t in tols}
+    scans = {t: jax.jit(lambda cams, qm=qm: jax.lax.scan(qm.update, qm.init(), cams)[1])
+             for t, qm in mappers.items()}
+    return meas, scans
+
+
+def check_kind(kind, dtype, layouts, images, seed, tols, progs):
     spec = qrm_spec("edc")
     rng = np.random.default_rng(seed)
     sensor = sim.SensorParams(max_range=1e9)
     out = {str(t): dict(relations=0, dropped=0, open_sum=0, inconsistent=0, updates=0,
                         undecided=0) for t in tols}
     boundary = 0
-    meas = {t: jax.jit(jax.vmap(lambda b, r, v, t=t: C.measure_image_kernel(
-        spec, b, r, v, None, jnp.asarray(t, dtype), n=N))) for t in tols}
-    mappers = {t: qrm.mapper(spec, N, n=N, tol=t) for t in tols}
+    meas, scans = progs
     drops = []
     for _ in range(layouts):
         lm, poses = scene(kind, rng, images)
@@ -147,8 +156,7 @@ def check_kind(kind, dtype, layouts, images, seed, tols):
                                 drops.append(dict(tol=t, relation=[int(k) for k in key],
                                                   truth=st, bearings=b.tolist(),
                                                   set=int(sets[im, r, o])))
-            qm = mappers[t]
-            _, rep = jax.lax.scan(qm.update, qm.init(), cams)
+            rep = scans[t](cams)
             out[str(t)]["inconsistent"] += int(np.asarray(rep.inconsistent).sum())
             out[str(t)]["updates"] += images
     for rec in out.values():
@@ -192,8 +200,9 @@ def main(argv=None):
                spread_cost=[])
     for dtype in (np.float32, np.float64):
         tols = (0.0, C.default_tolerance(dtype))
+        progs = programs(dtype, tols)
         for i, kind in enumerate(kinds):
-            r = check_kind(kind, dtype, a.layouts, a.images, a.seed + 1000 * i, tols)
+            r = check_kind(kind, dtype, a.layouts, a.images, a.seed + 1000 * i, tols, progs)
             res["kinds"].append(r)
             b0, b1 = (r["by_tol"][str(t)] for t in tols)
             print(f"{r['dtype']:8s} {kind:19s} rel {b1['relations']:6d}  dropped "
