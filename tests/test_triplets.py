@@ -63,7 +63,7 @@ def test_pqrm_composition_converters_agree():
     m = 4
     pq = pqrm.mapper(("edc", "lr"), m, 32)
     pos = jnp.array([[0.3, 0.1], [0.2, 9.7], [5.1, 4.3], [-4.7, 2.2]])
-    st = pq.update(pq.init(), jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
+    st, _ = pq.update(pq.init(), jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
     probs, observed = compositions.from_pqrm(st, m, "lr")
     t = triplets.ordered_triplets(m)
     np.testing.assert_array_equal(probs[t[:, 0], t[:, 1], t[:, 2]], np.asarray(st.probs["lr"]))
