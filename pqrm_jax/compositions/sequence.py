@@ -28,6 +28,7 @@ from itertools import combinations
 
 import numpy as np
 
+from ..triplets import ORDERINGS
 from .composable import CompositionTree, Triplet, as_triplet, as_triplet_set, fmt
 
 __all__ = ["CompositionGraph", "optimal_composition_graph", "optimal_composition_tree",
@@ -70,7 +71,7 @@ class CompositionGraph:
         self._trip = trip
         idx = np.full((n, n, n), -1, dtype=np.int32)
         ids = np.arange(len(trip), dtype=np.int32)
-        for p in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
+        for p in ORDERINGS:
             idx[trip[:, p[0]], trip[:, p[1]], trip[:, p[2]]] = ids
         self._idx = idx
         self.d = np.full(len(trip), np.inf)           # cumulative cost d(v_τ)
