@@ -53,15 +53,29 @@ LAYOUTS = ("rows", "dense")
 
 
 def num_triplets(num_landmarks: int) -> int:
-    """``T = M(M−1)(M−2)``, the number of ordered triplets of distinct landmarks."""
+    """``T = M(M−1)(M−2)``, the number of ordered triplets of distinct landmarks (P §2.3).
+
+    Args:
+        num_landmarks: ``M``.
+
+    Returns:
+        ``T`` (an int; 0 for ``M < 3``).
+    """
     m = int(num_landmarks)
     return m * (m - 1) * (m - 2)
 
 
 def ordered_triplets(num_landmarks: int) -> np.ndarray:
-    """``[M(M−1)(M−2), 3]`` int32: every ordered triplet (i, j, k) of distinct landmark ids.
+    """Every ordered triplet ``(i, j, k)`` of distinct landmark ids (the rows layout, P §2.3).
 
-    The row order of the rows layout (lexicographic in ``(i, j, k)``).
+    Args:
+        num_landmarks: ``M >= 3``.
+
+    Returns:
+        ``[M(M−1)(M−2), 3]`` int32, lexicographic in ``(i, j, k)``.
+
+    Raises:
+        ValueError: for ``M < 3`` or a non-integer ``M``.
     """
     if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
         raise ValueError(f"a PQRM map needs at least three landmarks, got {num_landmarks!r}")
@@ -135,9 +149,17 @@ def elements_to_dense(ids, probs, num_landmarks: int, fill=0.0) -> np.ndarray:
 
 
 def shared_landmarks(ids, num_landmarks: int | None = None) -> np.ndarray:
-    """``[E, E]`` int32 ``|L_i ∩ L_j|`` of triplets ``ids [E, 3]``, zero diagonal (NumPy).
+    """The landmarks two triplets share, ``|L_i ∩ L_j|`` (P §4.3.2; NumPy).
 
-    ``num_landmarks`` defaults to ``max(ids) + 1``.
+    Args:
+        ids: ``[E, 3]`` int landmark ids, three distinct per row.
+        num_landmarks: ``M`` (default ``max(ids) + 1``).
+
+    Returns:
+        ``[E, E]`` int32, zero diagonal.
+
+    Raises:
+        ValueError: when ``ids`` is not ``[E, 3]``.
 
     >>> shared_landmarks([[0, 1, 2], [1, 2, 3], [3, 4, 5]]).tolist()
     [[0, 2, 0], [2, 0, 1], [0, 1, 0]]
@@ -160,6 +182,14 @@ def link_adjacency(ids, beta: int, num_landmarks: int | None = None) -> np.ndarr
     Q-Link's Link Graph (P §4.3.2) for any ``beta >= 1``; ``beta = 2`` is the Link-Graph of
     Z Def. 2.3.1 (two triplets linked when they share two landmarks).
 
+    Args:
+        ids: ``[E, 3]`` int landmark ids.
+        beta: the least number of shared landmarks of an edge, 1..3.
+        num_landmarks: ``M`` (default ``max(ids) + 1``).
+
+    Returns:
+        ``[E, E]`` bool, symmetric, False on the diagonal.
+
     Raises:
         ValueError: for ``beta`` outside ``1..3``.
 
@@ -172,16 +202,29 @@ def link_adjacency(ids, beta: int, num_landmarks: int | None = None) -> np.ndarr
 
 
 def distinct_mask(n: int) -> np.ndarray:
-    """``[n, n, n]`` bool, True where i, j, k are pairwise distinct (the dense relations)."""
+    """Where the dense layout holds relations: ``i``, ``j``, ``k`` pairwise distinct.
+
+    Args:
+        n: landmarks ``M``.
+
+    Returns:
+        ``[n, n, n]`` bool.
+    """
     i, j, k = np.ix_(np.arange(n), np.arange(n), np.arange(n))
     return (i != j) & (j != k) & (i != k)
 
 
 def cyclic_mask(n: int) -> np.ndarray:
-    """``[n, n, n]`` bool: one representative per cyclic class of each unordered triple.
+    """One representative per cyclic class of each unordered triple (M §VI.B).
 
     True at ``i < j < k`` and at its two rotations ``(j, k, i)``, ``(k, i, j)``: the cyclic
-    relations ``ij:k``, ``jk:i``, ``ki:j`` of each triple (M§VI.B, used for QRM metrics).
+    relations ``ij:k``, ``jk:i``, ``ki:j`` of each triple (used for QRM metrics).
+
+    Args:
+        n: landmarks ``N``.
+
+    Returns:
+        ``[n, n, n]`` bool.
 
     >>> int(cyclic_mask(4).sum())      # 4 triples x 3 cyclic relations
     12
@@ -198,8 +241,18 @@ def _xp(x):
 def rows_to_dense(rows, num_landmarks: int, fill=0):
     """Rows ``[T, ...]`` (:func:`ordered_triplets` order) → dense ``[M, M, M, ...]``.
 
-    Entries with a repeated index get ``fill``. NumPy in, NumPy out; a JAX array gives a JAX
-    array (traceable).
+    NumPy in, NumPy out; a JAX array gives a JAX array (traceable).
+
+    Args:
+        rows: ``[T, ...]`` with ``T = M(M−1)(M−2)``.
+        num_landmarks: ``M``.
+        fill: value of the entries with a repeated index.
+
+    Returns:
+        ``[M, M, M, ...]`` of the dtype of ``rows``.
+
+    Raises:
+        ValueError: when ``rows`` does not have ``T`` rows.
     """
     trip = ordered_triplets(num_landmarks)
     xp = _xp(rows)
@@ -217,7 +270,18 @@ def rows_to_dense(rows, num_landmarks: int, fill=0):
 
 
 def dense_to_rows(dense, num_landmarks: int):
-    """Dense ``[M, M, M, ...]`` → rows ``[T, ...]`` in :func:`ordered_triplets` order."""
+    """Dense ``[M, M, M, ...]`` → rows ``[T, ...]`` in :func:`ordered_triplets` order.
+
+    Args:
+        dense: ``[M, M, M, ...]`` (NumPy or JAX; the result is of the same kind).
+        num_landmarks: ``M``.
+
+    Returns:
+        ``[M(M−1)(M−2), ...]``.
+
+    Raises:
+        ValueError: when the leading shape is not ``(M, M, M)``.
+    """
     trip = ordered_triplets(num_landmarks)
     xp = _xp(dense)
     dense = xp.asarray(dense)
@@ -229,9 +293,14 @@ def dense_to_rows(dense, num_landmarks: int):
 
 
 def states_to_masks(states, full):
-    """Dense states ``[N, N, N]`` int → uint32 bitmasks: ``1 << state``, ``full`` where < 0.
+    """Dense states → the masks layout: ``1 << state``, ``full`` where the state is < 0 (M §VI).
 
-    ``full`` is the mask of all states (``(1 << Q) − 1``), i.e. "unknown".
+    Args:
+        states: ``[N, N, N]`` int state indices (sentinels < 0 mean "unknown").
+        full: the mask of all states, ``(1 << Q) − 1``.
+
+    Returns:
+        ``[N, N, N]`` uint32 bitmasks.
     """
     st = jnp.asarray(states)
     return jnp.where(st >= 0, jnp.uint32(1) << jnp.maximum(st, 0).astype(jnp.uint32),
@@ -239,7 +308,15 @@ def states_to_masks(states, full):
 
 
 def masks_to_sets(masks, num_states: int) -> jax.Array:
-    """uint32 bitmasks ``[...]`` → bool state sets ``[..., Q]`` (bit q ↔ state q)."""
+    """uint32 bitmasks → bool state sets (bit ``q`` ↔ state ``q``; M §VI).
+
+    Args:
+        masks: ``[...]`` uint32.
+        num_states: ``Q``.
+
+    Returns:
+        ``[..., Q]`` bool.
+    """
     m = jnp.asarray(masks, jnp.uint32)
     return ((m[..., None] >> jnp.arange(num_states, dtype=jnp.uint32)) & 1).astype(bool)
 
