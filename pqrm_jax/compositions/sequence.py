@@ -38,7 +38,15 @@ CompCost = Callable[[Triplet, Triplet, Triplet], float]
 
 
 def unit_cost(left: Triplet, right: Triplet, head: Triplet) -> float:
-    """One unit per composition (the running example of Z §3.2.4)."""
+    """One unit per composition (the running example of Z §3.2.4).
+
+    Args:
+        left, right: the operands of the composition.
+        head: the composed triplet.
+
+    Returns:
+        ``1.0``.
+    """
     return 1.0
 
 
@@ -254,7 +262,20 @@ def optimal_composition_graph(sources: Iterable[Iterable[Hashable]] | Mapping,
                               source_cost: Callable[[Triplet], float] | float = 0.0,
                               comp_cost: CompCost | float = 1.0,
                               landmarks: Iterable[Hashable] | None = None) -> CompositionGraph:
-    """Alg. 1 lines 1–5: build the composition graph over ``L(T)`` and add every source."""
+    """Z Alg. 1 lines 1–5: build the composition graph over ``L(T)`` and add every source.
+
+    Args:
+        sources: the source triplets, or a mapping from source triplet to its cost.
+        source_cost: ``C_source`` of each source, a callable or a constant (finite, ≥ 0).
+        comp_cost: ``C_comp(τ_L, τ_R, τ)``, a callable or a constant (finite, ≥ 0).
+        landmarks: the landmark space (default ``L(T)``; must contain it).
+
+    Returns:
+        :class:`CompositionGraph` with every composable triplet's optimal cost.
+
+    Raises:
+        ValueError: for sources outside ``landmarks`` or bad costs.
+    """
     S = as_triplet_set(sources.keys() if isinstance(sources, Mapping) else sources)
     space = frozenset().union(*S)
     if landmarks is None:
