@@ -39,7 +39,11 @@ PADGETT_REPRESENTATIONS = ("edc", "edc_lune", "triple_cross", "double_cross", "s
 
 
 def names() -> tuple[str, ...]:
-    """Names of the built-in and registered calculi."""
+    """Names of the built-in and registered calculi.
+
+    Returns:
+        The names, built-in first (P Fig. 2.2 order), then registered ones.
+    """
     return tuple(dict.fromkeys([*_BUILDERS, *_CACHE]))
 
 
