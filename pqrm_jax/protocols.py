@@ -43,6 +43,7 @@ from __future__ import annotations
 from typing import Any, Protocol, runtime_checkable
 
 import jax
+import numpy as np
 
 __all__ = ["Estimator", "run"]
 
@@ -81,14 +82,18 @@ def run(estimator: Estimator, key: jax.Array, state: Any, *observations: Any
         ``(final state, info with leading axis T)``.
 
     Raises:
-        ValueError: for no observations or observations of different lengths.
+        ValueError: for no observations, a leaf without a leading axis, or observations of
+            different lengths.
 
     ``run`` is not jitted itself (an estimator need not be hashable): call it inside your own
     ``jax.jit``, with the estimator closed over, to reuse one program across calls.
     """
     if not observations:
         raise ValueError("run needs at least one observation sequence")
-    lengths = {x.shape[0] for x in jax.tree.leaves(observations)}
+    shapes = [np.shape(x) for x in jax.tree.leaves(observations)]
+    if not shapes or any(len(sh) == 0 for sh in shapes):
+        raise ValueError("every observation leaf needs a leading axis T (one entry per step)")
+    lengths = {sh[0] for sh in shapes}
     if len(lengths) != 1:
         raise ValueError(f"observations must share one leading axis T, got lengths "
                          f"{sorted(lengths)}")

@@ -80,6 +80,8 @@ def test_run_refuses_bad_sequences(pq):
         run(pq, jax.random.key(0), pq.init())
     with pytest.raises(ValueError, match="leading axis"):
         run(pq, jax.random.key(0), pq.init(), pos, vis[:2], sig)
+    with pytest.raises(ValueError, match="leading axis T"):
+        run(pq, jax.random.key(0), pq.init(), pos, vis, 1.0)
 
 
 def test_tracker_is_its_parameters():
