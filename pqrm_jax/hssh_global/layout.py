@@ -84,6 +84,13 @@ def se2_inverse_host(a) -> np.ndarray:
     return _inverse(np, np.asarray(a, float))
 
 
+# The names before issue 28 (the face exports only the se2_* names; ``compose`` there is
+# eq. 4.28 of the compositions). Kept for hssh_global/simulation.py, which issue 26 rewrites;
+# remove once it imports the se2_* names.
+compose, inverse = se2_compose, se2_inverse
+compose_host, inverse_host = se2_compose_host, se2_inverse_host
+
+
 class LayoutProblem(NamedTuple):
     """Padded layout problems, one row per hypothesis.
 

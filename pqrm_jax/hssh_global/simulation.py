@@ -54,10 +54,7 @@ import numpy as np
 from pqrm_jax import hssh
 from pqrm_jax import sim as _sim
 
-from .layout import se2_compose as compose  # noqa: E501 (issue 28 renamed the SE(2) operators; issue 26 rewrites this file)
-from .layout import se2_compose_host as compose_host
-from .layout import se2_inverse as inverse
-from .layout import se2_inverse_host as inverse_host
+from .layout import compose, compose_host, inverse, inverse_host
 from .navigation import apply_command, shortest_distance
 from .star import view_from_local_star
 from .world import CorridorWorld, Experience
