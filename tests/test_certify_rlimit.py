@@ -66,10 +66,11 @@ def test_a_decision_does_not_change_on_a_slowed_machine():
     probs = _problems(12)
     texts = [certify.smtlib(c) for c in probs]
     costs = [_cost(t) for t in texts]
-    quiet_low = [certify.decide(c, max(cost // 2, 1))[0] for c, cost in zip(probs, costs)]
+    low = [max(cost // 2, 1) for cost in costs]
+    quiet_low = [certify.decide(c, lim)[0] for c, lim in zip(probs, low, strict=True)]
     quiet_default = [certify.decide(c)[0] for c in probs]
     with _Busy():
-        busy_low = [certify.decide(c, max(cost // 2, 1))[0] for c, cost in zip(probs, costs)]
+        busy_low = [certify.decide(c, lim)[0] for c, lim in zip(probs, low, strict=True)]
         busy_default = [certify.decide(c)[0] for c in probs]
     assert busy_low == quiet_low and busy_default == quiet_default
     assert certify.UNKNOWN in quiet_low  # the edge is real: half the cost runs out
