@@ -100,8 +100,11 @@ def _dispatch(argv: list[str]) -> int:
     if not argv or argv[0] not in commands:
         print(__doc__)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
+    ok = False
     try:
-        return commands[argv[0]](argv[1:])
+        rc = commands[argv[0]](argv[1:])
+        ok = rc == 0
+        return rc
     except SystemExit as exc:
         if isinstance(exc.code, str):  # SystemExit("message") from a command
             print(f"pqrm-jax: error: {exc.code}", file=sys.stderr)
@@ -113,6 +116,10 @@ def _dispatch(argv: list[str]) -> int:
         msg = " ".join(_message(exc).split())
         print(f"pqrm-jax: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        dist = sys.modules.get("pqrm_jax.studies.distributed")
+        if dist is not None:  # tell the other processes of a run how this one ended
+            dist.finish(ok)
 
 if __name__ == "__main__":
     raise SystemExit(main())
