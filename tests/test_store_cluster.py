@@ -63,3 +63,43 @@ def test_a_dead_process_ends_the_others_with_exit_2_naming_it(victim):
         for p in procs.values():
             if p.poll() is None:
                 p.kill()
+
+
+_HSSH_PLUS = """
+import sys
+from pqrm_jax.studies import distributed as d, hssh_plus as H
+pid, port = int(sys.argv[1]), sys.argv[2]
+c = d.initialize(f"127.0.0.1:{port}", 2, pid, timeout_s=60)
+
+def unit(side, rot, cfg):
+    if side == 3:
+        raise ValueError(f"bad unit {side}")
+    return [{"side": side, "rot": rot}]
+
+H.run_unit = unit
+
+class St:
+    def write_json(self, name, obj):
+        print("wrote", name, flush=True)
+
+try:
+    H._compute([(1, 0.0), (2, 0.0), (3, 0.0), (4, 0.0)], {}, c, St() if c.is_main else None)
+except d.DistributedError as exc:
+    print("refused:", exc, flush=True)
+    d.finish(True)
+"""
+
+
+def test_hssh_plus_split_exchanges_errors():
+    """hssh-plus's multi-process split is ``map_units``: a unit failing on process 0 (unit 3
+    is item 2, process 0's in round 1) ends both processes with its message, none waits."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+    port = str(_free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _HSSH_PLUS, str(i), port],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=env, cwd=ROOT) for i in (1, 0)]
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (so, se) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, se[-2000:]
+        assert "refused: process 0 failed on item 2: ValueError: bad unit 3" in so, so
+    assert "wrote" in outs[1][0]  # process 0 wrote round 0's units before the failure

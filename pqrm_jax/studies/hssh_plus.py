@@ -275,36 +275,21 @@ def _shared_todo(todo: list | None, cluster) -> list:
 
 
 def _compute(todo: list, cfg: dict, cluster, st) -> None:
-    """Run the units; with ``K`` processes process ``p`` computes units ``i = p mod K`` and
-    process 0 alone writes them (records gathered as JSON bytes, one round of ``K`` units at a
-    time). Units are deterministic, so the stored records equal a one-process run's (except
-    the measured ``seconds``)."""
-    import json
-
+    """Run the units; with ``K`` processes :func:`distributed.map_units` splits them (unit
+    ``i`` on process ``i mod K``, rounds of ``K``, errors exchanged: a unit that fails on one
+    process ends every process with its message) and process 0 alone writes them. Units are
+    deterministic, so the stored records equal a one-process run's (except the measured
+    ``seconds``)."""
     from tqdm import tqdm
 
     from . import distributed
 
-    if not cluster.distributed:
-        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
-            # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
-        return
-    k, p = cluster.num_processes, cluster.process_id
-    rounds = range(-(-len(todo) // k))
-    for rnd in tqdm(rounds, desc=f"hssh-plus x{k}", unit="round", disable=not cluster.is_main):
-        i = rnd * k + p
-        mine = json.dumps(run_unit(*todo[i], cfg)).encode() if i < len(todo) else b""
-        lens = distributed.gather(np.array([len(mine)], np.int32), cluster)[:, 0]
-        buf = np.zeros(max(int(lens.max()), 1), np.uint8)
-        buf[:len(mine)] = np.frombuffer(mine, np.uint8)
-        every = distributed.gather(buf, cluster)
+    done = distributed.map_units(lambda u: run_unit(*u, cfg), todo, cluster, codec="json")
+    for j, recs in tqdm(done, total=len(todo), desc=f"hssh-plus x{cluster.num_processes}",
+                        unit="unit", disable=not cluster.is_main):
         if cluster.is_main:
-            for q in range(k):
-                j = rnd * k + q
-                if j < len(todo):
-                    recs = json.loads(every[q, :int(lens[q])].tobytes().decode())
-                    st.write_json(_unit_name(*todo[j]), {"records": recs})
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(*todo[j]), {"records": recs})
 
 
 def main(argv: list[str] | None = None) -> int:
