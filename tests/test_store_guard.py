@@ -140,3 +140,28 @@ def test_measured_times_live_apart_from_results(tmp_path):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     assert "explore_s" not in (tmp_path / "a" / "results.csv").read_text()
     assert "7.3" in (tmp_path / "b" / "w.times.jsonl").read_text()
+
+
+def test_fresh_wipes_only_its_own_study(tmp_path):
+    """``--fresh`` in a study that opens its store later (protocol.fresh_start): process 0
+    wipes its own study's directory; another study's directory is refused; other processes
+    touch nothing."""
+    import argparse
+
+    from pqrm_jax.studies import protocol
+    from pqrm_jax.studies.distributed import Cluster
+
+    out = tmp_path / "s"
+    with Store.open(out, "demo", {"n": 1}) as st:
+        st.write_json("unit.json", {"x": 1})
+    args = argparse.Namespace(fresh=True)
+    protocol.fresh_start(args, out, "demo", Cluster(1, 2, "h:1"))  # not process 0: kept
+    assert (out / "unit.json").exists()
+    with pytest.raises(StoreError, match="holds a 'demo' study, not 'other'"):
+        protocol.fresh_start(args, out, "other", Cluster(0, 2, "h:1"))
+    assert (out / "unit.json").exists()
+    protocol.fresh_start(args, out, "demo", Cluster(0, 2, "h:1"))
+    assert not (out / "unit.json").exists() and not (out / "config.json").exists()
+    Store.open(out, "demo", {"n": 2}).close()  # a new configuration is accepted after --fresh
+    protocol.fresh_start(argparse.Namespace(fresh=False), out, "demo")
+    assert (out / "config.json").exists()

@@ -63,7 +63,7 @@ PUBLISHED = {
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pqrm-jax study hssh-plus", description=HELP)
-    p.add_argument("--out", default="results/hssh-plus", help="output directory")
+    p.add_argument("--out", default="out/hssh-plus", help="output directory")
     p.add_argument("--reduced", action="store_true",
                    help="small corpus (2 rotations x 2 sizes x 2 noise levels)")
     p.add_argument("--sizes", default=None,
@@ -81,7 +81,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--memory-bytes", type=int, default=None,
                    help="device memory the chunk is sized for and checked against (default: "
                         "what the device reports)")
-    from . import distributed
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
 
     distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
@@ -304,6 +306,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.chunk_cells is not None and args.chunk_cells < 1:
         raise SystemExit("--chunk-cells must be positive")
     cluster = distributed.initialize_from(args)  # before any JAX computation
+    from . import protocol
+
+    protocol.fresh_start(args, out, NAME, cluster, legacy=())
     distributed.agree(cluster, cfg_all, "hssh-plus configuration")
     cells = chunk_cells(args.chunk_cells, out, sizes, cfg, cluster, args.memory_bytes)
     cfg["layout"] = cfg_all["layout"] = {"chunk_cells": cells}

@@ -169,8 +169,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", default="out/mars-yard")
     p.add_argument("--runs", type=int, help="number of traverses (default 5)")
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bars (--quiet: deprecated alias)")
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
 
     distributed.add_arguments(p)
     a = p.parse_args(argv)
@@ -181,6 +184,7 @@ def main(argv: list[str]) -> int:
             p.error(f"--runs must be ≥ 1, got {a.runs}")
         cfg.traverses = a.runs
     cluster = distributed.initialize_from(a)  # before any JAX computation
+    protocol.fresh_start(a, a.out, NAME, cluster, legacy=LEGACY)
     run_study(cfg, Path(a.out), no_progress=a.no_progress, cluster=cluster)
     return 0
 

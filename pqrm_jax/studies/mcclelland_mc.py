@@ -328,8 +328,11 @@ def main(argv: list[str]) -> int:
                    help="first-image triples per n decided exactly (z3) for the report")
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
     p.add_argument("--report-only", action="store_true")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bars (--quiet: deprecated alias)")
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
 
     distributed.add_arguments(p)
     a = p.parse_args(argv)
@@ -350,6 +353,7 @@ def main(argv: list[str]) -> int:
             summary = report(out, cfg)
     else:
         cluster = distributed.initialize_from(a)  # before any JAX computation
+        protocol.fresh_start(a, out, NAME, cluster, legacy=LEGACY)
         run_study(cfg, out, progress=not a.no_progress, cluster=cluster)
         if not cluster.is_main:
             return 0

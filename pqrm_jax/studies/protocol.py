@@ -56,7 +56,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple
 
-__all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "apply_preset",
+__all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "add_fresh",
+           "apply_preset", "fresh_start",
            "check_argv_finite", "claims_summary", "claims_table", "config_json",
            "default_out", "finite_float", "fraction", "main_for", "nonneg_float",
            "nonneg_int", "parser", "positive_float", "positive_int", "summary_for",
@@ -206,6 +207,24 @@ def config_json(cfg: Any) -> dict:
         return v
 
     return {f.name: conv(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+
+
+def fresh_start(args: argparse.Namespace, out: str | Path, name: str, cluster=None, *,
+                legacy: tuple[str, ...] = ()) -> None:
+    """``--fresh`` in a study that opens its store itself: process 0 deletes this study's
+    stored results in ``out`` (a directory of another study is refused) before any process
+    reads it. Call it after the cluster is initialised, before the store is opened."""
+    if not getattr(args, "fresh", False) or (cluster is not None and not cluster.is_main):
+        return
+    from .store import Store
+
+    Store.wipe(out, name, legacy=legacy)
+
+
+def add_fresh(p: argparse.ArgumentParser) -> None:
+    """The common ``--fresh`` flag (for a study with its own parser; see :func:`fresh_start`)."""
+    p.add_argument("--fresh", action="store_true",
+                   help="delete this study's stored results in --out first")
 
 
 # ------------------------------------------------------------------------------------------

@@ -636,6 +636,25 @@ class Store:
             raise
         return cls(out, study, cfg, fds)
 
+    @classmethod
+    def wipe(cls, out: str | Path, study: str, *, legacy: tuple[str, ...] = (),
+             advice: str = "use another --out") -> None:
+        """``--fresh`` for a study that opens its store later: lock ``out``, check that it
+        holds ``study`` (or is empty / an adoptable older directory), delete its contents.
+
+        Raises:
+            StoreError: locked by another process, or a directory of another study.
+        """
+        out = Path(out)
+        if not out.is_dir():
+            return
+        fds = cls._lock(out)
+        try:
+            cls._check_marker(out, study, legacy, advice)
+            cls._wipe(out)
+        finally:
+            cls._unlock(fds)
+
     @staticmethod
     def _lock(out: Path) -> list[int]:
         if fcntl is None:  # pragma: no cover
