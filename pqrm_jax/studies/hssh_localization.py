@@ -55,6 +55,8 @@ def _parser() -> argparse.ArgumentParser:
     from . import distributed, protocol
 
     protocol.add_fresh(p)
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bar (--quiet: deprecated alias)")
 
     distributed.add_arguments(p)
     return p
@@ -203,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
 
         for i, rec in tqdm(distributed.map_units(one, todo, cluster, codec="json"),
                            total=len(todo), desc="hssh-localization", unit="unit",
-                           disable=not cluster.is_main):
+                           disable=args.no_progress or not cluster.is_main):
             if st is not None:
                 st.write_json(_unit_name(*todo[i]), rec)  # atomic
         if st is None:

@@ -84,7 +84,8 @@ def _parser() -> argparse.ArgumentParser:
     from . import distributed, protocol
 
     protocol.add_fresh(p)
-
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bar (--quiet: deprecated alias)")
     distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
 
@@ -276,7 +277,7 @@ def _shared_todo(todo: list | None, cluster) -> list:
     return [(int(s), r / 1000.0) for s, r in arr.tolist()]
 
 
-def _compute(todo: list, cfg: dict, cluster, st) -> None:
+def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
     """Run the units; with ``K`` processes :func:`distributed.map_units` splits them (unit
     ``i`` on process ``i mod K``, rounds of ``K``, errors exchanged: a unit that fails on one
     process ends every process with its message) and process 0 alone writes them. Units are
@@ -288,7 +289,7 @@ def _compute(todo: list, cfg: dict, cluster, st) -> None:
 
     done = distributed.map_units(lambda u: run_unit(*u, cfg), todo, cluster, codec="json")
     for j, recs in tqdm(done, total=len(todo), desc=f"hssh-plus x{cluster.num_processes}",
-                        unit="unit", disable=not cluster.is_main):
+                        unit="unit", disable=quiet or not cluster.is_main):
         if cluster.is_main:
             # atomic (temp file + os.replace): a killed run leaves no half unit
             st.write_json(_unit_name(*todo[j]), {"records": recs})
@@ -325,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
                 if st.read_json(_unit_name(s, r), ("records",), check) is None]
         todo = _shared_todo(todo, cluster)
         t_start = time.perf_counter()
-        _compute(todo, cfg, cluster, st)
+        _compute(todo, cfg, cluster, st, quiet=args.no_progress)
         wall = time.perf_counter() - t_start
         rows = []
         for path in sorted((out / "units").glob("s*_r*.json")):
