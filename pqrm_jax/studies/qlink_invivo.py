@@ -391,8 +391,11 @@ def main(argv: list[str]) -> int:
 
     protocol.add_fresh(p)
     p.add_argument("--reduced", action="store_true", help="small world, 6 trials (seconds)")
+    p.add_argument("--seed", type=protocol.nonneg_int, help="root seed (default 0)")
     a = p.parse_args(argv)
     cfg = Config(**REDUCED) if a.reduced else Config()
+    if a.seed is not None:
+        cfg = dataclasses.replace(cfg, seed=a.seed)
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
     with Store.open(a.out, NAME, json.loads(json.dumps(stored)), fresh=a.fresh) as st:
