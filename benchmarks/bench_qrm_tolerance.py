@@ -111,7 +111,8 @@ def programs(dtype, tols):
     meas = {t: jax.jit(jax.vmap(lambda b, r, v, t=t: C.measure_image_kernel(
         spec, b, r, v, None, jnp.asarray(t, dtype), n=N))) for t in tols}
     mappers = {t: qrm.mapper(spec, N, n=N, tol=t) for t in tols}
-    scans = {t: jax.jit(lambda cams, qm=qm: jax.lax.scan(qm.update, qm.init(), cams)[1])
+    scans = {t: jax.jit(lambda cams, qm=qm: jax.lax.scan(
+        lambda m, img: qm.update(m, jax.random.key(0), img), qm.init(), cams)[1])
              for t, qm in mappers.items()}
     return meas, scans
 

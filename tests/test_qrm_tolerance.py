@@ -199,7 +199,8 @@ def test_scenes_of_every_kind_keep_the_exact_truth(dtype, seed):
                     for o, (X, Y, Z) in enumerate(CYCLIC):
                         s = exact_state(lm, *ids[r, [X, Y, Z]])
                         assert s < 0 or int(sets[r, o]) >> s & 1, (kind, dtype, im, r, o)
-            _, rep = jax.lax.scan(qm.update, qm.init(), cams)
+            _, rep = jax.lax.scan(lambda m, img, qm=qm: qm.update(m, jax.random.key(0), img),
+                                  qm.init(), cams)
             assert not np.asarray(rep.inconsistent).any(), kind
 
 
