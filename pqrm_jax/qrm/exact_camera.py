@@ -418,75 +418,22 @@ def _preimage(w, reps):
             re[0] * im[1] - re[1] * im[0]]
 
 
-def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, jax.Array]:
-    """Feasible atoms of the three cyclic relations of each triple, by the boundary decision.
+def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, samples,
+                      fe, ee, emax):
+    """[K, S, O, 3, T] signs made uncertain by the bearing tolerance, and the bound ``Δ``.
 
-    Args:
-        spec: the calculus.
-        bearings: [T, 3] bearings in range order (near, mid, far), float32 or float64.
-        tol: bearing tolerance τ (radians, a scalar, may be traced): the sets hold every atom
-            feasible for *some* bearings within τ of the given ones (each bearing
-            independently) and ranges in the given order (ties allowed). 0: the sets of the
-            given bearings exactly.
-
-    Returns:
-        ``(possible, undecided)`` [T, 3] uint32 *atom* masks: ``possible`` holds every
-        feasible atom and, besides the witnessed ones, the ``undecided`` atoms that only a
-        near-degenerate sample could not exclude (normally none at ``tol = 0``).
-
-    The three relations run as one program along an axis O = 3: relation o is relation 0
-    of the triple with its slots permuted to (X, Y, Z) = ``CYCLIC[o]``.
-
-    With ``tol > 0`` the witnesses are those of the given bearings on the widened cone, and a
-    sign counts as uncertain also where the constraint's value on a sample's whole interval
-    of the edge (structural roots divided out) comes within ``Δ`` of zero, ``Δ`` a bound on
-    how much any bearing change within τ moves it; a region point counts as inside where its
-    range preimage is within the same kind of bound of the cone (docs/qrm.md §camera).
+    A sign is unsure where a change of at most ``tol`` of each bearing can flip it somewhere
+    on the sample's interval ``[lo, hi]``: the value at the sample or at an end that is not
+    the constraint's own root is within rounding + ``Δ`` of zero, ``Δ`` the first-order
+    change (derivatives, max over the interval) plus the second-order bound
+    (:func:`_perturbation`); at a structural root the reduced polynomial's value is tested.
     """
-    st = camera_structure(spec)
-    dtype = bearings.dtype
-    eps = jnp.finfo(dtype).eps
-    tol = jnp.asarray(tol, dtype)
-    loose = tol > 0
+    A, B, f0, f1 = quad
+    t, lo, hi, own_lo, own_hi = samples
     K = spec.k
-    perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
-    inv = np.argsort(perm, 1)  # inv[o][slot] = relation-order position
-    cw, sw = jnp.cos(bearings).T[perm], jnp.sin(bearings).T[perm]  # [O, 3, T]
-    cw, sw = jnp.swapaxes(cw, 0, 1), jnp.swapaxes(sw, 0, 1)  # [3 (X, Y, Z), O, T]
-
-    w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
-
-    def rel_d(vals, shape):  # slot-order values (..., 3) → 3 × [O, ...] in (X, Y, Z) order
-        v = jnp.asarray(vals, dtype)[..., perm]  # (..., O, 3)
-        v = jnp.moveaxis(v, -2, 0)  # (O, ..., 3)
-        return [v[..., k].reshape(shape) for k in range(3)]
-
     i, j = np.array(EDGES).T
-    verts = jnp.asarray(VERTICES, dtype)
-    # the three vertices and the three edge midpoints, for the edge quadratics
-    nodes = jnp.concatenate([verts, 0.5 * (verts[i] + verts[j])], 0)  # (6, 3)
-    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)))  # (K, O, 6, T)
-    van = jnp.asarray(np.moveaxis(st.vanish, 1, 0))  # (K, O, 3 vertices)
-    vmask = van[..., None]
-    f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
-    e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
-    f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
-    A = 2 * f0 - 4 * fh + 2 * f1
-    B = -3 * f0 + 4 * fh - f1
-    emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
     z0, z1 = van[:, :, i, None], van[:, :, j, None]
-    t, valid, lo, hi, own_lo, own_hi = _sample_params(A, B, f0, z0, z1)  # (S, O, 3, T)
-    S = t.shape[0]
-    Vi = rel_d(verts[i], (1, 3, 3, 1))
-    Vd = rel_d(verts[j] - verts[i], (1, 3, 3, 1))
-    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
-    band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
-    # bearing tolerance: a sign is unsure where a change of at most tol of each bearing can
-    # flip it somewhere on the sample's interval [lo, hi]: the value at the sample or at an
-    # end that is not the constraint's own root is within rounding + Δ of zero, Δ the
-    # first-order change (derivatives, max over the interval) plus the second-order bound
-    full_d, red_d, second, second_red = _perturbation(
-        spec, w, rel_d(nodes, (3, 6, 1)), Vi, Vd, van, tol)
+    full_d, red_d, second, second_red = _perturbation(spec, w, nodes_d, Vi, Vd, van, tol)
     delta = tol * _interval_max(full_d, lo, hi) + second[:, None]  # (K, S, O, 3, T)
     P = 2 * K + 1  # interval samples; then the K vertex samples (lo = hi = t)
     fp, ep = form_values(spec, w, [Vi[k] + lo[:P] * Vd[k] for k in range(3)])  # (K,P,O,3,T)
@@ -526,6 +473,113 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, 
                       | (use_h & (near0(f_hi, e_hi) | flip(f_hi)))
                       | (str_l & (jnp.abs(g_0) <= str_band + tol * dg_0)[:, None])
                       | (str_h & (jnp.abs(g_1) <= str_band + tol * dg_1)[:, None]))
+    return unsure, delta
+
+
+def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
+    """Witness and possible atom masks [O, T] of the region points (lemma case 2: ``R_s``
+    inside the image of the cone): a point's range preimage inside the cone is a witness,
+    within rounding of it (or, with a tolerance, within ``2 tol (|c|, |c − 1|, |c| |c − 1|)``
+    of it) keeps the point's atom possible."""
+    dtype = w[0].dtype
+    eps = jnp.finfo(dtype).eps
+    reps = jnp.asarray(st.reps, dtype)
+    dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
+    fr, er = form_values(spec, w, dr)  # (K, O, R, T)
+    D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
+    take = jnp.asarray(inv.T)[:, :, None, None]
+    ds = jnp.take_along_axis(D, take, 0)
+    # how far any bearing change within tol moves the preimage (|Δd| ≤ 2 tol |·|, per
+    # component: |c|, |c − 1|, |c| |c − 1| in (X, Y, Z) order), in slot order
+    ca, cb_ = jnp.hypot(reps[:, 0], reps[:, 1]), jnp.hypot(reps[:, 0] - 1, reps[:, 1])
+    dd = jnp.stack([ca, cb_, ca * cb_])[:, None, :, None] * (2 * tol * (1 + 16 * eps))
+    dd = jnp.take_along_axis(jnp.broadcast_to(dd, D.shape), take, 0)
+    rnd = 2 * _CONE_BAND * eps * jnp.max(jnp.abs(ds), 0)
+    gl = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
+    gb = (dd[0], dd[1] + dd[0], dd[2] + dd[1])
+    pairs = list(zip(gl, gb, strict=True))
+    near_tol = loose & (jnp.all(jnp.stack([g > -(b + rnd) for g, b in pairs]), 0)
+                        | jnp.all(jnp.stack([-g > -(b + rnd) for g, b in pairs]), 0))
+    ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
+    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
+    g = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
+    inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
+    cb = -_CONE_BAND * eps
+    near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
+    rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)  # (O, R, T)
+    wit = _or(jnp.where(inside, rw, jnp.uint32(0)), (1,))
+    # (the atom of a region point is fixed: the pattern depends on c only)
+    rep_bit = (jnp.uint32(1) << jnp.asarray(st.rep_atoms, jnp.uint32))[None, :, None]
+    poss = (_or(jnp.where(near, rp, jnp.uint32(0)), (1,))
+            | _or(jnp.where(near_tol, rep_bit, jnp.uint32(0)), (1,)))
+    return wit, poss
+
+
+def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, jax.Array]:
+    """Feasible atoms of the three cyclic relations of each triple, by the boundary decision.
+
+    Args:
+        spec: the calculus.
+        bearings: [T, 3] bearings in range order (near, mid, far), float32 or float64.
+        tol: bearing tolerance τ (radians, a scalar, may be traced): the sets hold every atom
+            feasible for *some* bearings within τ of the given ones (each bearing
+            independently) and ranges in the given order (ties allowed). 0: the sets of the
+            given bearings exactly.
+
+    Returns:
+        ``(possible, undecided)`` [T, 3] uint32 *atom* masks: ``possible`` holds every
+        feasible atom and, besides the witnessed ones, the ``undecided`` atoms that only a
+        near-degenerate sample could not exclude (normally none at ``tol = 0``).
+
+    The three relations run as one program along an axis O = 3: relation o is relation 0
+    of the triple with its slots permuted to (X, Y, Z) = ``CYCLIC[o]``.
+
+    With ``tol > 0`` the witnesses are those of the given bearings on the widened cone, and a
+    sign counts as uncertain also where the constraint's value on a sample's whole interval
+    of the edge (structural roots divided out) comes within ``Δ`` of zero, ``Δ`` a bound on
+    how much any bearing change within τ moves it; a region point counts as inside where its
+    range preimage is within the same kind of bound of the cone (docs/qrm.md §camera).
+    """
+    st = camera_structure(spec)
+    dtype = bearings.dtype
+    tol = jnp.asarray(tol, dtype)
+    loose = tol > 0
+    K = spec.k
+    perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
+    inv = np.argsort(perm, 1)  # inv[o][slot] = relation-order position
+    cw, sw = jnp.cos(bearings).T[perm], jnp.sin(bearings).T[perm]  # [O, 3, T]
+    cw, sw = jnp.swapaxes(cw, 0, 1), jnp.swapaxes(sw, 0, 1)  # [3 (X, Y, Z), O, T]
+
+    w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
+
+    def rel_d(vals, shape):  # slot-order values (..., 3) → 3 × [O, ...] in (X, Y, Z) order
+        v = jnp.asarray(vals, dtype)[..., perm]  # (..., O, 3)
+        v = jnp.moveaxis(v, -2, 0)  # (O, ..., 3)
+        return [v[..., k].reshape(shape) for k in range(3)]
+
+    i, j = np.array(EDGES).T
+    verts = jnp.asarray(VERTICES, dtype)
+    # the three vertices and the three edge midpoints, for the edge quadratics
+    nodes = jnp.concatenate([verts, 0.5 * (verts[i] + verts[j])], 0)  # (6, 3)
+    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)))  # (K, O, 6, T)
+    van = jnp.asarray(np.moveaxis(st.vanish, 1, 0))  # (K, O, 3 vertices)
+    vmask = van[..., None]
+    f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
+    e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
+    f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
+    A = 2 * f0 - 4 * fh + 2 * f1
+    B = -3 * f0 + 4 * fh - f1
+    emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
+    z0, z1 = van[:, :, i, None], van[:, :, j, None]
+    t, valid, lo, hi, own_lo, own_hi = _sample_params(A, B, f0, z0, z1)  # (S, O, 3, T)
+    S = t.shape[0]
+    Vi = rel_d(verts[i], (1, 3, 3, 1))
+    Vd = rel_d(verts[j] - verts[i], (1, 3, 3, 1))
+    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
+    band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
+    unsure, delta = _tolerance_unsure(
+        spec, w, rel_d(nodes, (3, 6, 1)), Vi, Vd, van, tol, loose, (A, B, f0, f1),
+        (t, lo, hi, own_lo, own_hi), fe, ee, emax)
     # a quadratic's vertex is only needed where it nears zero there (a tangency that the
     # roots may have missed); elsewhere it could sit on another constraint's root
     own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
@@ -538,35 +592,7 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, 
     wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 2))  # (O, T)
     poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 2))
     # region points: R_s inside the image of the cone
-    reps = jnp.asarray(st.reps, dtype)
-    dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
-    fr, er = form_values(spec, w, dr)  # (K, O, R, T)
-    D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
-    take = jnp.asarray(inv.T)[:, :, None, None]
-    ds = jnp.take_along_axis(D, take, 0)
-    # how far any bearing change within tol moves the preimage (|Δd| ≤ 2 tol |·|, per
-    # component: |c|, |c − 1|, |c| |c − 1| in (X, Y, Z) order), in slot order
-    ca, cb_ = jnp.hypot(reps[:, 0], reps[:, 1]), jnp.hypot(reps[:, 0] - 1, reps[:, 1])
-    dd = jnp.stack([ca, cb_, ca * cb_])[:, None, :, None] * (2 * tol * (1 + 16 * eps))
-    dd = jnp.take_along_axis(jnp.broadcast_to(dd, D.shape), take, 0)
-    k = 1.0
-    dmax = jnp.max(jnp.abs(ds), 0)
-    rnd = _CONE_BAND * eps * dmax * (1 + k)
-    gl = (ds[0], k * ds[1] - ds[0], k * ds[2] - ds[1])
-    gb = (dd[0], k * dd[1] + dd[0], k * dd[2] + dd[1])
-    near_tol = loose & (jnp.all(jnp.stack([g > -(b + rnd) for g, b in zip(gl, gb, strict=True)]), 0)
-                        | jnp.all(jnp.stack([-g > -(b + rnd)
-                                             for g, b in zip(gl, gb, strict=True)]), 0))
-    ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
-    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
-    g = (ds[0], k * ds[1] - ds[0], k * ds[2] - ds[1])
-    inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
-    cb = -_CONE_BAND * eps
-    near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
-    rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)  # (O, R, T)
-    wit = wit | _or(jnp.where(inside, rw, jnp.uint32(0)), (1,))
-    # (the atom of a region point is fixed: the pattern depends on c only)
-    rep_bit = (jnp.uint32(1) << jnp.asarray(st.rep_atoms, jnp.uint32))[None, :, None]
-    poss = (poss | _or(jnp.where(near, rp, jnp.uint32(0)), (1,)) | wit
-            | _or(jnp.where(near_tol, rep_bit, jnp.uint32(0)), (1,)))
+    rwit, rposs = _region_atoms(spec, st, w, tol, loose, inv)
+    wit = wit | rwit
+    poss = poss | rposs | wit
     return poss.T, (poss & ~wit).T
