@@ -2,7 +2,9 @@
 
 Random scenes of every kind — ``uniform``, ``far_cluster``, ``collinear_1e-5`` …
 ``collinear_1e-9`` (landmarks within that relative distance of a common line),
-``equal_bearings`` (landmarks on a few rays from the camera), ``equidistant`` (ranges equal
+``equal_bearings`` (landmarks on a few rays from the camera), ``near_ray`` (three
+landmarks within ~2e-8 relative of one ray: their float32 bearings often round to one
+value), ``equidistant`` (ranges equal
 within ~1e-7 relative), ``camera_at_landmark`` — are imaged by the simulator's camera
 (:func:`pqrm_jax.sim.sensors.camera_kernel`) in float32 and in float64. For every image
 the ``n`` nearest landmarks are measured (:func:`pqrm_jax.qrm.camera.measure_image`, the
@@ -44,7 +46,7 @@ from pqrm_jax.qrm.spec import CYCLIC, popcount, qrm_spec  # noqa: E402
 
 N = 6  # landmarks per layout, all measured (n = N): 20 triples, 60 relations per image
 KINDS = ("uniform", "far_cluster", "collinear_1e-5", "collinear_1e-7", "collinear_1e-9",
-         "equal_bearings", "equidistant", "camera_at_landmark")
+         "equal_bearings", "near_ray", "equidistant", "camera_at_landmark")
 SPREADS = (0.003, 0.05, 0.3, 1.0, 2 * np.pi)
 
 
@@ -73,6 +75,14 @@ def scene(kind: str, rng: np.random.Generator, images: int):
         phi = np.repeat(rng.uniform(-np.pi, np.pi, 3), 2)
         r = rng.uniform(5, 60, N)
         lm = p + r[:, None] * np.stack([np.cos(phi), np.sin(phi)], -1)
+        xy = np.concatenate([p[None], rng.uniform(-60, 60, (images - 1, 2))])
+    elif kind == "near_ray":  # 3 landmarks within ~2e-8 (relative) of one ray of the first pose
+        p = rng.uniform(-50, 50, 2)
+        phi = rng.uniform(-np.pi, np.pi)
+        w, nrm = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
+        r = rng.uniform(5, 60, 3)
+        ray = p + r[:, None] * w + (rng.normal(0, 2e-8, 3) * r)[:, None] * nrm
+        lm = np.concatenate([ray, p + rng.uniform(-60, 60, (N - 3, 2))])
         xy = np.concatenate([p[None], rng.uniform(-60, 60, (images - 1, 2))])
     elif kind == "equidistant":  # every landmark at ~R from the first pose
         p = rng.uniform(-50, 50, 2)
