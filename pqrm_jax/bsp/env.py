@@ -14,7 +14,9 @@
 * Initial belief: every ``M_1`` triplet measured once by PQRM (all orderings), the robot's
   state from the same inverse-sensor sampling, the reference scale (the known frame of
   Z §4.2.5) is F_1's true length bin (docs/bsp.md §Z-10), and — with compositions — every
-  other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`).
+  other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`). Under the default
+  ``"composed"`` scale model the composed rows also serve the frame scales without
+  compositions (marked ``SCALE_ONLY``: never candidates).
 
 Bad input raises ``ValueError``: fewer than 3 landmarks, NaN positions, a target with repeated
 or unknown landmarks, a non-composable initial belief, a frame with repeated landmarks.
@@ -33,7 +35,7 @@ from .. import calculi
 from ..compositions import is_composable
 from ..compositions.simulation import measure_map
 from ..pqrm import state_probabilities
-from .belief import QBelief, scale_posteriors
+from .belief import COMPOSED, SCALE_ONLY, QBelief, belief_scales, check_scale_model
 from .compose import augment
 from .models import Models
 
@@ -147,8 +149,14 @@ def check_environment(env: Environment, L_max: int) -> None:
 
 def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
                    L_max: int = 12, sigma_z: float = 0.05, samples: int = 256,
-                   calculus: str = "edc") -> QBelief:
-    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks."""
+                   calculus: str = "edc", scale_model: str = "composed") -> QBelief:
+    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks.
+
+    With ``scale_model="composed"`` (docs/bsp.md §Z-10) the composed rows are computed in both
+    modes; without compositions they are marked ``SCALE_ONLY`` (frame scales, not
+    candidates), so both modes have the same initial frame scales.
+    """
+    check_scale_model(scale_model)
     check_environment(env, L_max)
     calc = calculi.get(calculus)
     n = len(env.pos)
@@ -162,10 +170,12 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
     trip[:n, :n, :n] = probs
     measured = np.zeros((L_max, L_max, L_max), bool)
     measured[:n, :n, :n] = observed
-    if compositions:
+    if compositions or scale_model == "composed":
         U = np.asarray(models.U)
         trip, src, ncomp = augment(trip, measured, n, np.asarray(calc.tables.prob_compose,
                                                                  np.float32), U)
+        if not compositions:  # composed rows serve the frame scales only (§Z-10)
+            src = np.where(src == COMPOSED, SCALE_ONLY, src).astype(np.int8)
     else:
         src = measured.astype(np.int8)
         ncomp = np.zeros_like(src)
@@ -176,8 +186,8 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
                                 samples)[0]
     ref_scale = reference_scale(models, env)
     lm = np.arange(L_max) < n
-    scale = scale_posteriors(models, trip, src > 0, jnp.asarray([a, b]), jnp.asarray(ref_scale),
-                             jnp.asarray(lm), measured=jnp.asarray(src == 1))
+    scale = belief_scales(models, jnp.asarray(trip), jnp.asarray(src), jnp.asarray([a, b]),
+                          jnp.asarray(ref_scale), jnp.asarray(lm), scale_model)
     return QBelief(frame=jnp.asarray([a, b], jnp.int32), robot=jnp.asarray(robot),
                    trip=jnp.asarray(trip), trip_src=jnp.asarray(src, jnp.int8),
                    ncomp=jnp.asarray(ncomp, jnp.int8), scale=scale, lm_mask=jnp.asarray(lm),

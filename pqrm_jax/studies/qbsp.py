@@ -72,10 +72,13 @@ DECISIONS = {
     "Z-7": "eta divides (normalisation)",
     "Z-8": "association and measurement condition on the scale of F_{t-1}",
     "Z-9": "frame scale = reference scale x |X1 - X2| (tables G2, GA, GB)",
-    "Z-10": "reference = F_1's true scale bin (one-hot); fallback uniform over observable "
-            "bins for pairs in a known triplet, over all bins otherwise; pairs derivable from "
-            "measured rows or inside a measured triplet keep their measured-only scale in "
-            "both modes (compositions serve only the other pairs: plan existence is monotone)",
+    "Z-10": "reference = F_1's true scale bin (one-hot); scale_model 'composed' (default): "
+            "the missing S^L_AB scale rows are composed (Z 4.2.5 eq. 4.24 with 4.2.6) in both "
+            "modes, so both modes derive the same frame scales and 'without compositions' "
+            "changes only the candidate set; 'belief' (the previous model): scales from the "
+            "mode's own rows, pairs inside a measured triplet keep their measured-only scale; "
+            "fallback uniform over observable bins for pairs in a known triplet, over all bins "
+            "otherwise",
     "Z-11": "expectimax tree: min over actions, expectation over beta and z, min over links; "
             "goal branch terminal; leaf h = cbar (1 + rho) (hops + 1) with rho = 10 (each "
             "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
@@ -154,6 +157,9 @@ def config_for(args) -> dict:
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
                       "pqrm_samples": 64, "eps_obs": 0.01},
         "initial_measurement_samples": 256,
+        # how frame scales are derived (docs/bsp.md §Z-10): "composed" in both modes
+        # (default) or "belief" (the mode's own rows; the previous model)
+        "scale_model": getattr(args, "scale_model", "composed"),
         # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
         "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
                    "depths": [1]} if args.tiny else
@@ -200,7 +206,8 @@ def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, d
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
         b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
-                             samples=cfg["initial_measurement_samples"])
+                             samples=cfg["initial_measurement_samples"],
+                             scale_model=cfg["scale_model"])
         for c, x in enumerate(grid):
             fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
                                jnp.asarray(env.goal), float(x))
@@ -251,7 +258,8 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                 b = E.initial_belief(models, env, jax.random.key(e),
                                      compositions=mode == "with", L_max=cfg["L_max"],
                                      sigma_z=cfg["execution"]["sigma_z"],
-                                     samples=cfg["initial_measurement_samples"])
+                                     samples=cfg["initial_measurement_samples"],
+                                     scale_model=cfg["scale_model"])
                 fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
                                    float(eps))
                 ex[mode].append(bool(G.plan_exists(fg, b.frame)))
@@ -398,7 +406,8 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     ex = cfg["execution"]
     ep = X.ExecParams(t_max=ex["t_max"], sigma_m=ex["sigma_m"], sigma_z=ex["sigma_z"],
                       pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"],
-                      nondetection="nondetection" in cfg.get("extensions", {}))
+                      nondetection="nondetection" in cfg.get("extensions", {}),
+                      scale_model=cfg["scale_model"])
     pos = jnp.asarray(np.stack([E.padded_positions(e, L) for e in pad]))
     lm = jnp.asarray(np.stack([np.arange(L) < len(e.pos) for e in pad]))
     goal = jnp.asarray([e.goal for e in pad], jnp.int32)
@@ -411,7 +420,8 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
         bels = [E.initial_belief(models, e, jax.random.fold_in(jax.random.key(cfg["seed"] + 1),
                                                                 i),
                                  compositions=mode == "with", L_max=L, sigma_z=ex["sigma_z"],
-                                 samples=cfg["initial_measurement_samples"])
+                                 samples=cfg["initial_measurement_samples"],
+                                 scale_model=cfg["scale_model"])
                 for e, i in zip(pad, pid, strict=True)]
         beliefs[mode] = jax.tree.map(lambda *x: jnp.stack(x), *bels)
     # all four tests of every environment in one batched call: lanes = (mode, cost, env)
@@ -842,6 +852,10 @@ def main(argv: list[str]) -> int:
                     help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
                          "in the planner instead of renormalised candidate weights "
                          "(docs/bsp.md §nothing-seen)")
+    ap.add_argument("--scale-model", dest="scale_model", choices=("composed", "belief"),
+                    default="composed", help="frame scales from measured and composed rows in "
+                    "both modes (default) or from each mode's own belief (the previous "
+                    "model; docs/bsp.md §Z-10)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
     distributed.add_arguments(ap)
