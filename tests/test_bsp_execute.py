@@ -138,3 +138,62 @@ def test_scale_models(mod, scale_model):
         assert not np.any(s0 == B.SCALE_ONLY)
     with pytest.raises(ValueError, match="scale_model"):
         E.initial_belief(mod, env, key, compositions=False, scale_model="metric")
+
+
+# ------------------------------------------------------------------ bad input (API and CLI)
+def test_bad_model_params():
+    # NumPy integers are accepted (and stored as Python ints: the cache key is JSON)
+    p = M.ModelParams(n_f=np.int64(5), samples=np.int32(600), sigma_z=np.float32(0.05))
+    assert p.validate().n_f == 5 and type(p.n_f) is int and type(p.samples) is int
+    assert p.key() == M.ModelParams(samples=600, sigma_z=float(np.float32(0.05))).key()
+    for bad, name in ((dict(samples=True), "samples"), (dict(n_f=False), "n_f"),
+                      (dict(n_f=2.0), "n_f"), (dict(pool=0), "pool"),
+                      (dict(sigma_z=float("inf")), "sigma_z"), (dict(window=0.0), "window"),
+                      (dict(r_min=-0.1), "r_min"), (dict(sigma_m="0.1"), "sigma_m")):
+        with pytest.raises(ValueError, match=name):
+            M.ModelParams(**bad).validate()
+
+
+def test_bad_environment():
+    env = _env()
+    rng = np.random.default_rng(0)
+    for size in (float("nan"), 0.0, -1.0, float("inf")):
+        with pytest.raises(ValueError, match="size"):
+            E.generate(rng, 8, size)
+    for n in (8.0, True, "8"):
+        with pytest.raises(ValueError, match="n must be an integer"):
+            E.generate(rng, n, 2.5)
+    assert len(E.generate(rng, np.int64(8), np.float32(2.5)).pos) == 8
+    with pytest.raises(ValueError, match="R must"):
+        E.generate(rng, 8, 2.5, R=0.0)
+    for goal in ((0, 1, 2.5), (0.0, 1, 2), (True, 1, 2), ("0", 1, 2)):
+        with pytest.raises(ValueError, match="target triplet .* integer"):
+            E.check_environment(env._replace(goal=goal), 12)
+    with pytest.raises(ValueError, match="initial frame .* integer"):
+        E.check_environment(env._replace(frame=(0, 1.5)), 12)
+    with pytest.raises(ValueError, match="initial-belief triplet .* integer"):
+        E.check_environment(env._replace(triplets=((0, 1, 2.0),) + env.triplets[1:]), 12)
+    pos = env.pos.copy()
+    pos[3] = pos[5]
+    with pytest.raises(ValueError, match="landmarks 3 and 5 coincide"):
+        E.check_environment(env._replace(pos=pos), 12)
+    with pytest.raises(ValueError, match="start"):
+        E.check_environment(env._replace(start=np.array([0.1, np.nan])), 12)
+    # NumPy integer ids are fine
+    E.check_environment(env._replace(goal=tuple(np.int64(x) for x in env.goal)), 12)
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--eps", "nan"], "--eps"), (["--eps", "-0.1"], "--eps"), (["--eps", "1.5"], "--eps"),
+    (["--size", "0"], "--size"), (["--size", "nan"], "--size"), (["--size", "-2"], "--size"),
+    (["--size", "0.05"], "--size"), (["--samples", "0"], "--samples"),
+    (["--scale-model", "metric"], "--scale-model")])
+def test_cli_refuses_bad_options(tmp_path, capsys, argv, flag):
+    from pqrm_jax.studies import qbsp
+
+    out = tmp_path / "s"
+    with pytest.raises(SystemExit) as e:
+        qbsp.main(["--tiny", "--out", str(out), "--no-progress", *argv])
+    assert e.value.code == 2
+    assert flag in capsys.readouterr().err
+    assert not out.exists()

@@ -18,8 +18,10 @@
   ``"composed"`` scale model the composed rows also serve the frame scales without
   compositions (marked ``SCALE_ONLY``: never candidates).
 
-Bad input raises ``ValueError``: fewer than 3 landmarks, NaN positions, a target with repeated
-or unknown landmarks, a non-composable initial belief, a frame with repeated landmarks.
+Bad input raises ``ValueError`` naming it: fewer than 3 landmarks, NaN or coincident positions,
+landmark ids that are not integers or are repeated or unknown (target, frame, triplets), a
+non-composable initial belief; ``generate`` refuses a non-integer ``n`` and a non-positive or
+non-finite ``size`` / ``R`` (negative ``r_min``).
 """
 
 from __future__ import annotations
@@ -90,11 +92,54 @@ def grow_triplets(pos: np.ndarray, rng: np.random.Generator, R: float = 1.0):
     return out
 
 
+def _is_real(v) -> bool:
+    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(
+        v, bool | np.bool_)
+
+
+def _integer(name: str, v, low: int) -> int:
+    """``v`` as an int (Python or NumPy integer, no bool) >= ``low``; else ``ValueError``."""
+    if not isinstance(v, int | np.integer) or isinstance(v, bool | np.bool_) or v < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+def _ids(what: str, ids, count: int | None, n: int) -> tuple:
+    """Landmark ids as ints: integers (Python or NumPy) in ``[0, n)``, ``count`` of them."""
+    ids = tuple(ids)
+    if count is not None and len(ids) != count:
+        raise ValueError(f"{what} must have {count} landmark ids, got {ids}")
+    for x in ids:
+        if not isinstance(x, int | np.integer) or isinstance(x, bool | np.bool_):
+            raise ValueError(f"{what} {ids} must hold integer landmark ids, got {x!r}")
+    if not all(0 <= x < n for x in ids):
+        raise ValueError(f"{what} {ids} uses unknown landmarks (ids 0..{n - 1})")
+    return tuple(int(x) for x in ids)
+
+
 def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
              R: float = 1.0, max_tries: int = 1000) -> Environment:
-    """One random environment (module docstring)."""
-    if n < 3:
-        raise ValueError(f"an environment needs at least 3 landmarks, got {n}")
+    """One random environment (module docstring).
+
+    Args:
+        rng: NumPy generator.
+        n: number of landmarks, an integer >= 3.
+        size: S, the side of the square ``[0, S]²`` in units of R (positive, finite).
+        r_min: minimum landmark spacing (non-negative, finite).
+        R: sensing range (positive, finite).
+        max_tries: draws before giving up (positive integer).
+
+    Raises:
+        ValueError: naming the argument for bad values; RuntimeError when no valid
+            environment is found in ``max_tries`` draws (e.g. ``size`` too small for ``n``
+            landmarks ``r_min`` apart).
+    """
+    n = _integer("n", n, 3)
+    max_tries = _integer("max_tries", max_tries, 1)
+    for nm, v, positive in (("size", size, True), ("r_min", r_min, False), ("R", R, True)):
+        if not _is_real(v) or not np.isfinite(v) or v < 0 or (positive and v == 0):
+            what = "positive" if positive else "non-negative"
+            raise ValueError(f"{nm} must be {what} and finite, got {v!r}")
     for _ in range(max_tries):
         pos = rng.uniform(0, size, (n, 2))
         D = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
@@ -120,7 +165,12 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
 
 
 def check_environment(env: Environment, L_max: int) -> None:
-    """``ValueError`` naming the problem (module docstring)."""
+    """``ValueError`` naming the problem (module docstring).
+
+    Refused: fewer than 3 or more than ``L_max`` landmarks, non-finite or coincident
+    landmark positions, a non-finite robot start, landmark ids (target, frame, initial-belief
+    triplets) that are not integers, repeated or unknown, a non-composable initial belief.
+    """
     pos = np.asarray(env.pos, float)
     n = len(pos)
     if n < 3:
@@ -129,18 +179,23 @@ def check_environment(env: Environment, L_max: int) -> None:
         raise ValueError(f"{n} landmarks exceed the padding L_max={L_max}")
     if pos.shape != (n, 2) or not np.all(np.isfinite(pos)):
         raise ValueError("landmark positions must be finite (n, 2)")
-    if not np.all(np.isfinite(env.start)):
-        raise ValueError("robot start position must be finite")
-    g = tuple(env.goal)
-    if len(g) != 3 or len(set(g)) != 3:
+    D = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.diag(np.full(n, np.inf))
+    if np.any(D == 0):
+        a, b = (int(x) for x in np.argwhere(D == 0)[0])
+        raise ValueError(f"landmarks {a} and {b} coincide at {pos[a].tolist()}: every frame "
+                         "and triplet needs distinct positions")
+    start = np.asarray(env.start, float)
+    if start.shape != (2,) or not np.all(np.isfinite(start)):
+        raise ValueError(f"robot start position must be finite (2,), got {start.tolist()}")
+    g = _ids("target triplet", env.goal, 3, n)
+    if len(set(g)) != 3:
         raise ValueError(f"target triplet must have 3 distinct landmarks, got {g}")
-    if not all(0 <= x < n for x in g):
-        raise ValueError(f"target triplet {g} uses unknown landmarks (ids 0..{n - 1})")
-    f = tuple(env.frame)
-    if len(f) != 2 or f[0] == f[1] or not all(0 <= x < n for x in f):
+    f = _ids("initial frame", env.frame, 2, n)
+    if f[0] == f[1]:
         raise ValueError(f"initial frame {f} must be two distinct known landmarks")
     for t in env.triplets:
-        if len(set(t)) != 3 or not all(0 <= x < n for x in t):
+        t = _ids("initial-belief triplet", t, 3, n)
+        if len(set(t)) != 3:
             raise ValueError(f"initial-belief triplet {t} has repeated or unknown landmarks")
     if not is_composable(env.triplets, range(n)):
         raise ValueError("the initial belief is not composable under the landmark set "

@@ -865,6 +865,18 @@ def main(argv: list[str]) -> int:
         ap.error("--envs and --chunk must be positive")
     if cfg["planner"]["depth"] < 1:
         ap.error("--depth must be >= 1 (L = 0 plans nothing)")
+    if a.samples is not None and a.samples < 1:
+        ap.error(f"--samples must be a positive integer, got {a.samples}")
+    if not (np.isfinite(a.size) and a.size > 0):
+        ap.error(f"--size must be a positive, finite S/R, got {a.size}")
+    if a.eps is not None and not (np.isfinite(a.eps) and 0.0 <= a.eps <= 1.0):
+        ap.error(f"--eps must be a probability in [0, 1] (the observability threshold "
+                 f"eps_obs), got {a.eps}")
+    try:  # a size too small for the landmarks at their minimum spacing: refused up front
+        make_env(cfg, cfg["calib_seed"], 0, cfg["size"])
+    except RuntimeError as exc:
+        ap.error(f"--size {a.size} is too small for {cfg['landmarks']} landmarks "
+                 f"{cfg['r_min']} R apart ({exc})")
 
     from tqdm.auto import tqdm
 
