@@ -1,4 +1,5 @@
-"""Benchmark: batched belief-tree planning vs a one-environment-at-a-time loop (issue #16).
+"""Benchmark: the belief-tree planner against its previous version, and batched planning vs a
+one-environment-at-a-time loop (issues #16, #25).
 
 Usage::
 
@@ -14,7 +15,13 @@ jitted call over all environments: ``lax.map`` over chunks of ``chunk`` environm
 chunk ``vmap``-ed; several chunk widths are timed. Both are compiled before timing and the
 plans must agree (same first actions; values to float32 rounding).
 
-To explain the ratio it also records, per plan, XLA's cost analysis of the compiled
+``per_plan`` times this planner against the previous one in the same process (the reference:
+``PlannerParams(sampler="joint")``, one cumsum over the Q²·nb-cell joint per branch) on the same
+instances, one jitted plan at a time, and compares the plans: the draws of the two samplers
+differ, so first actions and root values agree in distribution, not bit for bit (the share of
+equal first actions and the relative value differences are recorded).
+
+To explain the batched ratio it also records, per plan, XLA's cost analysis of the compiled
 single-environment planner (flops, bytes accessed) and the dispatch cost of a jitted function
 that takes the same arguments and does nothing: the loop can lose to batching at most that
 overhead, unless batching makes each plan's own arithmetic cheaper. Writes
@@ -89,6 +96,41 @@ def bench(models, D1, bels, fgs, goals, pp, chunks, reps: int = 3) -> dict:
     return out
 
 
+def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
+    """This planner against the previous one (``sampler="joint"``, the in-process reference):
+    per-plan time of the jitted single-environment planner in a loop, the ratio, and whether
+    the plans agree (first actions; root values relative to the reference's)."""
+    n = len(bels)
+    keys = jax.random.split(jax.random.key(0), n)
+    args = [(bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame, bels[e].robot,
+             keys[e]) for e in range(n)]
+    ref_pp = pp._replace(sampler="joint")
+    out = {}
+    for name, p in (("reference", ref_pp), ("new", pp)):
+        jax.block_until_ready(P.plan(models, D1, *args[0], p))  # compile
+        t, o = best_of(lambda p=p: [P.plan(models, D1, *a, p) for a in args], reps)
+        out[name] = {"ms_per_plan": 1e3 * t / n,
+                     "actions": [int(x.action) for x in o],
+                     "values": [float(x.value) for x in o]}
+    ra, na = np.array(out["reference"]["actions"]), np.array(out["new"]["actions"])
+    rv, nv = np.array(out["reference"]["values"]), np.array(out["new"]["values"])
+    rel = np.abs(nv - rv) / np.maximum(np.abs(rv), 1e-9)
+    ca = {}
+    for name, p in (("reference", ref_pp), ("new", pp)):
+        c = P.plan.lower(models, D1, *args[0], p).compile().cost_analysis()
+        c = c[0] if isinstance(c, list) else (c or {})
+        ca[name] = {"flops": c.get("flops"), "bytes_accessed": c.get("bytes accessed")}
+    return {"envs": n, "ms_per_plan_reference": out["reference"]["ms_per_plan"],
+            "ms_per_plan_new": out["new"]["ms_per_plan"],
+            "ratio": out["reference"]["ms_per_plan"] / out["new"]["ms_per_plan"],
+            "same_first_action": float(np.mean(ra == na)),
+            "value_rel_diff_median": float(np.median(rel)),
+            "value_rel_diff_p90": float(np.quantile(rel, 0.9)),
+            "value_rel_diff_max": float(np.max(rel)),
+            "same_plan_exists": bool(np.array_equal(rv < 0.5 * pp.lam, nv < 0.5 * pp.lam)),
+            "cost_analysis": ca}
+
+
 def overheads(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
     """Per-call dispatch cost of a do-nothing jit with the planner's arguments, and XLA's
     cost analysis of one compiled plan."""
@@ -119,7 +161,9 @@ def main() -> int:
     D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
     pp = P.PlannerParams(depth=a.depth)
     bels, fgs, goals = _instances(models, max(sizes))
+    n_pp = min(max(sizes), 64)
     res = {"depth": a.depth, "n_actions": pp.n_actions, "n_beta": pp.n_beta,
+           "per_plan": per_plan(models, D1, bels[:n_pp], fgs[:n_pp], goals[:n_pp], pp),
            "overheads": overheads(models, D1, bels[:64], fgs[:64], goals[:64], pp),
            "runs": [bench(models, D1, bels[:n], fgs[:n], goals[:n], pp, a.chunks)
                     for n in sizes]}

@@ -15,7 +15,8 @@ sequence is ill-defined (docs/bsp.md §Z-11). The planner is an expectimax tree 
   candidates, eq. 4.14; docs/bsp.md §Z-24);
 * ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, docs/bsp.md §Z-6); the
   key is a function of (level, frame, a, β) only, so pruned and full trees and any chunking of
-  lanes draw the same measurement for the same branch;
+  lanes draw the same measurement for the same branch; (b, s_x, s_τ) are drawn one after the
+  other from their conditionals (nb, Q, Q cells) and ẑ from ``AZ[s_x, s_τ, b]``;
 * ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
   eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
   on ẑ (law of total expectation);
@@ -56,6 +57,11 @@ class PlannerParams(NamedTuple):
     #: branch with weight 1 − P(some candidate seen | a), valued as staying in the frame
     #: (h(F) + c̄), instead of renormalising the candidate weights to 1 (§Z-24).
     nothing_seen: bool = False
+    #: how a branch draws (s_x, s_τ, b) before ẑ: ``"factored"`` (b, then s_x | b, then
+    #: s_τ | s_x, b: cumsums of nb, Q and Q cells) or ``"joint"`` (the previous sampler: one
+    #: cumsum over the Q²·nb-cell joint; the in-process reference of benchmarks/bench_bsp.py).
+    #: The same distribution; the draws differ.
+    sampler: str = "factored"
 
 
 DEFAULT = PlannerParams()
@@ -142,10 +148,17 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     def branch(a, k):
         kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
         k1, k2 = jax.random.split(kk)
-        jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
-        cell = sample_index(k1, jw.reshape(-1))
-        x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
-            cell % models.num_bins
+        if pp.sampler == "joint":  # the previous sampler (benchmarks/bench_bsp.py reference)
+            jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
+            cell = sample_index(k1, jw.reshape(-1))
+            x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
+                cell % models.num_bins
+        else:  # b, then x | b, then t | x, b: the same joint, 6 + 20 + 20 cells
+            kb, kx, kt = jax.random.split(k1, 3)
+            tab = models.T[:, a] * fg.Ab[i, j, k].T  # [nb, Q]: T[b, a, x] Ab[x, b]
+            b = sample_index(kb, sf * tab.sum(-1))
+            x = sample_index(kx, tab[b])
+            t = sample_index(kt, trip[i, j, k] * models.A[x, :, b])
         z = sample_index(k2, models.AZ[x, t, b])
         J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
         s = J.sum()
@@ -199,6 +212,9 @@ def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, ke
     """
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
+    if pp.sampler not in ("factored", "joint"):
+        raise ValueError(f"PlannerParams.sampler must be 'factored' or 'joint', got "
+                         f"{pp.sampler!r}")
     cost = pp.cost if cost is None else cost
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
