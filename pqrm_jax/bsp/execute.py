@@ -66,6 +66,10 @@ class ExecParams(NamedTuple):
     #: how frame scales are derived (docs/bsp.md §Z-10; ``bsp.belief.SCALE_MODELS``): from
     #: measured and composed rows in both modes (default) or from the mode's own belief.
     scale_model: str = "composed"
+    #: what a lane does when a later frame graph says "no plan" (docs/bsp.md §execution):
+    #: ``"stop"`` ends it as a failure (the first session's "no plan" always ends it);
+    #: ``"continue"`` takes the planner's action anyway and replans at the next step.
+    on_no_plan: str = "stop"
 
 
 class Outcome(NamedTuple):
@@ -143,6 +147,9 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
              key, cost, pp: PlannerParams, ep: ExecParams) -> Outcome:
     """Execute one test (module docstring) with cost ``cost`` (1 or 2, traced); pure and
     ``vmap``-able over lanes (``pp.cost`` is ignored)."""
+    if ep.on_no_plan not in ("stop", "continue"):
+        raise ValueError(f"ExecParams.on_no_plan must be 'stop' or 'continue', got "
+                         f"{ep.on_no_plan!r}")
     calc = calculi.get(ep.calculus)
     L = pos.shape[0]
     idx = jnp.arange(L)
@@ -159,7 +166,8 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         ex0 = jnp.where(t == 0, exists, ex0)
         tex0 = jnp.where(t == 0, pl.exists, tex0)
         v0 = jnp.where(t == 0, pl.value, v0)
-        active = (~done) & exists
+        go_on = exists if ep.on_no_plan == "stop" else (exists | (t > 0))
+        active = (~done) & go_on
         a = pl.action
         i, j = bel.frame[0], bel.frame[1]
         tgt = _to_world(pos[i], pos[j], models.targets[a])
@@ -208,7 +216,7 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         x = xn
         reached = reached | got
         nst = nst + active.astype(jnp.int32)
-        done = done | got | ~exists
+        done = done | got | ~go_on
         logs = (jnp.where(active, bel.frame, -1), jnp.where(active, a, -1),
                 jnp.where(active & anyc, k, -1), x)
         return (x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs

@@ -155,7 +155,9 @@ def config_for(args) -> dict:
         "planner": {"depth": base["depth"], "n_actions": 4, "n_beta": 3, "lam": 1.0e5, "rho": 10.0,
                     "n_z": 1},
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
-                      "pqrm_samples": 64, "eps_obs": 0.01},
+                      "pqrm_samples": 64, "eps_obs": 0.01,
+                      # a later "no plan" ends the lane (docs/bsp.md §execution)
+                      "on_no_plan": getattr(args, "on_no_plan", "stop")},
         "initial_measurement_samples": 256,
         # how frame scales are derived (docs/bsp.md §Z-10): "composed" in both modes
         # (default) or "belief" (the mode's own rows; the previous model)
@@ -407,7 +409,8 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     ep = X.ExecParams(t_max=ex["t_max"], sigma_m=ex["sigma_m"], sigma_z=ex["sigma_z"],
                       pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"],
                       nondetection="nondetection" in cfg.get("extensions", {}),
-                      scale_model=cfg["scale_model"])
+                      scale_model=cfg["scale_model"],
+                      on_no_plan=ex.get("on_no_plan", "stop"))
     pos = jnp.asarray(np.stack([E.padded_positions(e, L) for e in pad]))
     lm = jnp.asarray(np.stack([np.arange(L) < len(e.pos) for e in pad]))
     goal = jnp.asarray([e.goal for e in pad], jnp.int32)
@@ -856,6 +859,9 @@ def main(argv: list[str]) -> int:
                     default="composed", help="frame scales from measured and composed rows in "
                     "both modes (default) or from each mode's own belief (the previous "
                     "model; docs/bsp.md §Z-10)")
+    ap.add_argument("--on-no-plan", dest="on_no_plan", choices=("stop", "continue"),
+                    default="stop", help="a later session's 'no plan' ends the lane as a "
+                    "failure (default) or the lane goes on (docs/bsp.md §execution)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", action="store_true")
     distributed.add_arguments(ap)
