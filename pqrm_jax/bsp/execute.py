@@ -67,9 +67,11 @@ class ExecParams(NamedTuple):
     #: measured and composed rows in both modes (default) or from the mode's own belief.
     scale_model: str = "composed"
     #: what a lane does when a later frame graph says "no plan" (docs/bsp.md §execution):
-    #: ``"stop"`` ends it as a failure (the first session's "no plan" always ends it);
-    #: ``"continue"`` takes the planner's action anyway and replans at the next step.
-    on_no_plan: str = "stop"
+    #: ``"continue"`` (default) takes the planner's action anyway and replans at the next
+    #: step — measured: 4 of the 11 lanes a later "no plan" ended reach the goal when they go
+    #: on; ``"stop"`` (the previous rule) ends the lane as a failure. The first session's
+    #: "no plan" always ends it.
+    on_no_plan: str = "continue"
 
 
 class Outcome(NamedTuple):
@@ -93,6 +95,22 @@ def _to_world(pa, pb, p):
     e = pb - pa
     right = jnp.stack([e[1], -e[0]])
     return pa + p[1] * e + p[0] * right
+
+
+class LaneState(NamedTuple):
+    """The carry of one lane's ``lax.scan`` (shapes for L landmarks)."""
+
+    pos: jax.Array  # [2] the true robot position (units of R)
+    belief: QBelief  # the belief (frame, robot state, map)
+    done: jax.Array  # [] bool: the lane has ended (goal seen, or no plan)
+    reached: jax.Array  # [] bool: the three goal landmarks were seen at once
+    cost1: jax.Array  # [] executed cost 1 so far (eq. 4.29, ground truth)
+    cost2: jax.Array  # [] executed cost 2 so far (displacement in R)
+    steps: jax.Array  # [] int32 executed steps
+    exists: jax.Array  # [] bool: the first session's frame graph has a plan
+    tree_exists: jax.Array  # [] bool: the first session's tree root < λ
+    root_value: jax.Array  # [] the first session's root value
+    key: jax.Array  # the lane's PRNG key
 
 
 PERMS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
@@ -157,8 +175,8 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
     lam = jnp.asarray(pp.lam, jnp.float32)
     sensor = sim.SensorParams(max_range=1.0, sigma=ep.sigma_z)
 
-    def step(carry, t):
-        x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = carry
+    def step(st: LaneState, t):
+        x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = st
         key, kp, km, ko, kq = jax.random.split(key, 5)
         fg = frame_graph(models, bel.trip, bel.trip_src, bel.scale, lm_mask, goal, ep.eps_obs)
         pl = plan(models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, kp, pp, cost)
@@ -219,16 +237,18 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         done = done | got | ~go_on
         logs = (jnp.where(active, bel.frame, -1), jnp.where(active, a, -1),
                 jnp.where(active & anyc, k, -1), x)
-        return (x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs
+        return LaneState(x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs
 
     f0 = jnp.zeros((), bool)
     z0 = jnp.zeros((), jnp.float32)
-    init = (start, belief, f0, f0, z0, z0, jnp.zeros((), jnp.int32), f0, f0, z0, key)
-    carry, logs = jax.lax.scan(step, init, jnp.arange(ep.t_max))
-    _, bel, _, reached, c1, c2, nst, ex0, tex0, v0, _ = carry
-    return Outcome(exists=ex0, tree_exists=tex0, reached=reached, cost1=c1, cost2=c2, steps=nst,
-                   conflicts=bel.conflicts, root_value=v0, log_frame=logs[0], log_action=logs[1],
-                   log_beta=logs[2], log_pos=logs[3])
+    init = LaneState(pos=start, belief=belief, done=f0, reached=f0, cost1=z0, cost2=z0,
+                     steps=jnp.zeros((), jnp.int32), exists=f0, tree_exists=f0, root_value=z0,
+                     key=key)
+    st, logs = jax.lax.scan(step, init, jnp.arange(ep.t_max))
+    return Outcome(exists=st.exists, tree_exists=st.tree_exists, reached=st.reached,
+                   cost1=st.cost1, cost2=st.cost2, steps=st.steps,
+                   conflicts=st.belief.conflicts, root_value=st.root_value, log_frame=logs[0],
+                   log_action=logs[1], log_beta=logs[2], log_pos=logs[3])
 
 
 @partial(jax.jit, static_argnames=("pp", "ep"))
