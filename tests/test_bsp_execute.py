@@ -14,6 +14,7 @@ from pqrm_jax.bsp import env as E
 from pqrm_jax.bsp import execute as X
 from pqrm_jax.bsp import models as M
 from pqrm_jax.pqrm import fuse_rows, state_probabilities
+from pqrm_jax.triplets import ORDERINGS
 
 PARAMS = M.ModelParams(samples=600, pool=1 << 18, seed=3)
 EDC = calculi.get("edc")
@@ -77,7 +78,7 @@ def test_execution_uses_the_pqrm_rule(mod):
     rel = jnp.asarray(pos - x)
     ep = X.ExecParams()
     key = jax.random.key(7)
-    perms = np.asarray(X.PERMS)
+    perms = np.asarray(ORDERINGS)
     pid = np.stack([[0, 1, k] for k in range(L)])[:, perms]  # (L, 6, 3)
     meas = np.asarray(state_probabilities(key, EDC, rel[pid].reshape(-1, 3, 2), ep.sigma_z,
                                           ep.pqrm_samples)).reshape(L, 6, Q)

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 
 from .. import calculi, sim
 from ..pqrm import fuse_rows, state_probabilities
+from ..triplets import ORDERINGS
 from .belief import (
     MEASURED,
     QBelief,
@@ -113,9 +114,6 @@ class LaneState(NamedTuple):
     key: jax.Array  # the lane's PRNG key
 
 
-PERMS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
-
-
 def map_update(key, models: Models, before: QBelief, after: QBelief, rel, cand, ref, ref_scale,
                ep: ExecParams) -> QBelief:
     """PQRM update of the rows of every observed candidate triplet (step 5 of the module).
@@ -146,7 +144,7 @@ def map_update(key, models: Models, before: QBelief, after: QBelief, rel, cand, 
     i, j = before.frame[0], before.frame[1]
     idx = jnp.arange(L)
     ids = jnp.stack([jnp.full(L, i), jnp.full(L, j), idx], -1)  # (L, 3)
-    pid = ids[:, jnp.asarray(PERMS)]  # (L, 6, 3)
+    pid = ids[:, jnp.asarray(ORDERINGS)]  # (L, 6, 3)
     sel = (pid[..., 0], pid[..., 1], pid[..., 2])
     meas = state_probabilities(key, calc, rel[pid].reshape(-1, 3, 2), ep.sigma_z,
                                ep.pqrm_samples).reshape(L, 6, -1)
