@@ -134,7 +134,9 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
             environment is found in ``max_tries`` draws (e.g. ``size`` too small for ``n``
             landmarks ``r_min`` apart).
     """
-    n = _integer("n", n, 3)
+    n = _integer("n", n, 0)
+    if n < 3:
+        raise ValueError(f"an environment needs at least 3 landmarks (n), got {n}")
     max_tries = _integer("max_tries", max_tries, 1)
     for nm, v, positive in (("size", size, True), ("r_min", r_min, False), ("R", R, True)):
         if not _is_real(v) or not np.isfinite(v) or v < 0 or (positive and v == 0):
