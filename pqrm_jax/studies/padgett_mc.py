@@ -592,7 +592,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fresh", action="store_true", help="discard results already in --out")
     p.add_argument("--report-only", action="store_true",
                    help="only rewrite report.md and figures from the stored results")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", "--no-progress", action="store_true", help="no progress bar")
     from . import distributed
 
     distributed.add_arguments(p)

@@ -125,7 +125,8 @@ class _Decider:
                     if verdict == certify.UNSAT:
                         self.stats["z3_confirmed_infeasible"] += 1
                         continue
-                    self.stats["z3_overturned"] += 1
+                    if verdict == certify.SAT:  # an UNKNOWN is counted as "open" below
+                        self.stats["z3_overturned"] += 1
                 rec = {"problem": name, "tag": _tag(pr.tag),
                        "bnb": "infeasible-in-box" if i in bnb_infeasible else "undecided",
                        "resolved": f"z3-{verdict}"}
