@@ -134,7 +134,9 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
             environment is found in ``max_tries`` draws (e.g. ``size`` too small for ``n``
             landmarks ``r_min`` apart).
     """
-    n = _integer("n", n, 0)
+    if not isinstance(n, int | np.integer) or isinstance(n, bool | np.bool_):
+        raise ValueError(f"n must be an integer >= 3, got {n!r}")
+    n = int(n)
     if n < 3:
         raise ValueError(f"an environment needs at least 3 landmarks (n), got {n}")
     max_tries = _integer("max_tries", max_tries, 1)
