@@ -14,6 +14,8 @@ Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.; design notes 
 * :mod:`~pqrm_jax.sim` — the JAX 2D rover simulator.
 * :mod:`~pqrm_jax.studies` — long studies run by ``pqrm-jax study NAME``.
 * :mod:`~pqrm_jax.triplets` — the triplet layouts (rows, dense) and their converters.
+* :mod:`~pqrm_jax.io` — your data in (CSV/NumPy, ROS maps), maps out (save/load, GraphML).
+* :mod:`~pqrm_jax.plot` — figures of maps: PQRM/QRM, Link Graph, HSSH local and global.
 
 >>> import pqrm_jax
 >>> pqrm_jax.calculi.get("lr").states
@@ -30,7 +32,7 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global"]
+           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global", "io", "plot"]
 SUBPACKAGES = tuple(__all__)
 
 
