@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from pqrm_jax import hssh, io, pqrm, qlink, qrm, sim
 from pqrm_jax import hssh_global as hg
+from pqrm_jax.protocols import run
 
 DATA = Path(__file__).parent / "data"
 
@@ -129,8 +130,8 @@ def test_observations_csv_feeds_pqrm_like_the_arrays(tmp_path):
     pq = pqrm.mapper(("edc",), num_landmarks=n, num_samples=32)
     a = b = pq.init()
     for t in range(len(poses)):
-        a = pq.update(a, jax.random.key(t), obs.positions[t], obs.visible[t], 0.05)
-        b = pq.update(b, jax.random.key(t), pos[t], vis[t], 0.05)
+        a, _ = pq.update(a, jax.random.key(t), obs.positions[t], obs.visible[t], 0.05)
+        b, _ = pq.update(b, jax.random.key(t), pos[t], vis[t], 0.05)
     np.testing.assert_array_equal(a.probs["edc"], b.probs["edc"])
     assert int(a.mapped.sum()) > 0
 
@@ -175,8 +176,8 @@ def test_bearings_csv_equals_the_simulated_camera_and_maps_the_same(tmp_path, or
                                atol=1e-5)
     qm = qrm.mapper("edc", n, n=n)
     images = sim.CameraObservation(*(jnp.asarray(a) for a in b))
-    m1, _ = jax.lax.scan(qm.update, qm.init(), images)
-    m2, _ = jax.lax.scan(qm.update, qm.init(), jax.tree.map(lambda *x: jnp.stack(x), *cams))
+    m1, _ = run(qm, jax.random.key(0), qm.init(), images)
+    m2, _ = run(qm, jax.random.key(0), qm.init(), jax.tree.map(lambda *x: jnp.stack(x), *cams))
     np.testing.assert_array_equal(m1.rel, m2.rel)
 
 
@@ -322,12 +323,13 @@ def test_write_read_ros_map_and_cell_conversions(tmp_path_factory, res, ox, oy, 
 def _maps():
     lm, poses = _world(6, seed=5)
     pq = pqrm.mapper(("edc", "lr"), num_landmarks=6, num_samples=16)
-    ps = pq.update(pq.init(), jax.random.key(0), jnp.asarray(lm) - 1.0, jnp.ones(6, bool), 0.05)
+    ps, _ = pq.update(pq.init(), jax.random.key(0), jnp.asarray(lm) - 1.0, jnp.ones(6, bool),
+                      0.05)
     qm = qrm.mapper("edc", 6, n=6)
     cams = jax.tree.map(lambda *x: jnp.stack(x), *[
         sim.camera(jnp.asarray(p), jnp.asarray(lm), sim.SensorParams(max_range=1e6))
         for p in poses])
-    qmap, _ = jax.lax.scan(qm.update, qm.init(), cams)
+    qmap, _ = run(qm, jax.random.key(1), qm.init(), cams)
     el = qlink.exact_elements(jnp.asarray(lm), np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]))
     lg = qlink.link_graph(el, 2)
     grid = io.load_ros_map(DATA / "t_junction.yaml")

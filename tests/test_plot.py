@@ -43,7 +43,7 @@ def test_pqrm_and_qrm_maps(tmp_path):
     s = pq.init()
     for t in range(3):
         noisy = lm + np.random.default_rng(t).normal(0, 0.5, lm.shape).astype(np.float32)
-        s = pq.update(s, jax.random.key(t), jnp.asarray(noisy), jnp.ones(n, bool), 0.5)
+        s, _ = pq.update(s, jax.random.key(t), jnp.asarray(noisy), jnp.ones(n, bool), 0.5)
     ax = plot.relational_map(lm, s, calculus="edc", max_triangles=56)
     assert "PQRM map (edc): 56 triples mapped" in ax.get_title()
     assert ax.get_xlabel() == "x" and ax.figure.axes[-1].get_ylabel().startswith("uncertainty")

@@ -13,7 +13,7 @@ robot poses               ``[P, 3]`` (x, y, heading rad, CCW     ``qlink.from_ma
 robot-frame positions     :class:`Observations`: ``[T, M, 2]``   ``pqrm.mapper(...).update``
                           + ``visible [T, M]``                   per step t
 camera bearings           :class:`Bearings`: ``bearings``,        ``qrm.mapper(...).update``
-                          ``range_rank``, ``visible`` ``[T, N]``  (``lax.scan`` over T)
+                          ``range_rank``, ``visible`` ``[T, N]``  (``protocols.run`` over T)
 occupancy grid            :class:`OccupancyGrid`: ``occupied``,  ``hssh.local_topology``
                           ``unknown`` ``[H, W]`` bool, row 0 =    (``grid``, ``unknown``)
                           top, ``cell_of(xy)``
@@ -24,7 +24,7 @@ occupancy grid            :class:`OccupancyGrid`: ``occupied``,  ``hssh.local_to
 >>> obs = io.Observations(np.array([[[1., 0.], [0., 2.], [3., 3.]]], np.float32),
 ...                       np.ones((1, 3), bool))
 >>> pq = pqrm.mapper(("edc",), num_landmarks=3, num_samples=16)
->>> s = pq.update(pq.init(), jax.random.key(0), obs.positions[0], obs.visible[0], 0.05)
+>>> s, info = pq.update(pq.init(), jax.random.key(0), obs.positions[0], obs.visible[0], 0.05)
 >>> int(s.mapped.sum())
 6
 """

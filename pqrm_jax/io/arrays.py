@@ -37,7 +37,7 @@ class Observations(NamedTuple):
 
 class Bearings(NamedTuple):
     """Camera images over T steps, field for field a stacked :class:`pqrm_jax.sim.CameraObservation`
-    (``qrm.mapper(...).update`` scans over its leading axis).
+    (``protocols.run(qrm.mapper(...), key, init, images)`` steps over its leading axis).
 
     bearings: ``[T, N]`` float32 radians in ``(-pi, pi]``, counter-clockwise from the heading.
     range_rank: ``[T, N]`` int32, 0 for the nearest visible landmark of the step, -1 unseen.
