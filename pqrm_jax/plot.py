@@ -1,21 +1,21 @@
 """Figures of the maps every system builds (matplotlib; each function returns its ``Axes``).
 
-* :func:`relational_map` — a PQRM ``MapState`` or a QRM ``QRMMap`` over its landmarks: one
+* :func:`draw_relational_map` — a PQRM ``MapState`` or a QRM ``QRMMap`` over its landmarks: one
   triangle per landmark triple, filled by the uncertainty of its relation (PQRM: entropy of
   the row in bits; QRM: log2 of the size of the state set), solid edges where the most likely
   state equals the true one, red dashes where it does not (P §2.4 map accuracy, M §VIII.A).
-* :func:`link_graph` — a Q-Link Link Graph over its landmarks (P §4.3.2): elements at the
+* :func:`draw_link_graph` — a Q-Link Link Graph over its landmarks (P §4.3.2): elements at the
   centroid of their landmarks, edges, a planned element path and a driven trajectory.
-* :func:`local_topology` — an HSSH local topology over its occupancy grid (B ch. 5–6):
+* :func:`draw_local_topology` — an HSSH local topology over its occupancy grid (B ch. 5–6):
   occupied / free / unknown cells, the pruned skeleton, gateways with outward normals.
-* :func:`topological_map` — an HSSH map hypothesis (B ch. 8–9) drawn at its layout (place
+* :func:`draw_topological_map` — an HSSH map hypothesis (B ch. 8–9) drawn at its layout (place
   poses ``[m, 3]`` from ``hssh_global.relax`` or ``true_layout``), or a spring layout.
 
 >>> import matplotlib; matplotlib.use("Agg")
 >>> import numpy as np
 >>> from pqrm_jax import plot, qrm
 >>> lm = np.array([[0., 0.], [4., 0.], [1., 3.], [5., 4.]])
->>> ax = plot.relational_map(lm, qrm.true_map(lm), calculus="edc")
+>>> ax = plot.draw_relational_map(lm, qrm.true_map(lm), calculus="edc")
 >>> ax.get_xlabel()
 'x'
 """
@@ -29,7 +29,8 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 
-__all__ = ["relational_map", "link_graph", "local_topology", "topological_map"]
+__all__ = ["draw_relational_map", "draw_link_graph", "draw_local_topology",
+           "draw_topological_map"]
 
 
 def _axes(ax: Axes | None, size=(6, 5)) -> Axes:
@@ -73,7 +74,7 @@ def _map_rows(state, calculus: str, n: int, triplets):
     return ml, np.where(mapped, h, np.nan), math.log2(q)
 
 
-def relational_map(landmarks, state, *, calculus: str = "edc", triplets=None,
+def draw_relational_map(landmarks, state, *, calculus: str = "edc", triplets=None,
                    ax: Axes | None = None, max_triangles: int = 60, title: str | None = None
                    ) -> Axes:
     """A PQRM or QRM map over its landmarks ``[N, 2]``.
@@ -126,7 +127,7 @@ def relational_map(landmarks, state, *, calculus: str = "edc", triplets=None,
     return ax
 
 
-def link_graph(landmarks, elements, graph, *, planned=None, driven=None,
+def draw_link_graph(landmarks, elements, graph, *, planned=None, driven=None,
                ax: Axes | None = None, title: str | None = None) -> Axes:
     """A Link Graph (P §4.3.2) over its landmarks.
 
@@ -169,7 +170,7 @@ def link_graph(landmarks, elements, graph, *, planned=None, driven=None,
     return ax
 
 
-def local_topology(grid, topology, *, unknown=None, robot_cell=None, ax: Axes | None = None,
+def draw_local_topology(grid, topology, *, unknown=None, robot_cell=None, ax: Axes | None = None,
                    title: str | None = None) -> Axes:
     """An HSSH local topology over its grid (B ch. 5–6), in cell coordinates (row 0 on top).
 
@@ -215,16 +216,16 @@ def local_topology(grid, topology, *, unknown=None, robot_cell=None, ax: Axes | 
     return ax
 
 
-def topological_map(hypothesis, layout=None, *, ax: Axes | None = None,
+def draw_topological_map(hypothesis, layout=None, *, ax: Axes | None = None,
                     title: str | None = None) -> Axes:
     """An HSSH map hypothesis (B ch. 8): places and corridors, drawn at ``layout`` ``[m, 3]``
     (x, y, heading of each place; e.g. a row of ``hssh_global.relax``'s ``chi``) or, when
     None, at a spring layout of its place graph (the topology alone)."""
     import networkx as nx
 
-    from .io import to_networkx
+    from .io import networkx_graph
 
-    g = to_networkx(hypothesis)
+    g = networkx_graph(hypothesis)
     m = hypothesis.n_places
     if layout is None:
         pos = nx.spring_layout(g, seed=0)

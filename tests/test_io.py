@@ -401,7 +401,7 @@ def test_bad_map_files_name_file_and_field(tmp_path, maps):
     with np.load(p) as z:
         header = json.loads(z["__header__"].tobytes())
         arrays = {k: z[k] for k in z.files if k != "__header__"}
-    for field, value, msg in [("format_version", io.FORMAT_VERSION + 1, "newer than"),
+    for field, value, msg in [("format_version", io.MAP_FORMAT_VERSION + 1, "newer than"),
                               ("format_version", "1", "field 'format_version'"),
                               ("format", "other", "field 'format'")]:
         h = dict(header, **{field: value})
@@ -431,7 +431,7 @@ def test_bad_map_files_name_file_and_field(tmp_path, maps):
 @pytest.mark.parametrize("name", ["linkgraph", "hypothesis", "local"])
 def test_graphs_to_networkx_and_graphml(maps, tmp_path, name):
     kw = {"elements": maps["elements"]} if name == "linkgraph" else {}
-    g = io.to_networkx(maps[name], **kw)
+    g = io.networkx_graph(maps[name], **kw)
     assert isinstance(g, nx.Graph) and g.number_of_nodes() > 0
     p = io.write_graphml(maps[name], tmp_path / f"{name}.graphml", **kw)
     h = nx.read_graphml(p)
@@ -444,4 +444,4 @@ def test_graphs_to_networkx_and_graphml(maps, tmp_path, name):
         hyp = maps["hypothesis"]
         assert g.number_of_nodes() == hyp.n_places
     with pytest.raises(TypeError, match="no graph view"):
-        io.to_networkx(maps["qrm"])
+        io.networkx_graph(maps["qrm"])

@@ -44,16 +44,16 @@ def test_pqrm_and_qrm_maps(tmp_path):
     for t in range(3):
         noisy = lm + np.random.default_rng(t).normal(0, 0.5, lm.shape).astype(np.float32)
         s, _ = pq.update(s, jax.random.key(t), jnp.asarray(noisy), jnp.ones(n, bool), 0.5)
-    ax = plot.relational_map(lm, s, calculus="edc", max_triangles=56)
+    ax = plot.draw_relational_map(lm, s, calculus="edc", max_triangles=56)
     assert "PQRM map (edc): 56 triples mapped" in ax.get_title()
     assert ax.get_xlabel() == "x" and ax.figure.axes[-1].get_ylabel().startswith("uncertainty")
     _save(ax, tmp_path, "pqrm_map")
     # the true QRM map: every relation certain and correct -> no red triangle, 0 bits
-    ax = plot.relational_map(lm, qrm.true_map(jnp.asarray(lm), "edc"), calculus="edc")
+    ax = plot.draw_relational_map(lm, qrm.true_map(jnp.asarray(lm), "edc"), calculus="edc")
     assert "ML state correct 100%" in ax.get_title() and not _lines(ax, "tab:red")
     _save(ax, tmp_path, "qrm_true_map")
     # an empty QRM map: every relation open -> every triangle red (no unique state)
-    ax = plot.relational_map(lm, qrm.empty_map(n, "edc"), calculus="edc", max_triangles=10)
+    ax = plot.draw_relational_map(lm, qrm.empty_map(n, "edc"), calculus="edc", max_triangles=10)
     assert len(_lines(ax, "tab:red")) == 10 and "correct 0%" in ax.get_title()
     plt.close(ax.figure)
 
@@ -69,7 +69,7 @@ def test_link_graph_with_planned_and_driven_path(tmp_path):
     path = np.asarray(plan.path[0])
     ids = np.asarray(el.ids)[path[path >= 0]]
     driven = np.vstack([lm[0] + [0.3, 0.3], lm[ids].mean(1), lm[7] - [0.3, 0.3]])
-    ax = plot.link_graph(lm, el, g, planned=plan.path[0], driven=driven)
+    ax = plot.draw_link_graph(lm, el, g, planned=plan.path[0], driven=driven)
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any(lbl.startswith("planned path") for lbl in labels) and "driven path" in labels
     _save(ax, tmp_path, "link_graph")
@@ -78,7 +78,7 @@ def test_link_graph_with_planned_and_driven_path(tmp_path):
 def test_local_topology_over_the_ros_map(tmp_path):
     g = io.load_ros_map(DATA / "t_junction.yaml")
     lt = hssh.local_topology(g.occupied, (9, 22), unknown=g.unknown)
-    ax = plot.local_topology(g.occupied, lt, unknown=g.unknown, robot_cell=(9, 22))
+    ax = plot.draw_local_topology(g.occupied, lt, unknown=g.unknown, robot_cell=(9, 22))
     assert len(_lines(ax, "tab:red")) == 3  # three gateways
     assert "place, 2 paths" in ax.get_title() and ax.get_xlabel() == "column (cells)"
     _save(ax, tmp_path, "local_topology")
@@ -90,11 +90,11 @@ def test_topological_map_with_and_without_layout(tmp_path):
     log = hg.build_tree(e)
     h = next(x for x in log.leaves if hg.is_true_map(x, e))
     lay = hg.true_layout(w, e)
-    ax = plot.topological_map(h, lay)
+    ax = plot.draw_topological_map(h, lay)
     assert f"{h.n_places} places" in ax.get_title() and ax.get_xlabel() == "x"
     np.testing.assert_allclose(ax.collections[1].get_offsets(), lay[:, :2])
     _save(ax, tmp_path, "topological_map")
-    ax = plot.topological_map(h)
+    ax = plot.draw_topological_map(h)
     assert ax.get_xlabel().startswith("layout x")
     _save(ax, tmp_path, "topological_map_spring")
 
@@ -102,4 +102,4 @@ def test_topological_map_with_and_without_layout(tmp_path):
 def test_bad_calculus_name_is_refused():
     lm = io.load_landmarks(DATA / "landmarks.csv")
     with pytest.raises((ValueError, KeyError)):
-        plot.relational_map(lm, qrm.true_map(jnp.asarray(lm), "edc"), calculus="nope")
+        plot.draw_relational_map(lm, qrm.true_map(jnp.asarray(lm), "edc"), calculus="nope")

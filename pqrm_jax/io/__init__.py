@@ -38,10 +38,18 @@ from .arrays import (
     load_observations,
     load_poses,
 )
-from .maps import FORMAT, FORMAT_VERSION, load_map, map_kind, save_map, to_networkx, write_graphml
+from .maps import (
+    MAP_FORMAT,
+    MAP_FORMAT_VERSION,
+    load_map,
+    map_kind,
+    networkx_graph,
+    save_map,
+    write_graphml,
+)
 from .rosmap import OccupancyGrid, load_ros_map, read_pgm, write_ros_map
 
 __all__ = ["Bearings", "DataError", "Observations", "load_bearings", "load_landmarks",
-           "load_observations", "load_poses", "FORMAT", "FORMAT_VERSION", "load_map",
-           "map_kind", "save_map", "to_networkx", "write_graphml", "OccupancyGrid",
+           "load_observations", "load_poses", "MAP_FORMAT", "MAP_FORMAT_VERSION", "load_map",
+           "map_kind", "save_map", "networkx_graph", "write_graphml", "OccupancyGrid",
            "load_ros_map", "read_pgm", "write_ros_map"]

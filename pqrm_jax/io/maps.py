@@ -25,11 +25,11 @@ import numpy as np
 
 from .arrays import DataError
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "save_map", "load_map", "map_kind", "to_networkx",
-           "write_graphml"]
+__all__ = ["MAP_FORMAT", "MAP_FORMAT_VERSION", "save_map", "load_map", "map_kind",
+           "networkx_graph", "write_graphml"]
 
-FORMAT = "pqrm-jax-map"
-FORMAT_VERSION = 1
+MAP_FORMAT = "pqrm-jax-map"
+MAP_FORMAT_VERSION = 1
 
 
 def _is_jax(x) -> bool:
@@ -160,7 +160,7 @@ def save_map(path: str | Path, obj) -> Path:
         raise ValueError(f"path must end in .npz, got {str(p)!r}")
     arrays: dict = {}
     tree = _encode(obj, arrays)
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION,
+    header = {"format": MAP_FORMAT, "format_version": MAP_FORMAT_VERSION,
               "kind": tree["cls"] if isinstance(tree, dict) and tree.get("t") == "nt"
               else type(obj).__name__, "pqrm_jax_version": __version__, "tree": tree}
     raw = np.frombuffer(json.dumps(header).encode(), np.uint8)
@@ -186,15 +186,15 @@ def _open(path: Path):
             arrays = {k: z[k] for k in z.files if k != "__header__"}
         except (ValueError, UnicodeDecodeError, OSError) as e:
             raise DataError(f"{path}: damaged file ({e})") from None
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
+    if not isinstance(header, dict) or header.get("format") != MAP_FORMAT:
         raise DataError(f"{path}: field 'format' is {header.get('format')!r}, "
-                        f"expected {FORMAT!r}")
+                        f"expected {MAP_FORMAT!r}")
     v = header.get("format_version")
     if not isinstance(v, int) or v < 1:
         raise DataError(f"{path}: field 'format_version' is {v!r}")
-    if v > FORMAT_VERSION:
+    if v > MAP_FORMAT_VERSION:
         raise DataError(f"{path}: field 'format_version' is {v}, newer than this pqrm-jax "
-                        f"reads ({FORMAT_VERSION}); upgrade pqrm-jax")
+                        f"reads ({MAP_FORMAT_VERSION}); upgrade pqrm-jax")
     return header, arrays
 
 
@@ -218,7 +218,7 @@ def load_map(path: str | Path, kind: str | None = None):
     return _decode(header.get("tree"), arrays, str(p))
 
 
-def to_networkx(obj, **kwargs) -> nx.Graph:
+def networkx_graph(obj, **kwargs) -> nx.Graph:
     """A networkx graph of a map: ``LinkGraph`` (elements via ``elements=``), ``MapHypothesis``
     (places; edge attributes ``gate`` and ``arrive``), ``LocalTopology`` (its pruned skeleton
     tree), or a graph returned unchanged."""
@@ -251,9 +251,9 @@ def _graphml_value(v):
 
 
 def write_graphml(obj, path: str | Path, **kwargs) -> Path:
-    """Write :func:`to_networkx` of ``obj`` as GraphML (tuple nodes and non-scalar attributes
+    """Write :func:`networkx_graph` of ``obj`` as GraphML (tuple nodes and non-scalar attributes
     become JSON strings, which GraphML can hold)."""
-    g = to_networkx(obj, **kwargs)
+    g = networkx_graph(obj, **kwargs)
     h = g.__class__()
     h.graph.update({k: _graphml_value(v) for k, v in g.graph.items()})
     name = {n: (n if isinstance(n, int | str) else json.dumps(n, default=str)) for n in g}

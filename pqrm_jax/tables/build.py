@@ -488,6 +488,12 @@ def neighbor_distance(adjacency: np.ndarray) -> np.ndarray:
     Breadth-first search from every state, ``scipy.sparse.csgraph.shortest_path`` (unweighted,
     directed as given).
 
+    Args:
+        adjacency: ``[Q, Q]`` bool, ``adjacency[i, j]`` = an edge i → j.
+
+    Returns:
+        ``[Q, Q]`` int32 hop counts, ``-1`` where j cannot be reached from i.
+
     >>> neighbor_distance(np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0]], bool)).tolist()
     [[0, 1, -1], [1, 0, -1], [-1, -1, 0]]
     """

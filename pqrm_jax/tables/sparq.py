@@ -145,6 +145,9 @@ def identity_relation(tables: OperatorTables) -> tuple[int, bool]:
     converse-based ``analyze-calculus test-algebra``); its ternary composition, closure and
     scenario commands never read it, so the placeholder changes no ternary result.
 
+    Args:
+        tables: the calculus's tables.
+
     Returns:
         ``(index, True)`` for a true identity, ``(index, False)`` for the placeholder.
     """
@@ -157,8 +160,15 @@ def identity_relation(tables: OperatorTables) -> tuple[int, bool]:
 
 
 def conceptual_neighbours(tables: OperatorTables) -> list[list[int]]:
-    """SparQ's ``:cnhs`` rows: for each state, its conceptual neighbours (``tables.adjacency``
-    without the diagonal), as state indices in state order."""
+    """SparQ's ``:cnhs`` rows: each state's conceptual neighbours (P §2.3.1).
+
+    Args:
+        tables: the calculus's tables.
+
+    Returns:
+        for every state, its neighbours (``tables.adjacency`` without the diagonal) as state
+        indices in state order.
+    """
     adj = np.asarray(tables.adjacency, bool)
     return [[int(j) for j in np.flatnonzero(adj[i]) if j != i] for i in range(adj.shape[0])]
 
