@@ -475,15 +475,30 @@ def chunk_rows(out, dt: float, envs: list, ids: list[int]) -> list[dict]:
 
 
 # -------------------------------------------------------------------------------- analysis
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson interval of a binomial proportion."""
+def wilson(k: int, n: int) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial proportion (``scipy.stats.binomtest``)."""
     if n == 0:
         return (float("nan"), float("nan"))
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (float(c - h), float(c + h))
+    from scipy.stats import binomtest
+    ci = binomtest(int(k), int(n)).proportion_ci(0.95, method="wilson")
+    return (float(ci.low), float(ci.high))
+
+
+def paired_bootstrap(wo: np.ndarray, wi: np.ndarray, rng: np.random.Generator,
+                     n_resamples: int = 2000) -> tuple[tuple[float, float], tuple[float, float]]:
+    """95 % percentile intervals of ``mean(wi) / mean(wo)`` and ``mean(wo - wi)`` from one
+    paired bootstrap (``scipy.stats.bootstrap``, ``paired=True``; both statistics see the
+    same resamples)."""
+    from scipy.stats import bootstrap
+
+    def stat(a, b, axis=-1):
+        return np.stack([b.mean(axis) / np.maximum(a.mean(axis), 1e-12),
+                         (a - b).mean(axis)])
+
+    res = bootstrap((wo, wi), stat, paired=True, n_resamples=n_resamples,
+                    method="percentile", confidence_level=0.95, rng=rng)
+    lo, hi = res.confidence_interval
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
 
 
 def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
@@ -518,18 +533,11 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
         wo = np.array([by[e, "without", cost]["executed_cost"] for e in diff])
         wi = np.array([by[e, "with", cost]["executed_cost"] for e in diff])
         if k >= 2:
-            boots = []
-            dboot = []
-            for _ in range(2000):
-                s = rng.integers(0, k, k)
-                boots.append(wi[s].mean() / max(wo[s].mean(), 1e-12))
-                dboot.append((wo[s] - wi[s]).mean())
+            ratio_ci, diff_ci = paired_bootstrap(wo, wi, rng)
             res[f"cost{cost}_without"] = float(wo.mean())
             res[f"cost{cost}_with"] = float(wi.mean())
-            res[f"cost{cost}_ratio"] = (float(wi.mean() / max(wo.mean(), 1e-12)),
-                                        *np.percentile(boots, [2.5, 97.5]).tolist())
-            res[f"cost{cost}_paired_diff"] = (float((wo - wi).mean()),
-                                              *np.percentile(dboot, [2.5, 97.5]).tolist())
+            res[f"cost{cost}_ratio"] = (float(wi.mean() / max(wo.mean(), 1e-12)), *ratio_ci)
+            res[f"cost{cost}_paired_diff"] = (float((wo - wi).mean()), *diff_ci)
         else:
             res[f"cost{cost}_without"] = res[f"cost{cost}_with"] = float("nan")
             res[f"cost{cost}_ratio"] = (float("nan"),) * 3
