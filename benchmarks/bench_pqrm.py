@@ -17,7 +17,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi, pqrm
@@ -56,7 +56,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--triplets", type=int, default=7200, help="N (10 maps of 10 landmarks)")
     ap.add_argument("--samples", type=int, default=1024, help="S per triplet")
-    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "pqrm.json"))
+    ap.add_argument("--out", "--json", dest="json",
+                    default=str(Path(__file__).parent / "results" / "pqrm.json"))
     ap.add_argument("--study-runs", type=int, default=50,
                     help="runs for the padgett-mc per-run comparison (0: skip)")
     args = ap.parse_args(argv)
@@ -100,11 +101,9 @@ def main(argv=None) -> int:
     }
     if args.study_runs:
         res["study_step"] = _study_step(args.study_runs)
-    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(res, indent=2))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+        write_result(res, args.json)  # + env: where it ran; timings with CPU time
     return 0
 
 

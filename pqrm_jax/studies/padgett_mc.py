@@ -44,7 +44,7 @@ HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
-NUMERICS_VERSION = 2  # bump when the map's floating-point results change (see Config notes)
+NUMERICS_VERSION = 3  # bump when the map's floating-point results change (see Config notes)
 
 
 @dataclasses.dataclass
@@ -89,6 +89,10 @@ class Config:
                         "(common random numbers); fresh bank every update",
             "numerics": "2 = power-of-two rescaled EDC kernel and a fixed-order Bayes "
                         "normaliser (entropy and p_ml differ from version 1 in the last bits); "
+                        "3 = no FMA contraction in that normaliser, so the sparse runner "
+                        "equals the dense reference bit for bit (probabilities of lr, "
+                        "single/double/triple_cross differ from version 2 by a few ulps; "
+                        "counts, EDC and discrete metrics unchanged); "
                         "a directory written by another version is refused, not mixed",
         }
         return d
@@ -276,6 +280,18 @@ FALLBACK_CHUNK = 250  # runs per call when neither the device nor the OS reports
 _AOT: dict = {}
 
 
+def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
+    """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached."""
+    _, batched, sharding = compiled_runner(cfg, dense=dense)
+    key = (id(batched), chunk)
+    if key not in _AOT:
+        if len(_AOT) > 4:
+            _AOT.clear()
+        keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
+        _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
+    return _AOT[key][1], sharding
+
+
 def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
                   memory_bytes: int | None = None):
     """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached.
@@ -287,14 +303,7 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
     """
     from . import chunking
 
-    _, batched, sharding = compiled_runner(cfg, dense=dense)
-    key = (id(batched), chunk)
-    if key not in _AOT:
-        if len(_AOT) > 4:
-            _AOT.clear()
-        keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
-        _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
-    compiled = _AOT[key][1]
+    compiled, sharding = _compiled_chunk(cfg, chunk, dense=dense)
     chunking.check_fits(chunking.program_bytes(compiled), chunking.budget(memory_bytes),
                         option="--chunk-runs",
                         what=f"{NAME}: a chunk of {chunk} runs "
@@ -305,21 +314,30 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
 def auto_chunk_runs(cfg: Config, *, memory_bytes: int | None = None) -> int:
     """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
 
-    One run's bytes are bounded by the compiled program of :data:`PROBE_LANES` run per device
-    (XLA's memory analysis; its fixed part counted for every run, so ``n`` runs need at most
-    ``n`` times it), then
+    First the program of every run in one call (``cfg.runs`` rounded up to the devices) is
+    compiled — the program the study then runs, so in the usual case nothing else is
+    compiled — and taken when XLA's memory analysis puts it within
+    :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget. Otherwise one run's bytes are
+    bounded by the compiled program of :data:`PROBE_LANES` run per device (its fixed part
+    counted for every run, so ``n`` runs need at most ``n`` times it), and
     :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of runs per
-    device that fits, capped at ``cfg.runs``. Without memory figures (no device statistics,
-    no OS figure) it falls back to :data:`FALLBACK_CHUNK`.
+    device that fits. Without memory figures (no device statistics, no OS figure) it falls
+    back to :data:`FALLBACK_CHUNK`.
     """
     from . import chunking
 
     ndev = len(jax.local_devices())
+    whole = -(-cfg.runs // ndev) * ndev
+    budget = chunking.budget(memory_bytes)
+    full = dataclasses.replace(cfg, chunk_runs=whole)
+    nbytes = chunking.program_bytes(_compiled_chunk(full, whole)[0])
+    if nbytes is not None and budget is not None and nbytes <= chunking.FRACTION * budget:
+        return whole
     per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
     probe = dataclasses.replace(cfg, chunk_runs=per_device * ndev)
     compiled, _ = chunk_program(probe, per_device * ndev, memory_bytes=memory_bytes)
     nbytes = chunking.program_bytes(compiled)
-    chunk = chunking.fit(nbytes and nbytes / per_device, chunking.budget(memory_bytes),
+    chunk = chunking.fit(nbytes and nbytes / per_device, budget,
                          total=cfg.runs, devices=ndev, option="--chunk-runs")
     return FALLBACK_CHUNK if chunk is None else chunk
 
