@@ -153,3 +153,19 @@ def test_path_consistency_per_problem_exit_equals_all_rounds(q, p, density, roun
                                                 max_rounds=cap)
         want = _closure_all_rounds(left, right, inverse, compose, problems, max_rounds=cap)
         np.testing.assert_array_equal(got, want)
+
+
+@settings(max_examples=10, deadline=None, derandomize=True)
+@given(st.integers(0, 2**31 - 1), st.floats(0.0, 30.0), st.integers(1, 40))
+def test_numpy_fused_baseline_counts_equal_the_kernel(seed, sigma_max, n):
+    """bench_pqrm's vectorised NumPy baseline computes the kernel's counts (same draws)."""
+    from pqrm_jax import pqrm
+    from pqrm_jax.pqrm import measurement, reference
+
+    rng = np.random.default_rng(seed)
+    means = rng.uniform(-50, 50, (n, 3, 2)).astype(np.float32)
+    sigma = rng.uniform(0, sigma_max, (n, 3)).astype(np.float32)
+    key = jax.random.key(seed)
+    counts = np.asarray(pqrm.fine_counts(key, "edc", means, sigma, 300))
+    z = np.asarray(measurement.sample_bank(key, 300, np.float32)).reshape(-1, 3, 2)[:300]
+    np.testing.assert_array_equal(reference.numpy_fused_counts(means, sigma, z), counts)

@@ -18,8 +18,11 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
 
@@ -280,16 +283,20 @@ FALLBACK_CHUNK = 250  # runs per call when neither the device nor the OS reports
 _AOT: dict = {}
 
 
+_LOCK = threading.Lock()  # levels run side by side (level_workers): compile once
+
+
 def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
     """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached."""
-    _, batched, sharding = compiled_runner(cfg, dense=dense)
-    key = (id(batched), chunk)
-    if key not in _AOT:
-        if len(_AOT) > 4:
-            _AOT.clear()
-        keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
-        _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
-    return _AOT[key][1], sharding
+    with _LOCK:
+        _, batched, sharding = compiled_runner(cfg, dense=dense)
+        key = (id(batched), chunk)
+        if key not in _AOT:
+            if len(_AOT) > 4:
+                _AOT.clear()
+            keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
+            _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
+        return _AOT[key][1], sharding
 
 
 def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
@@ -529,6 +536,23 @@ def resolve_chunk(cfg: Config, out: Path, *, fresh: bool = False, cluster=None,
     return dataclasses.replace(cfg, chunk_runs=chunk)
 
 
+def level_workers(cluster=None) -> int:
+    """Noise levels computed side by side by :func:`run_study`: 2 on a CPU host with at least
+    two cores and one process, else 1.
+
+    XLA's CPU code keeps about 1.6 of 2 cores busy on one level (many small kernels per step);
+    two levels at once fill them (each level is the same program on its own keys, so the
+    results are those of one level at a time, bit for bit; the files are written in level
+    order). Not with several processes (their collectives must run in one order) nor on an
+    accelerator (one device runs one program at a time).
+    """
+    if cluster is not None and cluster.distributed:
+        return 1
+    if jax.default_backend() != "cpu":
+        return 1
+    return 2 if (os.cpu_count() or 1) >= 2 else 1
+
+
 def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = False,
               store=None, cluster=None, memory_bytes: int | None = None) -> list[dict]:
     """Run (or resume) the study into ``out``; returns the level summaries.
@@ -570,14 +594,24 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
         bar = tqdm(total=len(todo) * cfg.runs, desc="padgett-mc runs", unit="run",
                    disable=quiet or not cluster.is_main, file=sys.stderr)
         t0 = time.perf_counter()
-        for i in todo:
-            bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-            res = run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster,
-                            memory_bytes=memory_bytes)
-            if cluster.is_main:
-                line, arrays = summarise_level(cfg, levels[i], res, i)
-                st.write_npz(f"level_{i:02d}.npz", arrays)
-                log.add(line)
+
+        def compute(i):
+            return run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster,
+                             memory_bytes=memory_bytes)
+
+        workers = level_workers(cluster)
+        pool = ThreadPoolExecutor(workers) if workers > 1 else None
+        try:
+            results = pool.map(compute, todo) if pool else map(compute, todo)
+            for i, res in zip(todo, results, strict=True):  # in level order
+                bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
+                if cluster.is_main:
+                    line, arrays = summarise_level(cfg, levels[i], res, i)
+                    st.write_npz(f"level_{i:02d}.npz", arrays)
+                    log.add(line)
+        finally:
+            if pool:
+                pool.shutdown(cancel_futures=True)
         bar.close()
         elapsed = time.perf_counter() - t0
         if not cluster.is_main:
@@ -696,5 +730,5 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 __all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk_runs",
-           "resolve_chunk", "chunk_program", "summarise_level", "memory_error", "load_results",
-           "main", "boundary_distance"]
+           "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
+           "load_results", "main", "boundary_distance"]
