@@ -1,7 +1,7 @@
 """JAX's persistent compilation cache for the ``pqrm-jax`` command (warm starts).
 
 A study or table build compiles its programs once per process; with the cache on, a second
-process loads them from disk instead of compiling (docs/benchmarks.md §warm starts). The
+process loads them from disk instead of compiling (docs/benchmarks.md §warm-starts). The
 ``pqrm-jax`` command turns it on by default (:func:`enable`); library calls and the tests
 leave JAX's own setting alone.
 
