@@ -39,6 +39,12 @@ def default_location() -> Path:
 def location(environ: dict | None = None) -> Path | None:
     """The cache directory :func:`enable` would use, or None when it is turned off.
 
+    Args:
+        environ: the environment to read (default ``os.environ``).
+
+    Returns:
+        The directory, or None.
+
     >>> location({"PQRM_JAX_COMPILE_CACHE": "off"}) is None
     True
     >>> str(location({"PQRM_JAX_COMPILE_CACHE": "/tmp/c"}))
@@ -61,6 +67,12 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
     ``path`` overrides the environment. A directory JAX was already given (its own variable or
     config) is kept. A directory that cannot be created turns the cache off with a warning
     (the command still runs, compiling as before).
+
+    Args:
+        path: the cache directory (default: :func:`location`).
+
+    Returns:
+        The directory in use, or None when the cache is off.
     """
     import jax
 

@@ -81,6 +81,13 @@ def truth_rank(probs: jax.Array, truth: jax.Array) -> jax.Array:
     of ``truth`` in ``jnp.argsort(-probs, stable=True)`` for every input, at O(Q) per row and
     without a sort. A truth outside ``[0, Q)`` gives 0 (the metrics mask it out).
 
+    Args:
+        probs: [T, Q] map rows.
+        truth: [T] int true state per row.
+
+    Returns:
+        [T] int32 ranks (0: the truth is the ML state).
+
     >>> print(truth_rank(jnp.array([[0.1, 0.5, 0.1, 0.3]]), jnp.array([2])))  # 0.5, 0.3, tie 0
     [3]
     """

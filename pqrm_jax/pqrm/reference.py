@@ -81,6 +81,14 @@ def numpy_fused_counts(means: np.ndarray, sigma, z: np.ndarray) -> np.ndarray:
     ``np.bincount``, in float32 without the power-of-two rescaling (the same counts at ordinary
     scales). Written from docs/decisions.md §2.1 (the key layout is the kernel's
     ``key_to_edc_state``), not from the JAX code.
+
+    Args:
+        means: [N, 3, 2] measured positions of A, B, C.
+        sigma: noise std, scalar, [N] or [N, 3].
+        z: [S, 3, 2] standard-normal bank shared by the rows.
+
+    Returns:
+        [N, 20] int64 counts of the EDC states (rejected samples in none).
     """
     from .measurement import key_to_edc_state
 

@@ -547,6 +547,12 @@ def level_workers(cluster=None) -> int:
     results are those of one level at a time, bit for bit; the files are written in level
     order). Not with several processes (their collectives must run in one order) nor on an
     accelerator (one device runs one program at a time).
+
+    Args:
+        cluster: the :mod:`.distributed` cluster (None: one process).
+
+    Returns:
+        1 or 2.
     """
     if cluster is not None and cluster.distributed:
         return 1
