@@ -41,7 +41,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
@@ -284,7 +284,8 @@ def main() -> int:
     ap.add_argument("--chunks", type=int, nargs="+", default=[1, 4, 16, 64, 128])
     ap.add_argument("--depth", type=int, default=2)
     ap.add_argument("--samples", type=int, default=600, help="model samples per cell")
-    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "bsp.json"))
+    ap.add_argument("--out", "--json", dest="out",
+                    default=str(Path(__file__).parent / "results" / "bsp.json"))
     a = ap.parse_args()
     sizes = a.envs or ([32] if a.quick else [128, 1024])
     models = M.load_models(M.ModelParams(samples=a.samples, pool=1 << 18, seed=3))
@@ -297,10 +298,8 @@ def main() -> int:
            "overheads": overheads(models, D1, bels[:64], fgs[:64], goals[:64], pp),
            "runs": [bench(models, D1, bels[:n], fgs[:n], goals[:n], pp, a.chunks)
                     for n in sizes]}
-    res["env"] = device_info()  # backend, device kind, load average (benchmarks/_env.py)
     print(json.dumps(res, indent=1))
-    Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.json).write_text(json.dumps(res, indent=1))
+    write_result(res, a.out)  # + env: where it ran, load; timings with CPU time
     return 0
 
 
