@@ -178,9 +178,11 @@ def test_local_visibility_equals_testing_every_landmark(cases):
         sim.occluder_table(np.zeros((3, 2)), 1.0, -0.1)
 
 
-def test_plan_from_neighbour_lists_match_the_dense_walk():
-    # plan_from walks padded adjacency lists; a NumPy walk over the dense [E, E] matrix
-    # (argmin of cost + cost-to-go, ties to the smaller index) gives the same paths
+def test_plan_from_matches_the_dense_walk_and_is_optimal():
+    # unit costs: plan_from follows the recorded successors, which equal a NumPy walk over
+    # the dense [E, E] matrix (argmin of cost + cost-to-go, ties to the smaller index);
+    # other costs (ties broken either way): every path is simple, ends at the goal and costs
+    # exactly the cost-to-go of its first element
     rng = np.random.default_rng(6)
     lm = jnp.asarray(rng.uniform(0, 40, (25, 2)))
     vis = np.asarray(jax.vmap(sim.visibility, (0, None, None))(
@@ -191,27 +193,34 @@ def test_plan_from_neighbour_lists_match_the_dense_walk():
     for cost in (None, rng.integers(1, 4, (e, e)).astype(float)):
         g = lg.link_graph(el, 2, cost)
         lms = np.flatnonzero(qel.incidence(el).any(1))
-        to_go = np.asarray(lg.goal_distances(g, el, lms), np.float32)
+        table = lg.goal_distances(g, el, lms)
+        to_go = np.asarray(table.cost)
         rows = rng.integers(0, len(lms), 64)
         cands = rng.integers(-1, e, (64, 5))
         cands[:, 0] = rng.integers(0, e, 64)
-        plan = lg.plan_from(g, to_go, rows, cands, 40)
-        dense = np.where(g.adjacency, g.cost, np.inf).astype(np.float32)
+        plan = lg.plan_from(g, table, rows, cands, 40)
+        dense = np.where(g.adjacency, g.cost, np.inf)
         for i in range(64):
             d = to_go[rows[i]]
             c = cands[i][cands[i] >= 0]
             u = int(c[np.argmin(d[c])])
-            want = []
-            if np.isfinite(d[u]):
+            got = np.asarray(plan.path[i])
+            got = got[got >= 0].tolist()
+            assert int(plan.n_elements[i]) == len(got)
+            if not np.isfinite(d[u]):
+                assert got == [] and not bool(plan.reachable[i])
+                continue
+            assert got[0] == u and len(set(got)) == len(got)
+            assert lms[rows[i]] in ids[got[-1]]
+            assert lg.path_cost(g, np.array(got)) == pytest.approx(d[u], rel=1e-6)
+            if cost is None:
                 want = [u]
                 while d[u] > 0:
                     row = dense[u] + d
                     row[u] = np.inf
                     u = int(np.argmin(row))
                     want.append(u)
-            got = np.asarray(plan.path[i])
-            assert got[got >= 0].tolist() == want
-            assert int(plan.n_elements[i]) == len(want)
+                assert got == want
 
 
 def test_results_do_not_depend_on_the_batch_or_lanes(world):
@@ -275,6 +284,7 @@ def test_unreachable_goal_is_reported_not_failed():
                            np.arange(8), nav.start_tables(el), [0, 0], [3, 7], p)
     assert r.reachable.tolist() == [True, False]
     assert int(r.status[0]) == nav.SUCCESS and int(r.n_elements[1]) == 0
+    assert int(r.status[1]) == nav.UNREACHABLE           # its own status, not "running"
 
 
 @pytest.mark.slow

@@ -34,6 +34,7 @@ import numpy as np
 from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
+from .checks import validate
 from .elements import ORDERINGS, MapElements, co_observed_triplets, fuse, ordering_index
 from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS, where_tree
 
@@ -88,9 +89,18 @@ def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigm
     Returns:
         ``(map, landmarks [N + 2, 2] (walls at their midpoints), visible [P, N + 2])``.
     """
+    if np.shape(walls) != (2, 2, 2):
+        raise ValueError(f"walls must have shape (2, 2, 2), got {np.shape(walls)}")
+    validate(landmarks=np.concatenate([np.asarray(points, np.float64),
+                                       np.asarray(walls, np.float64).mean(1)]),
+             landmarks_name="points and wall midpoints",
+             finite={"walls": np.asarray(walls), "poses": np.asarray(poses)},
+             positive={"max_range": max_range, "num_samples": num_samples,
+                       "max_obs": max_obs},
+             nonnegative={"sigma": sigma, "floor": floor})
+    if max_side is not None:
+        validate(positive={"max_side": max_side})
     points, walls = jnp.asarray(points), jnp.asarray(walls)
-    if walls.shape != (2, 2, 2):
-        raise ValueError(f"walls must have shape (2, 2, 2), got {walls.shape}")
     n = points.shape[0]
     lm = jnp.concatenate([points, walls.mean(1)])
     k_obs, k_map = jax.random.split(key)
@@ -200,6 +210,7 @@ def hybrid_costs(hmap: HybridMap, beta: int, models, tables=None):
     """
     from .linkgraph import shared_counts
 
+    validate(elements=hmap.elements, elements_name="hmap.elements", beta=beta)
     ids = np.asarray(hmap.elements.ids)
     probs = np.asarray(hmap.elements.probs)
     tables = qsr_tables(hmap, models) if tables is None else tables
@@ -467,15 +478,17 @@ def drive(keys, hmap: HybridMap, landmarks, walls, paths, n_elements, refs, posi
         ValueError: ``nav_range <= 0``, ``p_miss`` outside [0, 1], a trial without a path,
             NaN positions.
     """
-    if not (np.isfinite(params.nav_range) and params.nav_range > 0):
-        raise ValueError(f"nav_range must be positive and finite, got {params.nav_range}")
-    if not 0.0 <= params.p_miss <= 1.0:
-        raise ValueError(f"p_miss must lie in [0, 1], got {params.p_miss}")
-    n_elements = np.asarray(n_elements, np.int32)
-    if np.any(n_elements < 1):
-        raise ValueError("every trial needs a planned path (|P| >= 1)")
-    if not np.all(np.isfinite(np.asarray(positions))):
-        raise ValueError("start positions contain NaN or inf values")
+    validate(positive={"params.nav_range": params.nav_range},
+             nonnegative={"params.sigma": params.sigma, "params.p_miss": params.p_miss},
+             finite={"positions": np.asarray(positions)},
+             landmarks=np.asarray(landmarks), elements=hmap.elements,
+             elements_name="hmap.elements")
+    if not params.p_miss <= 1.0:
+        raise ValueError(f"params.p_miss must lie in [0, 1], got {params.p_miss!r}")
+    n_elements = np.asarray(n_elements)
+    validate(paths=(np.asarray(paths), n_elements, np.asarray(hmap.elements.ids).shape[0],
+                    len(n_elements)))
+    n_elements = n_elements.astype(np.int32)
     p = HybridParams(*(float(x) for x in params))
     lm = jnp.asarray(landmarks, jnp.float32)
     # pad the batch to a power of two and the path width to a multiple of 8 (few compiles;

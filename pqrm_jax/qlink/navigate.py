@@ -38,6 +38,7 @@ from .. import calculi
 from .. import sim as _sim
 from . import pomdp as _pomdp
 from . import trajectory as tr
+from .checks import validate
 from .elements import MapElements, ordering_index
 
 __all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
@@ -46,12 +47,20 @@ __all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "
 
 RUNNING, SUCCESS = 0, 1
 LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
+UNREACHABLE = 7
 FAILURE_REASONS = {RUNNING: "running", SUCCESS: "success", LINK_NOT_FOUND: "link_not_found",
                    REFS_NOT_FOUND: "refs_not_found", START_NOT_LOCALIZED: "start_not_localized",
-                   GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget"}
-"""Status codes of :class:`NavResult`."""
+                   GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget",
+                   UNREACHABLE: "unreachable"}
+"""Status codes of :class:`NavResult` and :class:`PairResult` (``unreachable``: localised,
+but no Link Graph path leads from the elements in view to the goal)."""
 
-PLAN, ARC, CIRCLE = 0, 1, 2
+SENSING = ("step", "epoch")
+"""Sensing models (docs/qlink.md §sensing): ``step`` senses after every rover step; ``epoch``
+senses during the QSR search only at its decision epochs (the plan step and the end of each
+quarter arc), the circle searches still every step."""
+
+PLAN, ARC, CIRCLE, LOOK = 0, 1, 2, 3
 
 
 class NavParams(NamedTuple):
@@ -67,6 +76,8 @@ class NavParams(NamedTuple):
     start_offset: start pose distance from the start landmark.
     circle_only: 1.0 = skip the QSR search and circle a reference that is a link landmark
         whenever there is one (the strategy of Prop. 2, P §4.3.4); 0.0 = Q-Link's QSR search.
+    sense_epochs: 1.0 = the ``epoch`` sensing model (:data:`SENSING`): along a QSR arc the
+        robot looks only at the arc's end; 0.0 = ``step`` (after every step).
     """
 
     map_range: float
@@ -78,6 +89,7 @@ class NavParams(NamedTuple):
     circle_margin: float = 0.999
     start_offset: float = 1.0
     circle_only: float = 0.0
+    sense_epochs: float = 0.0
 
 
 class NavResult(NamedTuple):
@@ -213,7 +225,9 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         nxt = path[jnp.clip(s.k + 1, 0, path.shape[0] - 1)]
         members = jnp.where(goal_stage, -1, ids[jnp.maximum(nxt, 0)])       # [3]
         targets = jnp.concatenate([members, jnp.stack([goal, s.e])])
-        vis = _sense(pos, landmarks, targets, occ_tab, params, occlusion)
+        epochs = params.sense_epochs > 0.5
+        look = ~epochs | (s.phase != ARC)      # epoch model: blind while driving an arc
+        vis = _sense(pos, landmarks, targets, occ_tab, params, occlusion) & look
         vm, g_vis, e_vis = vis[:3], vis[3], vis[4]
         # --- event A: goal reached
         done_goal = goal_stage & g_vis
@@ -230,7 +244,7 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         s_trans = s._replace(k=s.k + 1, refs=new_refs, refs_xy=new_xy, phase=jnp.int32(PLAN),
                              hops=s.hops + 1)
         # --- event C: link seen during the QSR search -> circle of radius R' about it
-        see_e = (s.phase == ARC) & e_vis
+        see_e = ((s.phase == ARC) | (s.phase == LOOK)) & e_vis
         e_xy = noisy(key_noise, s.e, s.steps)
         s_circ = s._replace(phase=jnp.int32(CIRCLE), e_xy=e_xy,
                             motion=tr.circle_motion(pos, e_xy,
@@ -279,13 +293,21 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
         s_arc_end = where_tree(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
         s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
+        # epoch model: an arc that ends is followed by one look from its end point
+        s_arc_end = where_tree(epochs, s_move._replace(phase=jnp.int32(LOOK)), s_arc_end)
         s_moved = where_tree(finished & (s.phase == ARC), s_arc_end,
                        where_tree(finished & (s.phase == CIRCLE), s_circ_end, s_move))
+        # LOOK (epoch model): nothing seen from the arc's end: next command or failure
+        s_look = where_tree(more, s._replace(c=c2, phase=jnp.int32(ARC),
+                                             motion=tr.arc_motion(pos, centre2,
+                                                                  params.map_range, lo2)),
+                            s._replace(status=jnp.int32(arc_fail)))
         # --- priority: goal > transition > link seen > plan > move
         out = where_tree(done_goal, s._replace(status=jnp.int32(SUCCESS)),
                    where_tree(trans, s_trans,
                         where_tree(see_e, s_circ,
-                             where_tree(s.phase == PLAN, s_plan, s_moved))))
+                             where_tree(s.phase == PLAN, s_plan,
+                                        where_tree(s.phase == LOOK, s_look, s_moved)))))
         out = out._replace(steps=s.steps + 1)
         if record:
             out = out._replace(trace=out.trace.at[jnp.minimum(s.steps, record - 1)].set(
@@ -368,6 +390,20 @@ def _navigate(keys, starts, goals, paths, n, budget, start_poses, n_valid, landm
     return _pool(trials, n_valid, init, body, width, max(1, width // 8))
 
 
+def _check_params(params: NavParams) -> None:
+    """Ranges and steps of :class:`NavParams` (one message per argument, naming the value)."""
+    validate(positive={"params.nav_range (R')": params.nav_range,
+                       "params.map_range (R)": params.map_range, "params.ds": params.ds,
+                       "params.turn_per_step": params.turn_per_step,
+                       "params.circle_margin": params.circle_margin},
+             nonnegative={"params.occluder_radius": params.occluder_radius,
+                          "params.sigma": params.sigma, "params.start_offset":
+                          params.start_offset})
+    for name in ("circle_only", "sense_epochs"):
+        if getattr(params, name) not in (0.0, 1.0):
+            raise ValueError(f"params.{name} must be 0 or 1, got {getattr(params, name)!r}")
+
+
 def start_poses(keys, landmarks, starts, offset):
     """Start poses ``[B, 3]``: the start landmark + ``offset`` in a seeded direction, seeded
     heading (P §4.4.1 start landmark; docs/qlink.md §Q20)."""
@@ -404,30 +440,28 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
             it (its XLA memory analysis sizes ``chunk``; nothing is driven).
 
     Raises:
-        ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) NaN/inf or coincident
+            landmarks, bad ids, malformed elements, NaN/inf poses, a range or step that is
+            not positive and finite, a trial without a path (``|P| < 1``), a path entry that
+            is not an element.
     """
     model = model or _pomdp.search_model(horizon=4)
     if model.p_move != 1.0:
         raise ValueError("the executive needs p_move = 1 (the open-loop plan is exact then)")
-    for name, v in (("nav_range R'", params.nav_range), ("map_range R", params.map_range),
-                    ("ds", params.ds), ("turn_per_step", params.turn_per_step)):
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be positive and finite, got {v}")
-    if params.occluder_radius < 0 or params.sigma < 0:
-        raise ValueError("occluder_radius and sigma must be non-negative")
+    _check_params(params)
+    validate(landmarks=np.asarray(landmarks), elements=elements,
+             landmark_ids={"starts": starts, "goals": goals})
     landmarks = jnp.asarray(landmarks)
-    if not np.all(np.isfinite(np.asarray(landmarks))):
-        raise ValueError("landmarks contain NaN or inf values")
-    n_elements = np.asarray(n_elements, np.int32)
-    if np.any(n_elements < 1):
-        raise ValueError("every trial needs a planned path (|P| >= 1); unreachable pairs are "
-                         "reported by the planner, not navigated")
+    n_elements = np.asarray(n_elements)
+    paths = np.asarray(paths)
+    validate(paths=(paths, n_elements, np.asarray(elements.ids).shape[0],
+                    len(np.ravel(starts))))
+    n_elements = n_elements.astype(np.int32)
     keys = jnp.asarray(keys)
     if poses is None:
         poses = start_poses(keys, landmarks, starts, params.start_offset)
+    validate(finite={"poses": np.asarray(poses)})
     poses = jnp.asarray(poses, landmarks.dtype)
-    if not np.all(np.isfinite(np.asarray(poses))):
-        raise ValueError("start poses contain NaN or inf values")
     budget = step_budget(n_elements, params) if budget is None else np.asarray(budget)
     p = NavParams(*(float(x) for x in params))
     paths = np.asarray(paths, np.int32)
@@ -625,43 +659,68 @@ class PairResult(NamedTuple):
 def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
                    starts, goals, params: NavParams,
                    model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
-                   record: int = 0, plans=None, neighbours=None) -> PairResult:
+                   record: int = 0, plans=None) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
+
+    The whole planned path is driven on any Link Graph (unit, −log p, zero costs): plans
+    follow the successors recorded in ``to_go`` and the path buffer is sized from its hop
+    counts. A trial localised in the start element but with no path from the elements in
+    view gets the status ``UNREACHABLE``.
 
     Args:
         keys: ``[B]`` per-trial keys. landmarks: ``[N, 2]``. elements, graph: the map and its
-            Link Graph. to_go: ``[G, E]`` :func:`~pqrm_jax.qlink.linkgraph.goal_distances`.
+            Link Graph. to_go: :class:`~pqrm_jax.qlink.linkgraph.GoalTable` of
+            :func:`~pqrm_jax.qlink.linkgraph.goal_distances` on ``graph``.
         goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
         tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
         params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
-        plans: optional :func:`qsr_plans` table; neighbours: optional
-            :func:`~pqrm_jax.qlink.linkgraph.neighbour_table` of ``graph`` (both computed when
-            not given; pass them when driving many batches on one map).
-    """
-    from .linkgraph import plan_from
+        plans: optional :func:`qsr_plans` table (computed when not given; pass it when
+            driving many batches on one map).
 
-    starts, goals = np.asarray(starts, np.int32), np.asarray(goals, np.int32)
+    Raises:
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) as :func:`navigate`, and a goal
+            without a row of ``to_go``.
+    """
+    from .linkgraph import GoalTable, plan_from
+
+    if not isinstance(to_go, GoalTable):
+        raise ValueError("to_go must be the GoalTable of linkgraph.goal_distances, got "
+                         f"{type(to_go).__name__}")
+    _check_params(params)
+    got = validate(landmarks=np.asarray(landmarks), elements=elements,
+                   landmark_ids={"starts": starts, "goals": goals})
+    starts, goals = got["starts"].astype(np.int32), got["goals"].astype(np.int32)
+    if starts.shape != goals.shape or starts.ndim != 1:
+        raise ValueError(f"starts and goals must be [B] of one length, got {starts.shape} "
+                         f"and {goals.shape}")
+    goal_row = np.asarray(goal_row)
+    if goal_row.shape != (elements.num_landmarks,):
+        raise ValueError(f"goal_row must have shape ({elements.num_landmarks},), got "
+                         f"{goal_row.shape}")
+    rows = goal_row[goals]
+    if np.any((rows < 0) | (rows >= np.shape(to_go.cost)[0])):
+        g = int(goals[(rows < 0) | (rows >= np.shape(to_go.cost)[0])][0])
+        raise ValueError(f"goal_row[{g}] = {int(goal_row[g])}: to_go has no row for goal {g}")
     cand = tables[0]
-    if np.any(cand[starts, 0] < 0) or np.any(cand[goals, 0] < 0):
-        bad = starts[cand[starts, 0] < 0].tolist() + goals[cand[goals, 0] < 0].tolist()
-        raise ValueError(f"landmark {bad[0]} is not in the map (it belongs to no map element)")
-    if np.any(goal_row[goals] < 0):
-        raise ValueError("goal_row has no cost-to-go row for some goal landmark")
     keys = jnp.asarray(keys)
     poses = start_poses(keys, jnp.asarray(landmarks), starts, params.start_offset)
-    if not np.all(np.isfinite(np.asarray(poses))):
-        raise ValueError("start poses contain NaN or inf values")
+    validate(finite={"start poses": np.asarray(poses)})
     pose1, len1, _, st1, in_view = localize(keys, landmarks, starts, poses, tables, params,
                                             chunk=chunk)
     cands = np.where(np.asarray(in_view), cand[starts], -1)
-    max_len = int(np.nanmax(np.where(np.isfinite(np.asarray(to_go)), np.asarray(to_go), 0))) + 2
-    plan = plan_from(graph, to_go, goal_row[goals], cands, max_len, neighbours)
+    # path buffer from hop counts (the longest path of the table: one width per world)
+    max_len = int(np.max(np.asarray(to_go.hops), initial=0)) + 1
+    plan = plan_from(graph, to_go, rows, cands, max_len)
     st1 = np.asarray(st1)
     reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
     n = np.where(reach, np.asarray(plan.n_elements), 1)
+    # a trial without a plan rides along on a one-element placeholder (its start element);
+    # its result is masked below and no other trial depends on it
+    path = np.asarray(plan.path).copy()
+    path[~reach, 0] = cand[starts[~reach], 0]
     res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
-                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk,
+                   starts, goals, path, n, params, model, poses=pose1, chunk=chunk,
                    record=record, plans=plans)
-    status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
+    status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, UNREACHABLE, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)

@@ -120,28 +120,6 @@ def settings(cfg: Config) -> list[tuple[str, float, float]]:
     return out + [(f"occ {s:g} m", 1.0, s) for s in cfg.occluder_sizes]
 
 
-def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
-    """``[Q, Q]`` d[q_r, q_l]: fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
-    whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r``
-    (docs/qlink.md §Q12)."""
-    from pqrm_jax import calculi
-    from pqrm_jax.qlink import elements as qel
-    from pqrm_jax.qlink import trajectory as tr
-
-    lm = jnp.asarray(landmarks)
-    trip = jnp.asarray(np.asarray(elements.ids)[:, qel.ORDERINGS]).reshape(-1, 3)
-    a, b, c = lm[trip[:, 0]], lm[trip[:, 1]], lm[trip[:, 2]]
-    ql = np.asarray(calculi.get("quadrant").classify(a, b, c))
-    d = np.zeros((4, 4))
-    for qr in range(4):
-        centre, lo = jax.vmap(tr.quadrant_wedge, (0, 0, None))(a, b, qr)
-        dist = np.asarray(jax.vmap(tr.arc_min_distance, (0, 0, None, 0))(c, centre, r_map, lo))
-        for q in range(4):
-            m = ql == q
-            d[qr, q] = float((dist[m] <= r_nav).mean()) if m.any() else 0.0
-    return np.clip(d, 0.01, 0.99)
-
-
 def build_world(cfg: Config, w: int):
     """Landmarks, map elements and per-β graphs of world ``w``."""
     from pqrm_jax import sim
@@ -190,15 +168,13 @@ def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: fl
 def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, world,
                 progress: bool = True) -> list[dict]:
     """All trials of one (world, β, setting); rows for ``trials.csv``."""
-    from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
     lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
-    nbrs = lg.neighbour_table(g)
     # static Link Graph reachability from the start landmark's elements
     cand = tables[0][pairs[:, 0]]
-    tg = np.asarray(to_go)[goal_row[pairs[:, 1]]]
+    tg = np.asarray(to_go.cost)[goal_row[pairs[:, 1]]]
     static_reach = np.isfinite(np.where(cand >= 0, np.take_along_axis(
         tg, np.maximum(cand, 0), 1), np.inf).min(1))
     rows = []
@@ -209,8 +185,7 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
         sl = slice(i, i + block)
         try:
             r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                                   pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans,
-                                   neighbours=nbrs)
+                                   pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans)
         except Exception as exc:  # noqa: BLE001  (XLA raises its OOM as several types)
             text = str(exc)
             if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
@@ -222,8 +197,8 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
             st = int(r.status[j])
             if not static_reach[k]:
                 reason = "unreachable"
-            elif st == nav.RUNNING:
-                reason = "no_plan_from_view"
+            elif st == nav.UNREACHABLE:    # reachable from the start landmark's elements,
+                reason = "no_plan_from_view"  # not from those the robot localised in
             else:
                 reason = nav.FAILURE_REASONS[st]
             rows.append(dict(world=w, beta=beta, setting=name, start=int(pairs[k, 0]),
@@ -414,6 +389,8 @@ def _build(cfg: Config, w: int):
 
     try:
         lm, el = build_world(cfg, w)
+        from pqrm_jax.qlink.pomdp import estimate_detection
+
         detect = (estimate_detection(lm, el, cfg.map_range, cfg.map_range)
                   if cfg.detection == "estimated" else None)
     except CacheError as exc:
