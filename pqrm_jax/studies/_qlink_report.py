@@ -38,7 +38,9 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
     lines = [title, "",
              f"{cfg.landmarks} landmarks in {cfg.size:g} m × {cfg.size:g} m, R = "
              f"{cfg.map_range:g} m, σ = {cfg.sigma:g} m, quadrant QSR, unit costs, worlds "
-             f"{worlds}, {which}. Wall time this run: {wall_s:.0f} s.", "",
+             f"{worlds}, {which}, sensing model '{getattr(cfg, 'sensing', 'step')}' "
+             "(docs/qlink.md §sensing). Wall time this run: "
+             f"{wall_s:.0f} s.", "",
              ("**Reduced run** (a small world or a subset of the pairs): binomial error about "
               "±2–3 points per row at 300 pairs; verdicts refer to the full setting's bands. "
               if cfg.landmarks < 200 or cfg.max_pairs else ""),

@@ -77,6 +77,11 @@ REASONS = {
                      "rounding",
     "start_offset": "start pose R/20 = 1 m from the start landmark, seeded direction",
     "nav_sigma": "navigation measurement noise, the same sensor as mapping",
+    "sensing": "'step': the navigating robot senses after every 0.5 m step, P section 4.4.1: "
+               "a transition is made if the references of M_j 'are visible at some time' and "
+               "the circle 'searches for reference landmarks'; 'epoch' (variant, measured "
+               "beside it): along a QSR arc it looks only at the arc's end (docs/qlink.md "
+               "section sensing)",
     "max_pairs": "ordered start/goal pairs per world (0 = all, P: every pairwise combination)",
     "chunk": "pool lanes of the navigation executive (results do not depend on it); None = "
              "sized per world from the device memory (auto_chunk), on CPU at most 128",
@@ -105,6 +110,7 @@ class Config:
     circle_margin: float = 0.999
     start_offset: float = 1.0
     nav_sigma: float = 0.3
+    sensing: str = "step"
     max_pairs: int = 0
     chunk: int | None = None  # None: sized from the device memory per world (auto_chunk)
     seed: int = 0
@@ -156,7 +162,8 @@ def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: fl
     params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
                            occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
                            turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
-                           start_offset=cfg.start_offset)
+                           start_offset=cfg.start_offset,
+                           sense_epochs=float(cfg.sensing == "epoch"))
     model = pomdp.search_model("quadrant", horizon=cfg.horizon, detect=detect)
     sid = zlib.crc32(f"{beta}/{name}".encode()) & 0x7FFFFFFF
     base = jax.random.fold_in(jax.random.fold_in(jax.random.key(cfg.seed), w), sid)
@@ -270,6 +277,11 @@ def main(argv: list[str]) -> int:
                    "not depend on it")
     p.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
                    "sized for (default: what the device reports)")
+    p.add_argument("--sensing", choices=("step", "epoch"), help="sensing model of the "
+                   "navigating robot (default step; docs/qlink.md §sensing)")
+    p.add_argument("--ablation", nargs="*", metavar="SETTING", help="instead of the study: "
+                   "the variants of ABLATIONS on the given settings (default R) of each world; "
+                   "writes ablation.csv to --out")
     p.add_argument("--no-progress", action="store_true")
     from . import distributed
 
@@ -280,10 +292,14 @@ def main(argv: list[str]) -> int:
         cfg.worlds = tuple(a.worlds)
     if a.max_pairs is not None:
         cfg.max_pairs = a.max_pairs
+    if a.sensing is not None:
+        cfg.sensing = a.sensing
     if a.chunk is not None:
         if a.chunk < 0:
             p.error("--chunk must be positive or 'auto'")
         cfg.chunk = a.chunk or None
+    if a.ablation is not None:
+        return _run_ablation(cfg, a.out, tuple(a.ablation) or ("R",))
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
     cluster = distributed.initialize_from(a)  # before any JAX computation
@@ -345,6 +361,27 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def _run_ablation(cfg: Config, out: str, names: tuple[str, ...]) -> int:
+    import csv
+    import os
+    from pathlib import Path
+
+    known = {n for n, _, _ in settings(cfg)}
+    if not set(names) <= known:
+        raise SystemExit(f"--ablation: unknown setting {sorted(set(names) - known)}; "
+                         f"choose from {sorted(known)}")
+    rows = [r for w in cfg.worlds for r in ablation(cfg, w, names)]
+    Path(out).mkdir(parents=True, exist_ok=True)
+    tmp = Path(out) / "ablation.csv.tmp"
+    with open(tmp, "w", newline="") as f:
+        wr = csv.DictWriter(f, list(rows[0]))
+        wr.writeheader()
+        wr.writerows(rows)
+    os.replace(tmp, Path(out) / "ablation.csv")
+    print(f"wrote {Path(out) / 'ablation.csv'}")
+    return 0
+
+
 CPU_CHUNK = 128  # pool lanes on CPU: wider pools only add idle lanes to a few cores
 QUEUE_PER_LANE = 32  # trials queued per pool lane by run_setting (block = 32 x chunk)
 
@@ -380,6 +417,68 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     print(f"{NAME}: world {w}: --chunk {lanes} pool lanes sized from the memory "
           f"({nbytes / 2**20:.1f} MiB per lane, {budget / 2**20:.0f} MiB available)")
     return lanes
+
+
+ABLATIONS = {
+    "baseline": {},
+    "nav_sigma 0": dict(nav_sigma=0.0),
+    "circle_margin 1": dict(circle_margin=1.0),
+    "exact map": dict(exact_map=True),
+    "nav_sigma 0 + exact map": dict(nav_sigma=0.0, exact_map=True),
+    "nav_sigma 0 + exact map + margin 1": dict(nav_sigma=0.0, exact_map=True,
+                                               circle_margin=1.0),
+    "epoch sensing": dict(sensing="epoch"),
+}
+"""Variants of :func:`ablation` (``exact_map``: the noise-free relations of the mapped
+elements instead of the PQRM's; every other key is a :class:`Config` field)."""
+
+
+def ablation(cfg: Config, w: int, settings_: tuple[str, ...] = ("R",),
+             variants: dict | None = None) -> list[dict]:
+    """Failure counts of world ``w`` under each variant of :data:`ABLATIONS` (docs/qlink.md
+    §results: the measured cause of the R′ = R failures). Same map, pairs and per-trial keys
+    in every variant, so the variants differ only in the knob they change.
+
+    Returns one row per (variant, setting): trials, reachable, failures and each reason.
+    """
+    from pqrm_jax.qlink import elements as qel
+    from pqrm_jax.qlink import linkgraph as lg
+    from pqrm_jax.qlink import navigate as nav
+    from pqrm_jax.qlink import pomdp
+
+    lm, el, detect = _build(cfg, w)
+    lms = np.flatnonzero(qel.incidence(el).any(1))
+    goal_row = np.full(el.num_landmarks, -1, np.int64)
+    goal_row[lms] = np.arange(len(lms))
+    pairs = _pairs(cfg, lms, w)
+    beta = cfg.betas[0]
+    g = lg.link_graph(el, beta)
+    to_go = lg.goal_distances(g, el, lms)
+    out = []
+    for vname, kw in (variants or ABLATIONS).items():
+        kw = dict(kw)
+        el_v = qel.exact_elements(lm, np.asarray(el.ids)) if kw.pop("exact_map", False) else el
+        cfg_v = dataclasses.replace(cfg, **kw)
+        if cfg_v.chunk is None:
+            cfg_v = dataclasses.replace(cfg_v, chunk=CPU_CHUNK)
+        plans = nav.qsr_plans(el_v, pomdp.search_model("quadrant", horizon=cfg.horizon,
+                                                       detect=detect))
+        world = (lm, el_v, g, to_go, goal_row, nav.start_tables(el_v), pairs, detect, plans)
+        for name, frac, occ in settings(cfg):
+            if name not in settings_:
+                continue
+            t0 = time.process_time()
+            rows = run_setting(cfg_v, w, beta, name, frac, occ, world, progress=False)
+            reach = [r for r in rows if r["reachable"]]
+            c = Counter(r["reason"] for r in reach if not r["success"])
+            out.append(dict(world=w, variant=vname, setting=name, trials=len(rows),
+                            reachable=len(reach), failures=sum(c.values()),
+                            failure_pct=round(100.0 * sum(c.values()) / max(len(reach), 1),
+                                              3),
+                            reasons=" ".join(f"{k}:{v}" for k, v in sorted(c.items())),
+                            cpu_s=round(time.process_time() - t0, 1)))
+            print(out[-1], flush=True)
+    return out
 
 
 def _build(cfg: Config, w: int):
