@@ -36,11 +36,21 @@ from .. import sim as _sim
 from . import pomdp as _pomdp
 from .checks import validate
 from .elements import ORDERINGS, MapElements, co_observed_triplets, fuse, ordering_index
-from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS, where_tree
+from .navigate import (
+    BUDGET,
+    COLLISION,
+    GOAL_NOT_FOUND,
+    LINK_NOT_FOUND,
+    REFS_NOT_FOUND,
+    RUNNING,
+    SUCCESS,
+    where_tree,
+)
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
-           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references"]
+           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references",
+           "wall_contact"]
 
 LR, BANDS = 0, 1
 ENTER, SEARCH = 0, 1
@@ -286,6 +296,34 @@ class _S(NamedTuple):
     status: jax.Array
     hops: jax.Array
     trace: jax.Array
+    gseen: jax.Array        # [3] goal-element members measured so far (goal stage)
+    gxy: jax.Array          # [3, 2] their measured positions
+
+
+def wall_contact(p: jax.Array, q: jax.Array, walls: jax.Array, tol) -> tuple:
+    """Does the straight drive ``p [2] → q [2]`` meet a wall segment of ``walls [S, 2, 2]``?
+
+    Returns ``(hit, t, near_end)``: ``t`` ∈ [0, 1] the first contact along the drive (1 when
+    none) and ``near_end`` whether ``q`` lies within ``tol`` of the wall met first.
+
+    >>> w = jnp.array([[[5., -1.], [5., 1.]]])
+    >>> h, t, near = wall_contact(jnp.zeros(2), jnp.array([10., 0.]), w, 0.5)
+    >>> bool(h), float(t), bool(near)
+    (True, 0.5, False)
+    """
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    a, b = walls[:, 0], walls[:, 1]
+    d = q - p
+    den = cross(d[None, :], b - a)                                    # [S]
+    t = cross(a - p, b - a) / jnp.where(den == 0, 1.0, den)
+    u = cross(a - p, d[None, :]) / jnp.where(den == 0, 1.0, den)
+    hit = (den != 0) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    t = jnp.where(hit, t, 1.0)
+    first = jnp.argmin(t)
+    near_end = _sim.segment_distance(q, walls)[first] <= tol
+    return jnp.any(hit), t[first], near_end
 
 
 def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
@@ -359,7 +397,8 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
-                jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
+                jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0),
+                jnp.zeros(3, bool), jnp.zeros((3, 2), fdt))
         budget = 3 * (tau + 2) * n + 4
 
         def pair_of(j, vis_j):
@@ -372,10 +411,26 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             cur = path[s.k]
             nxt = path[jnp.minimum(s.k + 1, path.shape[0] - 1)]
             mem_n = ids[nxt]
-            # ---- goal: drive to the measured centroid of L_goal
-            cen = jnp.mean(measure(k_noise, scan, ids[cur]), axis=0)
-            s_goal = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
-                                status=jnp.int32(SUCCESS))
+            # ---- goal: drive to the centroid of L_goal measured from what the robot sees:
+            # the references (measured at entry) and the members a scan sees (in range, not
+            # missed); a member still unseen after tau scans: GOAL_NOT_FOUND (docs/qlink.md
+            # §invivo, the goal rule)
+            mem_g = ids[cur]
+            ref_of = mem_g[:, None] == s.refs[None, :]                       # [3, 2]
+            is_ref = ref_of.any(1)
+            ref_xy = jnp.where(ref_of[:, :1], s.refs_xy[0], s.refs_xy[1])
+            vis_g = visible(k_miss, scan, s.pos, mem_g)
+            seen_g = s.gseen | is_ref | vis_g
+            gxy = jnp.where(s.gseen[:, None], s.gxy,
+                            jnp.where(is_ref[:, None], ref_xy, measure(k_noise, scan, mem_g)))
+            cen = jnp.mean(gxy, axis=0)
+            s_goal_ok = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
+                                   status=jnp.int32(SUCCESS), gseen=seen_g, gxy=gxy)
+            g_more = s.c + 1 < tau
+            s_goal_wait = s._replace(c=s.c + 1, gseen=seen_g, gxy=gxy,
+                                     status=jnp.where(g_more, RUNNING,
+                                                      GOAL_NOT_FOUND).astype(jnp.int32))
+            s_goal = where_tree(seen_g.all(), s_goal_ok, s_goal_wait)
             # ---- ENTER: 360° scan for the next element
             vis_full = visible(k_miss, scan, s.pos, mem_n)
             ok, new_refs = pair_of(nxt, vis_full)
@@ -426,6 +481,20 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
             s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
             out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
+            # walls are obstacles: a straight drive that meets a wall stops there; unless the
+            # drive's end lies at that wall (the robot drove up to it: it stops at the wall
+            # and goes on) the trial ends with COLLISION
+            standoff = jnp.maximum(params.sigma, 1e-3 * params.nav_range)
+            hit, t_hit, near_end = wall_contact(s.pos, out.pos, walls, 3 * standoff)
+            seg = out.pos - s.pos
+            d_seg = jnp.linalg.norm(seg)
+            back = jnp.maximum(t_hit * d_seg - standoff, 0.0)
+            contact = s.pos + seg * back / jnp.maximum(d_seg, 1e-30)
+            s_hit = s._replace(pos=contact, length=s.length + back,
+                               status=jnp.int32(COLLISION))
+            out = where_tree(hit & ~near_end, s_hit,
+                             where_tree(hit, out._replace(
+                                 pos=contact, length=s.length + back), out))
             out = out._replace(stops=scan,
                                trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
                                    jnp.where(scan < trace_len, out.pos,

@@ -42,18 +42,20 @@ from .checks import validate
 from .elements import MapElements, ordering_index
 
 __all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
-           "step_budget", "replan_inputs", "localize", "start_tables", "start_poses",
+           "step_budget", "replan_inputs", "UNREACHABLE", "COLLISION", "localize",
+           "start_tables", "start_poses",
            "PairResult", "navigate_pairs", "qsr_plans", "where_tree"]
 
 RUNNING, SUCCESS = 0, 1
 LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
-UNREACHABLE = 7
+UNREACHABLE, COLLISION = 7, 8
 FAILURE_REASONS = {RUNNING: "running", SUCCESS: "success", LINK_NOT_FOUND: "link_not_found",
                    REFS_NOT_FOUND: "refs_not_found", START_NOT_LOCALIZED: "start_not_localized",
                    GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget",
-                   UNREACHABLE: "unreachable"}
+                   UNREACHABLE: "unreachable", COLLISION: "collision"}
 """Status codes of :class:`NavResult` and :class:`PairResult` (``unreachable``: localised,
-but no Link Graph path leads from the elements in view to the goal)."""
+but no Link Graph path leads from the elements in view to the goal; ``collision``: the in-vivo
+executive's straight drive met a wall, :mod:`pqrm_jax.qlink.hybrid`)."""
 
 SENSING = ("step", "epoch")
 """Sensing models (docs/qlink.md §sensing): ``step`` senses after every rover step; ``epoch``
