@@ -269,7 +269,8 @@ class HybridResult(NamedTuple):
     :data:`pqrm_jax.qlink.FAILURE_REASONS`), length driven, stops (loop iterations), hops,
     k (index on the path of the last element entered), pose ``[B, 2]`` final position,
     refs ``[B, 2]``, failed ``[B, 2]`` the edge (element ids) that failed (−1 if none),
-    trace ``[B, T, 2]`` the stop positions (NaN after the end)."""
+    trace ``[B, 2T − 1, 2]`` the driven polyline: the start, then per stop the waypoint round a
+    wall (the stop itself when the drive was straight) and the stop (NaN after the end)."""
 
     status: jax.Array
     length: jax.Array
@@ -303,13 +304,14 @@ class _S(NamedTuple):
 def wall_contact(p: jax.Array, q: jax.Array, walls: jax.Array, tol) -> tuple:
     """Does the straight drive ``p [2] → q [2]`` meet a wall segment of ``walls [S, 2, 2]``?
 
-    Returns ``(hit, t, near_end)``: ``t`` ∈ [0, 1] the first contact along the drive (1 when
-    none) and ``near_end`` whether ``q`` lies within ``tol`` of the wall met first.
+    Returns ``(hit, t, near_end, first)``: ``t`` ∈ [0, 1] the first contact along the drive
+    (1 when none), ``near_end`` whether ``q`` lies within ``tol`` of the wall met first, and
+    ``first`` that wall's index.
 
     >>> w = jnp.array([[[5., -1.], [5., 1.]]])
-    >>> h, t, near = wall_contact(jnp.zeros(2), jnp.array([10., 0.]), w, 0.5)
-    >>> bool(h), float(t), bool(near)
-    (True, 0.5, False)
+    >>> h, t, near, i = wall_contact(jnp.zeros(2), jnp.array([10., 0.]), w, 0.5)
+    >>> bool(h), float(t), bool(near), int(i)
+    (True, 0.5, False, 0)
     """
     def cross(u, v):
         return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
@@ -323,7 +325,21 @@ def wall_contact(p: jax.Array, q: jax.Array, walls: jax.Array, tol) -> tuple:
     t = jnp.where(hit, t, 1.0)
     first = jnp.argmin(t)
     near_end = _sim.segment_distance(q, walls)[first] <= tol
-    return jnp.any(hit), t[first], near_end
+    return jnp.any(hit), t[first], near_end, first
+
+
+def _detour(p, q, walls, first, standoff):
+    """``(via [2], length, blocked)``: round wall ``first`` by the end (``standoff`` beyond it
+    along the wall) that gives the shorter drive ``p → via → q``; ``blocked`` when a leg of
+    it meets a wall."""
+    a, b = walls[first, 0], walls[first, 1]
+    u = (b - a) / jnp.maximum(jnp.linalg.norm(b - a), 1e-30)
+    ends = jnp.stack([a - standoff * u, b + standoff * u])                 # [2, 2]
+    lens = jnp.linalg.norm(ends - p, axis=-1) + jnp.linalg.norm(q - ends, axis=-1)
+    via = ends[jnp.argmin(lens)]
+    blocked = (wall_contact(p, via, walls, 0.0)[0]
+               | wall_contact(via, q, walls, 0.0)[0])
+    return via, jnp.min(lens), blocked
 
 
 def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
@@ -397,7 +413,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
-                jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0),
+                jnp.full((2 * trace_len - 1, 2), jnp.nan, fdt).at[0].set(pos0),
                 jnp.zeros(3, bool), jnp.zeros((3, 2), fdt))
         budget = 3 * (tau + 2) * n + 4
 
@@ -481,24 +497,32 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
             s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
             out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
-            # walls are obstacles: a straight drive that meets a wall stops there; unless the
-            # drive's end lies at that wall (the robot drove up to it: it stops at the wall
-            # and goes on) the trial ends with COLLISION
+            # walls are obstacles (docs/qlink.md §invivo): a drive whose straight line meets
+            # a wall goes round the wall's nearer end (one waypoint, `standoff` beyond it);
+            # a drive up to a wall stops at it; if the way round is blocked too, the robot
+            # stops at the wall and the trial ends with COLLISION
             standoff = jnp.maximum(params.sigma, 1e-3 * params.nav_range)
-            hit, t_hit, near_end = wall_contact(s.pos, out.pos, walls, 3 * standoff)
+            hit, t_hit, near_end, first = wall_contact(s.pos, out.pos, walls, 3 * standoff)
             seg = out.pos - s.pos
             d_seg = jnp.linalg.norm(seg)
             back = jnp.maximum(t_hit * d_seg - standoff, 0.0)
             contact = s.pos + seg * back / jnp.maximum(d_seg, 1e-30)
+            via, d_via, blocked = _detour(s.pos, out.pos, walls, first, standoff)
             s_hit = s._replace(pos=contact, length=s.length + back,
                                status=jnp.int32(COLLISION))
-            out = where_tree(hit & ~near_end, s_hit,
-                             where_tree(hit, out._replace(
-                                 pos=contact, length=s.length + back), out))
-            out = out._replace(stops=scan,
-                               trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
-                                   jnp.where(scan < trace_len, out.pos,
-                                             out.trace[trace_len - 1])))
+            s_round = out._replace(length=s.length + d_via)
+            s_stop = out._replace(pos=contact, length=s.length + back)
+            out = where_tree(hit & near_end, s_stop,
+                             where_tree(hit & ~blocked, s_round,
+                                        where_tree(hit, s_hit, out)))
+            via = jnp.where(hit & ~near_end & ~blocked, via, out.pos)
+            t2 = out.trace.shape[0]
+            i_via, i_pos = 2 * scan - 1, 2 * scan
+            tr_ = out.trace.at[jnp.minimum(i_via, t2 - 1)].set(
+                jnp.where(i_via < t2, via, out.trace[t2 - 1]))
+            tr_ = tr_.at[jnp.minimum(i_pos, t2 - 1)].set(
+                jnp.where(i_pos < t2, out.pos, tr_[t2 - 1]))
+            out = out._replace(stops=scan, trace=tr_)
             over = (out.status == RUNNING) & (scan >= budget)
             return out._replace(status=jnp.where(over, BUDGET, out.status))
 
