@@ -68,8 +68,9 @@ def test_navigate_pairs_compiles_once_per_shape():
     def run(seed, params):
         sel = pairs[rng.choice(len(pairs), 12, replace=False)]
         keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(seed), i))(jnp.arange(12))
-        res = nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, sel[:, 0],
-                                 sel[:, 1], params, chunk=8)
+        res = nav.navigate_pairs(nav.Trials(keys, sel[:, 0], sel[:, 1]),
+                                 nav.NavMap(lm, el, g, to_go, goal_row, tables), params,
+                                 chunk=8)
         jax.block_until_ready(res.nav.status)
         return res
 

@@ -210,8 +210,9 @@ def test_weighted_plans_are_driven_whole(kind):
     pairs = np.concatenate([pairs, [[near[0], el.num_landmarks - 1]]])   # unreachable goal
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(2), i))(jnp.arange(len(pairs)))
     p = nav.NavParams(map_range=R, nav_range=R, ds=R / 40, start_offset=R / 20)
-    r = nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, nav.start_tables(el),
-                           pairs[:, 0], pairs[:, 1], p, chunk=16)
+    r = nav.navigate_pairs(nav.Trials(keys, pairs[:, 0], pairs[:, 1]),
+                           nav.NavMap(lm, el, g, to_go, goal_row, nav.start_tables(el)), p,
+                           chunk=16)
     reach = np.asarray(r.reachable)
     assert not reach[-1] and int(r.status[-1]) == nav.UNREACHABLE
     assert reach[:-1].all()
@@ -244,21 +245,24 @@ def test_bad_landmark_ids_are_refused_everywhere(bad, msg):
     row = np.arange(5)
     keys = jax.random.split(jax.random.key(0), 1)
     path = np.array([[0]])
+    world = nav.NavMap(lm, el, g, to_go, row, nav.start_tables(el))
     calls = {
         "starts": [lambda s: lg.plan_pairs(g, el, [s], [3]),
-                   lambda s: nav.navigate(keys, lm, el, [s], [2], path, [1], p),
-                   lambda s: nav.navigate_pairs(keys, lm, el, g, to_go, row,
-                                                nav.start_tables(el), [s], [3], p)],
+                   lambda s: nav.navigate(nav.Trials(keys, [s], [2], path, [1]), world, p),
+                   lambda s: nav.navigate_pairs(nav.Trials(keys, [s], [3]), world, p)],
         "goals": [lambda s: lg.plan_pairs(g, el, [0], [s]),
                   lambda s: lg.goal_distances(g, el, [s]),
-                  lambda s: nav.navigate(keys, lm, el, [0], [s], path, [1], p),
-                  lambda s: nav.navigate_pairs(keys, lm, el, g, to_go, row,
-                                               nav.start_tables(el), [0], [s], p)],
+                  lambda s: nav.navigate(nav.Trials(keys, [0], [s], path, [1]), world, p),
+                  lambda s: nav.navigate_pairs(nav.Trials(keys, [0], [s]), world, p)],
     }
     for name, fns in calls.items():
         for fn in fns:
             with pytest.raises(ValueError, match=rf"{name}.*{msg}"):
                 fn(bad)
+
+
+def _one(path):
+    return nav.Trials(jax.random.split(jax.random.key(0), 1), [0], [2], path, [1])
 
 
 def test_bad_maps_and_arguments_are_refused():
@@ -285,13 +289,13 @@ def test_bad_maps_and_arguments_are_refused():
             qel.from_mapping_run(jax.random.key(0), bad, jnp.zeros((2, 3)),
                                  sim.SensorParams(max_range=10.0, sigma=0.1))
         with pytest.raises(ValueError, match=f"landmarks.*{msg}"):
-            nav.navigate(jax.random.split(jax.random.key(0), 1), bad, el, [0], [2],
-                         np.array([[0]]), [1], p)
+            nav.navigate(_one(np.array([[0]])), nav.NavMap(bad, el),
+                         p)
     # an element whose probability rows are all zero (never produced by exact_elements)
     zero = el._replace(probs=el.probs.at[1, 3].set(0.0))
     with pytest.raises(ValueError, match=r"elements.probs\[1, 3\] is all zero"):
-        nav.navigate(jax.random.split(jax.random.key(0), 1), lm, zero, [0], [2],
-                     np.array([[0]]), [1], p)
+        nav.navigate(_one(np.array([[0]])), nav.NavMap(lm, zero),
+                     p)
     with pytest.raises(ValueError, match="all zero"):
         costs.edge_costs(zero, 2, "neg_log_success")
     # empty start / goal lists
@@ -303,18 +307,18 @@ def test_bad_maps_and_arguments_are_refused():
     for field in ("nav_range", "map_range", "ds", "circle_margin"):
         for v in (float("nan"), 0.0, -1.0, float("inf")):
             with pytest.raises(ValueError, match=rf"params.{field}.*{v}"):
-                nav.navigate(jax.random.split(jax.random.key(0), 1), lm, el, [0], [2],
-                             np.array([[0]]), [1], p._replace(**{field: v}))
+                nav.navigate(_one(np.array([[0]])), nav.NavMap(lm, el),
+                             p._replace(**{field: v}))
     with pytest.raises(ValueError, match="max_range"):
         qel.from_mapping_run(jax.random.key(0), lm, jnp.zeros((2, 3)),
                              sim.SensorParams(max_range=float("nan"), sigma=0.1))
     with pytest.raises(ValueError, match="params.sense_epochs"):
-        nav.navigate(jax.random.split(jax.random.key(0), 1), lm, el, [0], [2],
-                     np.array([[0]]), [1], p._replace(sense_epochs=0.5))
+        nav.navigate(_one(np.array([[0]])), nav.NavMap(lm, el),
+                     p._replace(sense_epochs=0.5))
     # paths that are not elements; costs that are NaN / negative
     with pytest.raises(ValueError, match=r"paths\[0, 0\] = 7"):
-        nav.navigate(jax.random.split(jax.random.key(0), 1), lm, el, [0], [2],
-                     np.array([[7]]), [1], p)
+        nav.navigate(_one(np.array([[7]])), nav.NavMap(lm, el),
+                     p)
     for v in (float("nan"), -1.0):
         c = np.ones((3, 3))
         c[0, 1] = v

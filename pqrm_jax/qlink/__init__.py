@@ -48,9 +48,12 @@ from .linkgraph import (
 from .navigate import (
     FAILURE_REASONS,
     SENSING,
+    NavMap,
     NavParams,
     NavResult,
     PairResult,
+    Trials,
+    nav_map,
     navigate_pairs,
     start_tables,
 )
@@ -64,6 +67,7 @@ __all__ = [
     "LinkGraph", "Plan", "GoalTable", "link_graph", "plan_pairs", "plan_from", "goal_distances",
     "neighbour_table", "to_networkx", "edge_costs", "edge_success", "path_success",
     "SearchPOMDP", "search_model", "solve_exact", "open_loop_plan", "estimate_detection",
-    "NavParams", "NavResult", "PairResult", "navigate_pairs", "start_tables", "navigate_paths",
+    "NavParams", "NavResult", "PairResult", "Trials", "NavMap", "nav_map", "navigate_pairs",
+    "start_tables", "navigate_paths",
     "FAILURE_REASONS", "SENSING",
 ]

@@ -429,8 +429,8 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             mem_n = ids[nxt]
             # ---- goal: drive to the centroid of L_goal measured from what the robot sees:
             # the references (measured at entry) and the members a scan sees (in range, not
-            # missed); a member still unseen after tau scans: GOAL_NOT_FOUND (docs/qlink.md
-            # §invivo, the goal rule)
+            # missed); a member unseen after the scans at the midpoint: GOAL_NOT_FOUND
+            # (docs/qlink.md §invivo, the goal rule)
             mem_g = ids[cur]
             ref_of = mem_g[:, None] == s.refs[None, :]                       # [3, 2]
             is_ref = ref_of.any(1)
@@ -442,10 +442,14 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             cen = jnp.mean(gxy, axis=0)
             s_goal_ok = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
                                    status=jnp.int32(SUCCESS), gseen=seen_g, gxy=gxy)
-            g_more = s.c + 1 < tau
-            s_goal_wait = s._replace(c=s.c + 1, gseen=seen_g, gxy=gxy,
-                                     status=jnp.where(g_more, RUNNING,
-                                                      GOAL_NOT_FOUND).astype(jnp.int32))
+            # a member still unseen: drive to the references' measured midpoint (with sides
+            # <= R every member is in range there) and scan again, at most tau scans there
+            g_more = s.c < tau
+            centre_g = jnp.where(s.c == 0, jnp.mean(s.refs_xy, axis=0), s.pos)
+            s_goal_wait = s._replace(
+                c=s.c + 1, gseen=seen_g, gxy=gxy, pos=centre_g,
+                length=s.length + jnp.linalg.norm(centre_g - s.pos),
+                status=jnp.where(g_more, RUNNING, GOAL_NOT_FOUND).astype(jnp.int32))
             s_goal = where_tree(seen_g.all(), s_goal_ok, s_goal_wait)
             # ---- ENTER: 360° scan for the next element
             vis_full = visible(k_miss, scan, s.pos, mem_n)

@@ -41,7 +41,8 @@ from . import trajectory as tr
 from .checks import validate
 from .elements import MapElements, ordering_index
 
-__all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
+__all__ = ["NavParams", "NavResult", "Trials", "NavMap", "nav_map", "navigate",
+           "FAILURE_REASONS", "SUCCESS", "RUNNING",
            "step_budget", "replan_inputs", "UNREACHABLE", "COLLISION", "localize",
            "start_tables", "start_poses",
            "PairResult", "navigate_pairs", "qsr_plans", "where_tree"]
@@ -113,6 +114,64 @@ class NavResult(NamedTuple):
     pose: jax.Array
     refs: jax.Array
     trace: jax.Array
+
+
+class Trials(NamedTuple):
+    """The trials bundle of :func:`navigate` and :func:`navigate_pairs` (arrays ``[B]``).
+
+    keys: ``[B]`` per-trial PRNG keys (first: derive them from (world, setting, pair)).
+    starts, goals: ``[B]`` start and goal landmark ids.
+    paths: ``[B, L]`` planned element paths (``-1`` padded) and n_elements ``[B]`` ``|P|``
+        (:func:`navigate` only; :func:`navigate_pairs` plans them itself).
+    poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
+    budget: optional ``[B]`` step budgets (default :func:`step_budget`; :func:`navigate`).
+    """
+
+    keys: jax.Array
+    starts: np.ndarray
+    goals: np.ndarray
+    paths: np.ndarray | None = None
+    n_elements: np.ndarray | None = None
+    poses: jax.Array | None = None
+    budget: np.ndarray | None = None
+
+
+class NavMap(NamedTuple):
+    """The map bundle a robot navigates on (build it with :func:`nav_map`).
+
+    landmarks: ``[N, 2]`` true landmark positions. elements: the map elements.
+    graph: the Link Graph; to_go: its :class:`~pqrm_jax.qlink.linkgraph.GoalTable` for every
+        mapped landmark; goal_row: ``[N]`` the row of ``to_go`` of each landmark (−1 = none);
+        tables: :func:`start_tables` (these four for :func:`navigate_pairs`).
+    plans: optional :func:`qsr_plans` table (computed per call when not given).
+    """
+
+    landmarks: jax.Array
+    elements: MapElements
+    graph: object = None
+    to_go: object = None
+    goal_row: np.ndarray | None = None
+    tables: tuple | None = None
+    plans: jax.Array | None = None
+
+
+def nav_map(landmarks, elements: MapElements, graph=None,
+            model: _pomdp.SearchPOMDP | None = None) -> NavMap:
+    """A :class:`NavMap`: with ``graph`` the goal table, goal rows and start tables of every
+    mapped landmark; with ``model`` the QSR plan table (both computed once per map)."""
+    from .elements import incidence
+    from .linkgraph import goal_distances
+
+    validate(landmarks=np.asarray(landmarks), elements=elements)
+    to_go = goal_row = tables = None
+    if graph is not None:
+        lms = np.flatnonzero(incidence(elements).any(1))
+        goal_row = np.full(elements.num_landmarks, -1, np.int64)
+        goal_row[lms] = np.arange(len(lms))
+        to_go = goal_distances(graph, elements, lms)
+        tables = start_tables(elements)
+    plans = None if model is None else qsr_plans(elements, model)
+    return NavMap(jnp.asarray(landmarks), elements, graph, to_go, goal_row, tables, plans)
 
 
 class _S(NamedTuple):
@@ -417,27 +476,23 @@ def start_poses(keys, landmarks, starts, offset):
     return jax.vmap(one)(keys, jnp.asarray(starts))
 
 
-def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
-             params: NavParams, model: _pomdp.SearchPOMDP | None = None,
-             poses=None, budget=None, chunk: int = 64, record: int = 0,
-             plans=None, compile_only: bool = False) -> NavResult:
+def navigate(trials: Trials, world: NavMap, params: NavParams,
+             model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64, record: int = 0,
+             compile_only: bool = False) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
-        keys: ``[B]`` per-trial PRNG keys (derive them from (world, setting, pair)).
-        landmarks: ``[N, 2]`` true landmark positions.
-        elements: the map elements the paths refer to.
-        starts, goals: ``[B]`` landmark ids.
-        paths: ``[B, L]`` element indices (``-1`` padded), from
-            :func:`pqrm_jax.qlink.linkgraph.plan_pairs`; n_elements: ``[B]`` ``|P|`` (≥ 1).
+        trials: :class:`Trials` — keys ``[B]`` (first), starts, goals, ``paths [B, L]``
+            (element indices, ``-1`` padded, e.g. from
+            :func:`pqrm_jax.qlink.linkgraph.plan_pairs`), ``n_elements [B]`` ``|P|`` (≥ 1),
+            optional start poses ``[B, 3]`` and step budgets ``[B]``.
+        world: :class:`NavMap` — landmarks ``[N, 2]`` (true positions), the map elements the
+            paths refer to, optional :func:`qsr_plans` table.
         params: :class:`NavParams`.
         model: the search POMDP (``p_move = 1``); default :func:`pomdp.search_model`.
-        poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
-        budget: optional ``[B]`` step budgets (default :func:`step_budget`).
         chunk: lanes of the pool (``vmap`` width; a lane takes the next trial as soon as its
             own ends); results do not depend on it.
         record: keep the first ``record`` positions of every trial (for plots).
-        plans: optional :func:`qsr_plans` table (computed when not given).
         compile_only: return the pool program compiled for these inputs instead of running
             it (its XLA memory analysis sizes ``chunk``; nothing is driven).
 
@@ -447,6 +502,11 @@ def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_ele
             not positive and finite, a trial without a path (``|P| < 1``), a path entry that
             is not an element.
     """
+    keys, starts, goals, paths, n_elements, poses, budget = trials
+    landmarks, elements, plans = world.landmarks, world.elements, world.plans
+    if paths is None or n_elements is None:
+        raise ValueError("navigate drives planned trials: trials.paths and trials.n_elements "
+                         "are needed (navigate_pairs plans them)")
     model = model or _pomdp.search_model(horizon=4)
     if model.p_move != 1.0:
         raise ValueError("the executive needs p_move = 1 (the open-loop plan is exact then)")
@@ -518,8 +578,8 @@ def replan_inputs(result: NavResult, landmarks, elements: MapElements, graph, go
 
     Returns ``(trial indices [M], paths [M, L'], n_elements [M])`` for the trials that can
     continue (host side, networkx on the Link Graph with the failed edge removed); resume them
-    with :func:`navigate` (``poses = result.pose[idx]``; the start landmark is any visible
-    reference of the new first element).
+    with :func:`navigate` (``Trials(..., poses=result.pose[idx])``; the start landmark is any
+    visible reference of the new first element).
     """
     import networkx as nx
 
@@ -658,35 +718,35 @@ class PairResult(NamedTuple):
     nav: NavResult
 
 
-def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
-                   starts, goals, params: NavParams,
-                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
-                   record: int = 0, plans=None) -> PairResult:
+def navigate_pairs(trials: Trials, world: NavMap, params: NavParams,
+                   model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64,
+                   record: int = 0) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
     The whole planned path is driven on any Link Graph (unit, −log p, zero costs): plans
-    follow the successors recorded in ``to_go`` and the path buffer is sized from its hop
-    counts. A trial localised in the start element but with no path from the elements in
+    follow the successors recorded in ``world.to_go`` and the path buffer is sized from its
+    hop counts. A trial localised in the start element but with no path from the elements in
     view gets the status ``UNREACHABLE``.
 
     Args:
-        keys: ``[B]`` per-trial keys. landmarks: ``[N, 2]``. elements, graph: the map and its
-            Link Graph. to_go: :class:`~pqrm_jax.qlink.linkgraph.GoalTable` of
-            :func:`~pqrm_jax.qlink.linkgraph.goal_distances` on ``graph``.
-        goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
-        tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
+        trials: :class:`Trials` — keys ``[B]`` (first), starts and goals ``[B]`` landmark ids
+            (paths, poses and budgets are not used: the trial plans from where it localises).
+        world: :class:`NavMap` with the Link Graph, its goal table, goal rows and start tables
+            (:func:`nav_map`) and optionally the :func:`qsr_plans` table (pass it when driving
+            many batches on one map).
         params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
-        plans: optional :func:`qsr_plans` table (computed when not given; pass it when
-            driving many batches on one map).
+        record: keep the first ``record`` positions of every trial (for plots).
 
     Raises:
         ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) as :func:`navigate`, and a goal
-            without a row of ``to_go``.
+            without a row of ``world.to_go``.
     """
+    keys, starts, goals = trials.keys, trials.starts, trials.goals
+    landmarks, elements, graph, to_go, goal_row, tables, plans = world
     from .linkgraph import GoalTable, plan_from
 
     if not isinstance(to_go, GoalTable):
-        raise ValueError("to_go must be the GoalTable of linkgraph.goal_distances, got "
+        raise ValueError("world.to_go must be the GoalTable of linkgraph.goal_distances, got "
                          f"{type(to_go).__name__}")
     _check_params(params)
     got = validate(landmarks=np.asarray(landmarks), elements=elements,
@@ -720,9 +780,8 @@ def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_ro
     # its result is masked below and no other trial depends on it
     path = np.asarray(plan.path).copy()
     path[~reach, 0] = cand[starts[~reach], 0]
-    res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
-                   starts, goals, path, n, params, model, poses=pose1, chunk=chunk,
-                   record=record, plans=plans)
+    res = navigate(Trials(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), starts, goals,
+                          path, n, pose1), world, params, model, chunk=chunk, record=record)
     status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, UNREACHABLE, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)

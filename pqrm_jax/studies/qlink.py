@@ -191,8 +191,9 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
                   leave=False):
         sl = slice(i, i + block)
         try:
-            r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                                   pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans)
+            r = nav.navigate_pairs(nav.Trials(keys[sl], pairs[sl, 0], pairs[sl, 1]),
+                                   nav.NavMap(lm, el, g, to_go, goal_row, tables, plans),
+                                   params, model, chunk=cfg.chunk)
         except Exception as exc:  # noqa: BLE001  (XLA raises its OOM as several types)
             text = str(exc)
             if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
@@ -405,9 +406,10 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
                                        pairs[:1])
     q = QUEUE_PER_LANE
-    compiled = nav.navigate(jnp.concatenate([keys] * q), lm, el, np.repeat(pairs[:1, 0], q),
-                            np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
-                            np.ones(q, np.int32), params, model, chunk=1, plans=plans,
+    trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
+                        np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
+                        np.ones(q, np.int32))
+    compiled = nav.navigate(trials, nav.NavMap(lm, el, plans=plans), params, model, chunk=1,
                             compile_only=True)
     nbytes = chunking.program_bytes(compiled)
     budget = chunking.budget(memory_bytes)
@@ -676,7 +678,7 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
 
     lm, el, g, to_go, goal_row, tables, _, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
-    return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
-                              pairs[:, 1], params, model,
-                              chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
-                              record=record, plans=plans)    # few lanes: the traces are big
+    return nav.navigate_pairs(nav.Trials(keys, pairs[:, 0], pairs[:, 1]),
+                              nav.NavMap(lm, el, g, to_go, goal_row, tables, plans), params,
+                              model, chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
+                              record=record)    # few lanes: the traces are big
