@@ -64,20 +64,21 @@ def _landmarks(name: str, value) -> None:
 
 
 def _elements(name: str, elements, probs_used: bool) -> None:
+    idn = name if name == "ids" else f"{name}.ids"
     ids = np.asarray(elements.ids)
     if ids.ndim != 2 or ids.shape[1] != 3:
-        raise ValueError(f"{name}.ids must have shape (E, 3), got {ids.shape}")
+        raise ValueError(f"{idn} must have shape (E, 3), got {ids.shape}")
     if ids.shape[0] == 0:
         raise ValueError(f"{name} is empty: the map has no map elements")
     n = elements.num_landmarks
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 3:
         raise ValueError(f"{name}.num_landmarks must be an integer >= 3, got {n!r}")
-    ids = _ids(f"{name}.ids", ids, int(n))
+    ids = _ids(idn, ids, int(n))
     srt = np.sort(ids, axis=1)
     rep = (srt[:, 1:] == srt[:, :-1]).any(1)
     if rep.any():
         e = int(np.flatnonzero(rep)[0])
-        raise ValueError(f"{name}.ids[{e}] = {ids[e].tolist()} repeats a landmark")
+        raise ValueError(f"{idn}[{e}] = {ids[e].tolist()} repeats a landmark")
     probs = np.asarray(elements.probs)
     if probs.ndim != 3 or probs.shape[:2] != (ids.shape[0], 6):
         raise ValueError(f"{name}.probs must have shape ({ids.shape[0]}, 6, Q), "
