@@ -37,7 +37,7 @@ from .elements import MapElements, exact_elements, from_mapping_run, incidence
 from .linkgraph import (
     GoalTable,
     LinkGraph,
-    Plan,
+    LinkPlan,
     goal_distances,
     link_graph,
     neighbour_table,
@@ -64,7 +64,7 @@ __all__ = [
     "checks", "validate", "costs", "elements", "guarantees", "hybrid", "linkgraph", "navigate",
     "pomdp", "trajectory",
     "MapElements", "from_mapping_run", "exact_elements", "incidence",
-    "LinkGraph", "Plan", "GoalTable", "link_graph", "plan_pairs", "plan_from", "goal_distances",
+    "LinkGraph", "LinkPlan", "GoalTable", "link_graph", "plan_pairs", "plan_from", "goal_distances",
     "neighbour_table", "to_networkx", "edge_costs", "edge_success", "path_success",
     "SearchPOMDP", "search_model", "solve_exact", "open_loop_plan", "estimate_detection",
     "NavParams", "NavResult", "PairResult", "Trials", "NavMap", "nav_map", "navigate_pairs",

@@ -388,6 +388,54 @@ def _visible_references(ids, kind, lm, walls, pos, nav_range):
     return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
 
 
+def _goal_stage(s: _S, mem_g, vis_g, meas_g, tau: int) -> _S:
+    """The goal element's step (docs/qlink.md §invivo, the goal rule): the centroid of L_goal
+    from what the robot has measured — the references (at entry) and the members a scan sees
+    (``vis_g [3]``, measured ``meas_g [3, 2]``); a member still unseen: drive to the
+    references' measured midpoint (with sides ≤ R every member is in range there) and scan
+    again, at most ``tau`` scans there, else ``GOAL_NOT_FOUND``."""
+    ref_of = mem_g[:, None] == s.refs[None, :]                       # [3, 2]
+    is_ref = ref_of.any(1)
+    ref_xy = jnp.where(ref_of[:, :1], s.refs_xy[0], s.refs_xy[1])
+    seen_g = s.gseen | is_ref | vis_g
+    gxy = jnp.where(s.gseen[:, None], s.gxy, jnp.where(is_ref[:, None], ref_xy, meas_g))
+    cen = jnp.mean(gxy, axis=0)
+    s_ok = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
+                      status=jnp.int32(SUCCESS), gseen=seen_g, gxy=gxy)
+    centre = jnp.where(s.c == 0, jnp.mean(s.refs_xy, axis=0), s.pos)
+    s_wait = s._replace(c=s.c + 1, gseen=seen_g, gxy=gxy, pos=centre,
+                        length=s.length + jnp.linalg.norm(centre - s.pos),
+                        status=jnp.where(s.c < tau, RUNNING, GOAL_NOT_FOUND).astype(jnp.int32))
+    return where_tree(seen_g.all(), s_ok, s_wait)
+
+
+def _around_walls(s: _S, out: _S, walls, params: HybridParams, scan) -> _S:
+    """The drive ``s.pos → out.pos`` with walls as obstacles (docs/qlink.md §invivo): a
+    straight line that meets a wall goes round the wall's nearer end (one waypoint,
+    ``standoff`` beyond it); a drive up to a wall stops at it; if the way round is blocked too,
+    the robot stops at the wall and the trial ends with ``COLLISION``. Writes the waypoint and
+    the stop into the trace (``2·scan − 1``, ``2·scan``)."""
+    standoff = jnp.maximum(params.sigma, 1e-3 * params.nav_range)
+    hit, t_hit, near_end, first = wall_contact(s.pos, out.pos, walls, 3 * standoff)
+    seg = out.pos - s.pos
+    d_seg = jnp.linalg.norm(seg)
+    back = jnp.maximum(t_hit * d_seg - standoff, 0.0)
+    contact = s.pos + seg * back / jnp.maximum(d_seg, 1e-30)
+    via, d_via, blocked = _detour(s.pos, out.pos, walls, first, standoff)
+    s_hit = s._replace(pos=contact, length=s.length + back, status=jnp.int32(COLLISION))
+    s_round = out._replace(length=s.length + d_via)
+    s_stop = out._replace(pos=contact, length=s.length + back)
+    out = where_tree(hit & near_end, s_stop,
+                     where_tree(hit & ~blocked, s_round, where_tree(hit, s_hit, out)))
+    via = jnp.where(hit & ~near_end & ~blocked, via, out.pos)
+    t2 = out.trace.shape[0]
+    i_via, i_pos = 2 * scan - 1, 2 * scan
+    tr_ = out.trace.at[jnp.minimum(i_via, t2 - 1)].set(
+        jnp.where(i_via < t2, via, out.trace[t2 - 1]))
+    tr_ = tr_.at[jnp.minimum(i_pos, t2 - 1)].set(jnp.where(i_pos < t2, out.pos, tr_[t2 - 1]))
+    return out._replace(stops=scan, trace=tr_)
+
+
 @partial(jax.jit, static_argnames=("trace_len",))
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
@@ -427,30 +475,10 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             cur = path[s.k]
             nxt = path[jnp.minimum(s.k + 1, path.shape[0] - 1)]
             mem_n = ids[nxt]
-            # ---- goal: drive to the centroid of L_goal measured from what the robot sees:
-            # the references (measured at entry) and the members a scan sees (in range, not
-            # missed); a member unseen after the scans at the midpoint: GOAL_NOT_FOUND
-            # (docs/qlink.md §invivo, the goal rule)
+            # ---- goal: drive to the centroid of L_goal as measured (_goal_stage)
             mem_g = ids[cur]
-            ref_of = mem_g[:, None] == s.refs[None, :]                       # [3, 2]
-            is_ref = ref_of.any(1)
-            ref_xy = jnp.where(ref_of[:, :1], s.refs_xy[0], s.refs_xy[1])
-            vis_g = visible(k_miss, scan, s.pos, mem_g)
-            seen_g = s.gseen | is_ref | vis_g
-            gxy = jnp.where(s.gseen[:, None], s.gxy,
-                            jnp.where(is_ref[:, None], ref_xy, measure(k_noise, scan, mem_g)))
-            cen = jnp.mean(gxy, axis=0)
-            s_goal_ok = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
-                                   status=jnp.int32(SUCCESS), gseen=seen_g, gxy=gxy)
-            # a member still unseen: drive to the references' measured midpoint (with sides
-            # <= R every member is in range there) and scan again, at most tau scans there
-            g_more = s.c < tau
-            centre_g = jnp.where(s.c == 0, jnp.mean(s.refs_xy, axis=0), s.pos)
-            s_goal_wait = s._replace(
-                c=s.c + 1, gseen=seen_g, gxy=gxy, pos=centre_g,
-                length=s.length + jnp.linalg.norm(centre_g - s.pos),
-                status=jnp.where(g_more, RUNNING, GOAL_NOT_FOUND).astype(jnp.int32))
-            s_goal = where_tree(seen_g.all(), s_goal_ok, s_goal_wait)
+            s_goal = _goal_stage(s, mem_g, visible(k_miss, scan, s.pos, mem_g),
+                                 measure(k_noise, scan, mem_g), tau)
             # ---- ENTER: 360° scan for the next element
             vis_full = visible(k_miss, scan, s.pos, mem_n)
             ok, new_refs = pair_of(nxt, vis_full)
@@ -501,32 +529,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
             s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
             out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
-            # walls are obstacles (docs/qlink.md §invivo): a drive whose straight line meets
-            # a wall goes round the wall's nearer end (one waypoint, `standoff` beyond it);
-            # a drive up to a wall stops at it; if the way round is blocked too, the robot
-            # stops at the wall and the trial ends with COLLISION
-            standoff = jnp.maximum(params.sigma, 1e-3 * params.nav_range)
-            hit, t_hit, near_end, first = wall_contact(s.pos, out.pos, walls, 3 * standoff)
-            seg = out.pos - s.pos
-            d_seg = jnp.linalg.norm(seg)
-            back = jnp.maximum(t_hit * d_seg - standoff, 0.0)
-            contact = s.pos + seg * back / jnp.maximum(d_seg, 1e-30)
-            via, d_via, blocked = _detour(s.pos, out.pos, walls, first, standoff)
-            s_hit = s._replace(pos=contact, length=s.length + back,
-                               status=jnp.int32(COLLISION))
-            s_round = out._replace(length=s.length + d_via)
-            s_stop = out._replace(pos=contact, length=s.length + back)
-            out = where_tree(hit & near_end, s_stop,
-                             where_tree(hit & ~blocked, s_round,
-                                        where_tree(hit, s_hit, out)))
-            via = jnp.where(hit & ~near_end & ~blocked, via, out.pos)
-            t2 = out.trace.shape[0]
-            i_via, i_pos = 2 * scan - 1, 2 * scan
-            tr_ = out.trace.at[jnp.minimum(i_via, t2 - 1)].set(
-                jnp.where(i_via < t2, via, out.trace[t2 - 1]))
-            tr_ = tr_.at[jnp.minimum(i_pos, t2 - 1)].set(
-                jnp.where(i_pos < t2, out.pos, tr_[t2 - 1]))
-            out = out._replace(stops=scan, trace=tr_)
+            out = _around_walls(s, out, walls, params, scan)
             over = (out.status == RUNNING) & (scan >= budget)
             return out._replace(status=jnp.where(over, BUDGET, out.status))
 

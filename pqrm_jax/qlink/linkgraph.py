@@ -28,10 +28,11 @@ import jax.numpy as jnp
 import networkx as nx
 import numpy as np
 
+from ..triplets import shared_landmarks
 from .checks import validate
 from .elements import MapElements, check_elements, incidence
 
-__all__ = ["LinkGraph", "Plan", "GoalTable", "link_graph", "shared_counts", "bfs_distances",
+__all__ = ["LinkGraph", "LinkPlan", "GoalTable", "link_graph", "shared_counts", "bfs_distances",
            "shortest_costs", "shortest_tree", "plan_pairs", "to_networkx", "path_cost",
            "goal_distances", "plan_from", "neighbour_table", "work_costs"]
 
@@ -54,7 +55,7 @@ class LinkGraph(NamedTuple):
         return np.isfinite(self.cost)
 
 
-class Plan(NamedTuple):
+class LinkPlan(NamedTuple):
     """Planned paths for B start/goal landmark pairs.
 
     reachable: ``[B]`` bool, a path exists.
@@ -92,10 +93,7 @@ def shared_counts(elements: MapElements) -> np.ndarray:
     [[0, 2, 0], [2, 0, 1], [0, 1, 0]]
     """
     check_elements(elements)
-    inc = incidence(elements).astype(np.float32)
-    s = np.rint(inc.T @ inc).astype(np.int16)
-    np.fill_diagonal(s, 0)
-    return s
+    return shared_landmarks(np.asarray(elements.ids), elements.num_landmarks).astype(np.int16)
 
 
 def link_graph(elements: MapElements, beta: int, cost: np.ndarray | None = None) -> LinkGraph:
@@ -356,7 +354,7 @@ def _path_costs(graph: LinkGraph, path: np.ndarray) -> np.ndarray:
     return np.where(ok, c, 0.0).sum(1)
 
 
-def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> Plan:
+def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> LinkPlan:
     """Plan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
 
     Sources are all elements containing the start landmark, targets all elements containing
@@ -393,7 +391,7 @@ def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> Plan:
         ok, n, path, best = _extract(jnp.asarray(dist[inv]), jnp.asarray(cost),
                                      jnp.asarray(inc[starts]), jnp.asarray(inc[goals]),
                                      max_len=max(1, int(np.max(hops)) + 1))
-        return Plan(ok, jnp.where(ok, n, 0), path, best if scale == 1.0 else
+        return LinkPlan(ok, jnp.where(ok, n, 0), path, best if scale == 1.0 else
                     np.asarray(best, np.float64) * scale)    # equal costs: hops × the cost
     d, pred, hops = (np.asarray(x) for x in shortest_tree(w, src))
     dt = np.where(inc[goals], d[inv], np.inf)
@@ -405,7 +403,7 @@ def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> Plan:
                    jnp.asarray(ok), max_len=max(1, int(n.max(initial=1))))
     path = np.asarray(jax.vmap(_reverse)(back, jnp.asarray(n, jnp.int32)))
     cost = np.where(ok, _path_costs(graph, path), np.inf)
-    return Plan(jnp.asarray(ok), jnp.asarray(n, jnp.int32), jnp.asarray(path), cost)
+    return LinkPlan(jnp.asarray(ok), jnp.asarray(n, jnp.int32), jnp.asarray(path), cost)
 
 
 def path_cost(graph: LinkGraph, path: np.ndarray) -> float:
@@ -484,7 +482,7 @@ def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
 
 
 def plan_from(graph: LinkGraph, to_go: GoalTable, rows, candidates,
-              max_len: int | None = None) -> Plan:
+              max_len: int | None = None) -> LinkPlan:
     """Paths from per-trial candidate start elements down a :class:`GoalTable`.
 
     The candidate with the least cost-to-go (ties: the first) is ``M_1``; the path follows
@@ -521,4 +519,4 @@ def plan_from(graph: LinkGraph, to_go: GoalTable, rows, candidates,
         raise ValueError(f"max_len = {max_len} is shorter than the longest path ({need})")
     path = _follow(to_go.next, jnp.asarray(rows, jnp.int32), jnp.asarray(u0, jnp.int32),
                    jnp.asarray(ok), max_len=max(1, max_len))
-    return Plan(jnp.asarray(ok), jnp.asarray(n), path, best)
+    return LinkPlan(jnp.asarray(ok), jnp.asarray(n), path, best)
