@@ -10,10 +10,13 @@ direction (P §4.3.3).
 Planning (eq. 4.1, ``P* = argmin_P Σ C_ij``) is multi-source and multi-target (P §4.3.2: the
 robot starts in any element whose references it sees and plans "to any map element containing
 landmark L_D"). :func:`bfs_distances` (unit costs; frontier expansion as boolean matrix
-products in one ``lax.while_loop``) and :func:`shortest_costs` (any non-negative costs;
-Bellman–Ford min-plus relaxation, ``lax.map`` over sources) give the distances from every start
-landmark's elements to every element at once; :func:`plan_pairs` then extracts the path of
-every (start, goal) pair in one ``vmap``. ``|P|`` counts map elements (edges + 1): P §4.4.1,
+products in one ``lax.while_loop``) and :func:`shortest_tree` (any non-negative costs;
+Bellman–Ford min-plus relaxation, ``lax.map`` over sources, recording the predecessor on every
+strict improvement) give the distances from every start landmark's elements to every element
+at once; :func:`plan_pairs` then follows the predecessors of every (start, goal) pair in one
+``vmap`` — simple optimal paths even with zero-cost edges, sized by hop counts
+(docs/qlink.md §linkgraph). Costs are scaled by :func:`work_costs`, never silently cast.
+``|P|`` counts map elements (edges + 1): P §4.4.1,
 "The paths for which |P| = 1 are paths where the goal is visible from the start".
 :func:`to_networkx` returns the graph object users inspect and export.
 """
