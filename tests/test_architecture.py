@@ -276,7 +276,14 @@ def test_no_library_function_of_100_lines():
 #: Faces whose public functions are documented in full (issue 28, item 6); the others follow
 #: as their systems settle (qlink, bsp, hssh, hssh_global, qrm: issues 24-27).
 DOCUMENTED_FACES = ("calculi", "tables", "pqrm", "compositions", "serge", "sim", "triplets",
-                    "protocols")
+                    "protocols", "hssh")
+#: Functions of those faces whose files another issue is rewriting.
+DOCSTRING_PENDING = {
+    "hssh.left_of": "issue 26 (one HSSH star) rewrites hssh/star.py",
+    "hssh.right_of": "issue 26 (one HSSH star) rewrites hssh/star.py",
+    "hssh.path_continuity": "issue 26 (one HSSH star) rewrites hssh/star.py",
+    "hssh.star_isomorphisms": "issue 26 (one HSSH star) rewrites hssh/star.py",
+}
 
 
 def docstring_gaps(fn) -> list[str]:
@@ -315,7 +322,7 @@ def test_public_functions_of_the_documented_faces_have_google_docstrings():
             obj = getattr(mod, n)
             if isinstance(obj, types.ModuleType) or inspect.isclass(obj) or not callable(obj):
                 continue
-            if found := docstring_gaps(obj):
+            if (found := docstring_gaps(obj)) and f"{face}.{n}" not in DOCSTRING_PENDING:
                 gaps[f"{face}.{n}"] = found
     assert gaps == {}, gaps
 

@@ -62,6 +62,13 @@ class LPMState(NamedTuple):
 def lpm_init(pose: jax.Array, params: LPMParams = DEFAULT) -> LPMState:
     """An all-unknown LPM with the robot (``pose`` = x, y, theta) in the central cell.
 
+    Args:
+        pose: ``[3]`` the robot's pose (the LPM's frame, B §4.1).
+        params: the LPM parameters (``size`` cells of ``resolution``).
+
+    Returns:
+        :class:`LPMState` with ``logodds [N, N]`` zeros and ``origin [2]``.
+
     >>> s = lpm_init(jnp.array([1.0, 2.0, 0.0]), LPMParams(size=5, resolution=1.0))
     >>> s.origin.tolist(), float(s.logodds.sum())
     ([-1.0, 0.0], 0.0)
@@ -131,6 +138,13 @@ def lpm_update(state: LPMState, pose: jax.Array, scan: LidarScan,
 def lpm_classify(state: LPMState,
                  params: LPMParams = DEFAULT) -> tuple[jax.Array, jax.Array]:
     """``(occupied, unknown)`` bool ``[N, N]`` masks of an LPM (the rest is free).
+
+    Args:
+        state: the LPM.
+        params: its thresholds (B §4.1).
+
+    Returns:
+        ``(occupied [N, N], unknown [N, N])`` bool.
 
     >>> s = LPMState(jnp.array([[1.0, 0.0, -1.0]]), jnp.zeros(2))
     >>> [m.astype(int).tolist() for m in lpm_classify(s)]

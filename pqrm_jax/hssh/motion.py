@@ -48,6 +48,13 @@ def _wrap(a):
 def decompose(prev: jax.Array, pose: jax.Array) -> jax.Array:
     """Turn--travel--turn ``[alpha, rho, beta]`` of the odometry step ``prev -> pose`` (B §4.3.1).
 
+    Args:
+        prev: ``[3]`` the odometry pose before the step.
+        pose: ``[3]`` the odometry pose after it.
+
+    Returns:
+        ``[3]`` ``(alpha, rho, beta)``: first turn, travel, second turn.
+
     >>> [round(float(v), 4) for v in decompose(jnp.zeros(3), jnp.array([0.0, 1.0, 0.0]))]
     [1.5708, 1.0, -1.5708]
     >>> [round(float(v), 4) + 0.0 for v in decompose(jnp.zeros(3), jnp.array([-1.0, 0.0, 0.0]))]
