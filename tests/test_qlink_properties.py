@@ -363,3 +363,30 @@ def test_a_landmark_on_a_dividing_line_is_split_exactly(seed, grid, scale):
             assert (s >= 0).all()
             want += np.eye(4)[s] / 4
     np.testing.assert_allclose(probs, want, atol=1e-6)
+
+
+def test_the_hybrid_executive_validates_its_inputs():
+    pts = np.array([[0., 0.], [10., 1.], [4., 7.]])
+    walls = np.array([[[30., -5.], [30., 5.]], [[60., -5.], [60., 5.]]])
+    lm = jnp.asarray(np.concatenate([pts, walls.mean(1)]))
+    el = qel.MapElements(jnp.array([[0, 1, 2], [1, 2, 3]]), jnp.full((2, 6, 3), 1 / 3), 5)
+    hmap = hybrid.HybridMap(el, np.array([hybrid.LR, hybrid.LR]), (3, 4))
+    tables = (jnp.zeros((2, 6, 4), jnp.int32), jnp.zeros((2, 6, 4), jnp.int32))
+    keys = jax.random.split(jax.random.key(0), 1)
+    ok = dict(paths=np.array([[0, 1]]), n=np.array([2]), refs=np.array([[0, 1]]),
+              pos=np.zeros((1, 2)), params=hybrid.HybridParams(60.0, 0.7, 0.0))
+
+    def drive(**kw):
+        a = {**ok, **kw}
+        return hybrid.drive(keys, hmap, lm, walls, a["paths"], a["n"], a["refs"], a["pos"],
+                            a["params"], tables)
+
+    for kw, msg in ((dict(pos=np.full((1, 2), np.nan)), "positions"),
+                    (dict(params=hybrid.HybridParams(float("nan"), 0.7, 0.0)), "nav_range"),
+                    (dict(params=hybrid.HybridParams(60.0, 0.7, 1.5)), "p_miss"),
+                    (dict(paths=np.array([[0, 9]])), r"paths\[0, 1\] = 9"),
+                    (dict(n=np.array([0])), "n_elements")):
+        with pytest.raises(ValueError, match=msg):
+            drive(**kw)
+    with pytest.raises(ValueError, match="beta"):
+        hybrid.hybrid_costs(hmap, 0, hybrid.search_models())
