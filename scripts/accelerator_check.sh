@@ -38,6 +38,7 @@ step tables "$STEP_S" "$PY" benchmarks/bench_tables.py --repeat 1 --single-probl
 step qrm "$QRM_S" "$PY" benchmarks/bench_qrm.py --quick --out "$WORK/qrm.json"
 step serge "$SERGE_S" "$PY" benchmarks/bench_serge.py --trials 64 --seq-trials 4 --ref-trials 4 \
   --json "$WORK/serge.json"
+step bsp "$STEP_S" "$PY" benchmarks/bench_bsp.py --quick --json "$WORK/bsp.json"
 step compositions "$STEP_S" "$PY" benchmarks/bench_compositions.py --quick \
   --json "$WORK/compositions.json"
 step study "$STUDY_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 20 --levels 2 \

@@ -35,8 +35,8 @@ from .measurement import (
     sample_bank,
 )
 
-__all__ = ["MapInfo", "MapState", "Mapper", "mapper", "ordered_triplets", "update_observed",
-           "map_bytes_per_triplet", "check_triplets"]
+__all__ = ["MapInfo", "MapState", "Mapper", "fuse_rows", "mapper", "ordered_triplets",
+           "update_observed", "map_bytes_per_triplet", "check_triplets"]
 
 
 def check_triplets(triplets, num_landmarks: int) -> np.ndarray:
@@ -155,21 +155,49 @@ class Mapper(NamedTuple):
     update_batch: Callable[..., tuple[MapState, MapInfo]] | None = None
 
 
-def _bayes(prior, meas, mapped, seen):
-    """Eq. 2.10 with initialisation and the conflict rule; returns (new, conflict).
+def fuse_rows(prior: jax.Array, meas: jax.Array, mapped: jax.Array, seen: jax.Array
+              ) -> tuple[jax.Array, jax.Array]:
+    """One PQRM row fusion (P eq. 2.10 with initialisation and the conflict rule).
 
-    The normaliser is summed column by column in a fixed order: XLA's row reduction picks
-    its summation order from the number of rows, which would make a row's bits depend on how
-    many triplets share the call (a sparse map must give exactly the dense map's rows).
+    The one rule of every PQRM row update in the library (the PQRM map and the qualitative
+    BSP executive, ``pqrm_jax.bsp.execute``; docs/pqrm.md §map):
+
+    * a row not ``seen`` keeps ``prior``;
+    * a row seen for the first time (``~mapped``) becomes ``meas``;
+    * a mapped row becomes ``p(q) ∝ meas(q) · prior(q)``; when that product is zero for every
+      state (a **conflict**) the prior is kept and ``conflict`` is True for the row.
+
+    Never a NaN for finite, non-negative inputs. ``qlink.elements.fuse`` is the *floored*
+    variant (likelihoods floored before the product, so it never conflicts; docs/pqrm.md §map).
+    The normaliser is summed column by column in a fixed order: XLA's row reduction picks its
+    summation order from the number of rows, which would make a row's bits depend on how many
+    triplets share the call (a sparse map must give exactly the dense map's rows).
+
+    Args:
+        prior: [..., Q] current rows (ignored where ``~mapped``).
+        meas: [..., Q] measurement distributions ``p(q | Z_t)`` (P eq. 2.9).
+        mapped: [...] bool, the row holds a distribution.
+        seen: [...] bool, the row is measured now (with a defined measurement).
+
+    Returns:
+        ``(rows [..., Q], conflict [...] bool)``.
+
+    >>> import jax.numpy as jnp
+    >>> prior = jnp.array([[0.5, 0.5, 0.0], [1.0, 0.0, 0.0], [0.2, 0.8, 0.0]])
+    >>> meas = jnp.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    >>> rows, conflict = fuse_rows(prior, meas, jnp.array([True, True, False]),
+    ...                            jnp.array([True, True, True]))
+    >>> rows.tolist(), conflict.tolist()
+    ([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [False, True, False])
     """
     post = meas * prior
-    z = post[:, :1]
+    z = post[..., :1]
     for q in range(1, post.shape[-1]):
-        z = z + post[:, q:q + 1]
-    conflict = seen & mapped & (z[:, 0] <= 0)
+        z = z + post[..., q:q + 1]
+    conflict = seen & mapped & (z[..., 0] <= 0)
     post = post / jnp.where(z > 0, z, 1.0)
-    new = jnp.where((seen & ~mapped)[:, None], meas, prior)
-    new = jnp.where((seen & mapped & ~conflict)[:, None], post, new)
+    new = jnp.where((seen & ~mapped)[..., None], meas, prior)
+    new = jnp.where((seen & mapped & ~conflict)[..., None], post, new)
     return new, conflict
 
 
@@ -197,7 +225,7 @@ def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
     probs, conflicts = {}, {}
     for c in cals:
         meas = counts_to_probabilities(fine @ jnp.asarray(aggregation_matrix(c)))
-        new, conflict = _bayes(state.probs[c.name], meas, state.mapped, use)
+        new, conflict = fuse_rows(state.probs[c.name], meas, state.mapped, use)
         probs[c.name] = new
         conflicts[c.name] = state.num_conflicts[c.name] + conflict.astype(jnp.int32)
     return MapState(
