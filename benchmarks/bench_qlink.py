@@ -55,19 +55,20 @@ def main() -> None:
     pairs = pairs[rng.choice(len(pairs), n_batch, replace=False)]
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(2), i))(jnp.arange(n_batch))
     p = nav.NavParams(map_range=r, nav_range=0.8 * r, sigma=0.3, ds=r / 40, start_offset=r / 20)
-    args = (lm, el, g, to_go, goal_row, tables)
     plans = nav.qsr_plans(el, pomdp.search_model(horizon=4))   # QSR plans, shared by both
+    world = nav.NavMap(lm, el, g, to_go, goal_row, tables, plans)
+
+    def trials(sl):
+        return nav.Trials(keys[sl], pairs[sl, 0], pairs[sl, 1])
 
     def batched():
-        return nav.navigate_pairs(keys, *args, pairs[:, 0], pairs[:, 1], p, chunk=CHUNK,
-                                  plans=plans)
+        return nav.navigate_pairs(trials(slice(None)), world, p, chunk=CHUNK)
 
     def one_at_a_time():
-        return [nav.navigate_pairs(keys[i:i + 1], *args, pairs[i:i + 1, 0], pairs[i:i + 1, 1],
-                                   p, chunk=1, plans=plans) for i in range(n_loop)]
+        return [nav.navigate_pairs(trials(slice(i, i + 1)), world, p, chunk=1)
+                for i in range(n_loop)]
 
-    nav.navigate_pairs(keys[:1], *args, pairs[:1, 0], pairs[:1, 1], p, chunk=1,
-                       plans=plans)                                                  # compile
+    nav.navigate_pairs(trials(slice(0, 1)), world, p, chunk=1)                       # compile
     batched()                                                                        # compile
     t0, c0 = time.perf_counter(), time.process_time()
     res_b = batched()
@@ -81,15 +82,15 @@ def main() -> None:
     per_b, per_l = t_b / n_batch, t_l / n_loop
     # the drive alone (nav.navigate on planned paths), without the per-call host work
     plan = lg.plan_pairs(g, el, pairs[:, 0], pairs[:, 1])
-    drv = (lm, el, pairs[:, 0], pairs[:, 1], plan.path, plan.n_elements, p)
+    drv = nav.Trials(keys, pairs[:, 0], pairs[:, 1], np.asarray(plan.path),
+                     np.asarray(plan.n_elements))
 
     def drive_batched():
-        return nav.navigate(keys, *drv, chunk=CHUNK, plans=plans)
+        return nav.navigate(drv, world, p, chunk=CHUNK)
 
     def drive_loop():
-        return [nav.navigate(keys[i:i + 1], lm, el, pairs[i:i + 1, 0], pairs[i:i + 1, 1],
-                             plan.path[i:i + 1], plan.n_elements[i:i + 1], p, chunk=1,
-                             plans=plans) for i in range(n_loop)]
+        return [nav.navigate(jax.tree.map(lambda x, i=i: x[i:i + 1], drv), world, p, chunk=1)
+                for i in range(n_loop)]
 
     drive_batched()
     drive_loop()

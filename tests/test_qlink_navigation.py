@@ -44,8 +44,12 @@ def world():
 def _run(w, frac=1.0, occ=0.0, sigma=0.0, **kw):
     p = nav.NavParams(map_range=R, nav_range=frac * R, occluder_radius=occ, sigma=sigma,
                       ds=R / 40, start_offset=R / 20, **kw)
-    return nav.navigate_pairs(w["keys"], w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"],
-                              w["tables"], w["pairs"][:, 0], w["pairs"][:, 1], p)
+    return nav.navigate_pairs(nav.Trials(w["keys"], w["pairs"][:, 0], w["pairs"][:, 1]),
+                              _map(w), p)
+
+
+def _map(w):
+    return nav.NavMap(w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"], w["tables"])
 
 
 def test_prop1_geometry_lemmas():
@@ -178,9 +182,11 @@ def test_local_visibility_equals_testing_every_landmark(cases):
         sim.occluder_table(np.zeros((3, 2)), 1.0, -0.1)
 
 
-def test_plan_from_neighbour_lists_match_the_dense_walk():
-    # plan_from walks padded adjacency lists; a NumPy walk over the dense [E, E] matrix
-    # (argmin of cost + cost-to-go, ties to the smaller index) gives the same paths
+def test_plan_from_matches_the_dense_walk_and_is_optimal():
+    # unit costs: plan_from follows the recorded successors, which equal a NumPy walk over
+    # the dense [E, E] matrix (argmin of cost + cost-to-go, ties to the smaller index);
+    # other costs (ties broken either way): every path is simple, ends at the goal and costs
+    # exactly the cost-to-go of its first element
     rng = np.random.default_rng(6)
     lm = jnp.asarray(rng.uniform(0, 40, (25, 2)))
     vis = np.asarray(jax.vmap(sim.visibility, (0, None, None))(
@@ -191,27 +197,34 @@ def test_plan_from_neighbour_lists_match_the_dense_walk():
     for cost in (None, rng.integers(1, 4, (e, e)).astype(float)):
         g = lg.link_graph(el, 2, cost)
         lms = np.flatnonzero(qel.incidence(el).any(1))
-        to_go = np.asarray(lg.goal_distances(g, el, lms), np.float32)
+        table = lg.goal_distances(g, el, lms)
+        to_go = np.asarray(table.cost)
         rows = rng.integers(0, len(lms), 64)
         cands = rng.integers(-1, e, (64, 5))
         cands[:, 0] = rng.integers(0, e, 64)
-        plan = lg.plan_from(g, to_go, rows, cands, 40)
-        dense = np.where(g.adjacency, g.cost, np.inf).astype(np.float32)
+        plan = lg.plan_from(g, table, rows, cands, 40)
+        dense = np.where(g.adjacency, g.cost, np.inf)
         for i in range(64):
             d = to_go[rows[i]]
             c = cands[i][cands[i] >= 0]
             u = int(c[np.argmin(d[c])])
-            want = []
-            if np.isfinite(d[u]):
+            got = np.asarray(plan.path[i])
+            got = got[got >= 0].tolist()
+            assert int(plan.n_elements[i]) == len(got)
+            if not np.isfinite(d[u]):
+                assert got == [] and not bool(plan.reachable[i])
+                continue
+            assert got[0] == u and len(set(got)) == len(got)
+            assert lms[rows[i]] in ids[got[-1]]
+            assert lg.path_cost(g, np.array(got)) == pytest.approx(d[u], rel=1e-6)
+            if cost is None:
                 want = [u]
                 while d[u] > 0:
                     row = dense[u] + d
                     row[u] = np.inf
                     u = int(np.argmin(row))
                     want.append(u)
-            got = np.asarray(plan.path[i])
-            assert got[got >= 0].tolist() == want
-            assert int(plan.n_elements[i]) == len(want)
+                assert got == want
 
 
 def test_results_do_not_depend_on_the_batch_or_lanes(world):
@@ -219,11 +232,10 @@ def test_results_do_not_depend_on_the_batch_or_lanes(world):
     # trials queued on the 64 lanes of the pool (lanes that finish take the next trial)
     w = world
     full = _run(w, frac=0.8, sigma=0.3)
-    args = (w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"], w["tables"])
     p = nav.NavParams(map_range=R, nav_range=0.8 * R, sigma=0.3, ds=R / 40, start_offset=R / 20)
     for sl in (slice(5, 9), slice(90, 91)):
-        part = nav.navigate_pairs(w["keys"][sl], *args, w["pairs"][sl, 0], w["pairs"][sl, 1],
-                                  p)
+        part = nav.navigate_pairs(nav.Trials(w["keys"][sl], w["pairs"][sl, 0],
+                                             w["pairs"][sl, 1]), _map(w), p)
         assert (full.status[sl] == part.status).all()
         np.testing.assert_allclose(full.length[sl], part.length, rtol=1e-5)
         np.testing.assert_array_equal(np.asarray(full.nav.steps)[sl], np.asarray(part.nav.steps))
@@ -233,10 +245,9 @@ def test_results_do_not_depend_on_the_batch_or_lanes(world):
 @pytest.mark.slow
 def test_results_do_not_depend_on_the_lane_count(world):
     w = world
-    args = (w["lm"], w["el"], w["g"], w["to_go"], w["goal_row"], w["tables"])
     p = nav.NavParams(map_range=R, nav_range=0.8 * R, sigma=0.3, ds=R / 40, start_offset=R / 20)
-    a, b = (nav.navigate_pairs(w["keys"], *args, w["pairs"][:, 0], w["pairs"][:, 1], p,
-                               chunk=c) for c in (4, 64))
+    a, b = (nav.navigate_pairs(nav.Trials(w["keys"], w["pairs"][:, 0], w["pairs"][:, 1]),
+                               _map(w), p, chunk=c) for c in (4, 64))
     assert (a.status == b.status).all()
     np.testing.assert_allclose(a.length, b.length, rtol=1e-5)
 
@@ -246,18 +257,17 @@ def test_budget_and_bad_input(world):
     s, t = w["pairs"][:4, 0], w["pairs"][:4, 1]
     plan = lg.plan_pairs(w["g"], w["el"], s, t)
     p = nav.NavParams(map_range=R, nav_range=R, ds=R / 40)
-    r = nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p,
-                     budget=np.full(4, 3))
+    tri = nav.Trials(w["keys"][:4], s, t, np.asarray(plan.path), np.asarray(plan.n_elements))
+    world_ = nav.NavMap(w["lm"], w["el"])
+    r = nav.navigate(tri._replace(budget=np.full(4, 3)), world_, p)
     assert (np.asarray(r.status) == nav.BUDGET).all()        # ends with a reason, no hang
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="nav_range"):
-            nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements,
-                         p._replace(nav_range=bad))
+            nav.navigate(tri, world_, p._replace(nav_range=bad))
     with pytest.raises(ValueError, match="NaN"):
-        nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p,
-                     poses=jnp.full((4, 3), jnp.nan))
+        nav.navigate(tri._replace(poses=jnp.full((4, 3), jnp.nan)), world_, p)
     with pytest.raises(ValueError, match="path"):
-        nav.navigate(w["keys"][:4], w["lm"], w["el"], s, t, plan.path, np.zeros(4), p)
+        nav.navigate(tri._replace(n_elements=np.zeros(4)), world_, p)
     with pytest.raises(ValueError, match="not in the map"):
         lg.plan_pairs(w["g"], w["el"], [999], [int(t[0])])
 
@@ -271,10 +281,11 @@ def test_unreachable_goal_is_reported_not_failed():
     g = lg.link_graph(el, 2)
     to_go = lg.goal_distances(g, el, np.arange(8))
     p = nav.NavParams(map_range=R, nav_range=R, ds=R / 40)
-    r = nav.navigate_pairs(jax.random.split(jax.random.key(0), 2), lm, el, g, to_go,
-                           np.arange(8), nav.start_tables(el), [0, 0], [3, 7], p)
+    r = nav.navigate_pairs(nav.Trials(jax.random.split(jax.random.key(0), 2), [0, 0], [3, 7]),
+                           nav.NavMap(lm, el, g, to_go, np.arange(8), nav.start_tables(el)), p)
     assert r.reachable.tolist() == [True, False]
     assert int(r.status[0]) == nav.SUCCESS and int(r.n_elements[1]) == 0
+    assert int(r.status[1]) == nav.UNREACHABLE           # its own status, not "running"
 
 
 @pytest.mark.slow
@@ -283,7 +294,8 @@ def test_contingency_replanning_resumes_failed_trials(world):
     p = nav.NavParams(map_range=R, nav_range=0.6 * R, sigma=0.0, ds=R / 40, start_offset=R / 20)
     s, t = w["pairs"][:, 0], w["pairs"][:, 1]
     plan = lg.plan_pairs(w["g"], w["el"], s, t)
-    first = nav.navigate(w["keys"], w["lm"], w["el"], s, t, plan.path, plan.n_elements, p)
+    first = nav.navigate(nav.Trials(w["keys"], s, t, np.asarray(plan.path),
+                                    np.asarray(plan.n_elements)), nav.NavMap(w["lm"], w["el"]), p)
     idx, paths, n = nav.replan_inputs(first, w["lm"], w["el"], w["g"], t, plan.path, p)
     st = np.asarray(first.status)
     assert idx.size and set(st[idx]) <= {nav.LINK_NOT_FOUND, nav.REFS_NOT_FOUND}
@@ -297,6 +309,6 @@ def test_contingency_replanning_resumes_failed_trials(world):
         assert failed not in set(zip(paths[j, :-1].tolist(), paths[j, 1:].tolist(),
                                      strict=True))
     start_lm = ids[paths[:, 0], 0]
-    again = nav.navigate(w["keys"][idx], w["lm"], w["el"], start_lm, t[idx], paths, n, p,
-                         poses=first.pose[idx])
+    again = nav.navigate(nav.Trials(w["keys"][idx], start_lm, t[idx], paths, n,
+                                    first.pose[idx]), nav.NavMap(w["lm"], w["el"]), p)
     assert (np.asarray(again.status) != nav.RUNNING).all()

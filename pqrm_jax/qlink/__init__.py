@@ -13,6 +13,11 @@
 * :mod:`.hybrid` — the in-vivo hybrid map (LR point triplets + wall–wall–point bands), its
   −log p costs and the segment-centre/sweep executive with injected misses (P §4.4.2).
 * :mod:`.guarantees` — Assumptions 1–4 and the bounds of Props. 2 and 4 (P §4.3.4).
+* :mod:`.checks` — :func:`~.checks.validate`, the one input check of every entry point.
+
+The executive of planned paths is ``qlink.navigate_paths`` (:func:`.navigate.navigate`; the
+module :mod:`.navigate` keeps the name ``qlink.navigate``); the in-vivo executive is
+``qlink.hybrid.drive``.
 
 >>> import jax.numpy as jnp, numpy as np
 >>> from pqrm_jax import qlink
@@ -21,12 +26,16 @@
 >>> g = qlink.link_graph(el, 2)
 >>> qlink.plan_pairs(g, el, [0], [3]).n_elements.tolist()
 [2]
+>>> el.probs[0, 0].tolist()          # landmark 2 lies on the bisector of 0-1: split exactly
+[0.5, 0.0, 0.5, 0.0]
 """
 
-from . import costs, elements, guarantees, hybrid, linkgraph, navigate, pomdp, trajectory
+from . import checks, costs, elements, guarantees, hybrid, linkgraph, navigate, pomdp, trajectory
+from .checks import validate
 from .costs import edge_costs, edge_success, path_success
 from .elements import MapElements, exact_elements, from_mapping_run, incidence
 from .linkgraph import (
+    GoalTable,
     LinkGraph,
     LinkPlan,
     goal_distances,
@@ -38,21 +47,27 @@ from .linkgraph import (
 )
 from .navigate import (
     FAILURE_REASONS,
+    SENSING,
+    NavMap,
     NavParams,
     NavResult,
     PairResult,
+    Trials,
+    nav_map,
     navigate_pairs,
     start_tables,
 )
-from .navigate import navigate as drive
-from .pomdp import SearchPOMDP, open_loop_plan, search_model, solve_exact
+from .navigate import navigate as navigate_paths
+from .pomdp import SearchPOMDP, estimate_detection, open_loop_plan, search_model, solve_exact
 
 __all__ = [
-    "costs", "elements", "guarantees", "hybrid", "linkgraph", "navigate", "pomdp", "trajectory",
+    "checks", "validate", "costs", "elements", "guarantees", "hybrid", "linkgraph", "navigate",
+    "pomdp", "trajectory",
     "MapElements", "from_mapping_run", "exact_elements", "incidence",
-    "LinkGraph", "LinkPlan", "link_graph", "plan_pairs", "plan_from", "goal_distances",
+    "LinkGraph", "LinkPlan", "GoalTable", "link_graph", "plan_pairs", "plan_from", "goal_distances",
     "neighbour_table", "to_networkx", "edge_costs", "edge_success", "path_success",
-    "SearchPOMDP", "search_model", "solve_exact", "open_loop_plan",
-    "NavParams", "NavResult", "PairResult", "navigate_pairs", "start_tables", "drive",
-    "FAILURE_REASONS",
+    "SearchPOMDP", "search_model", "solve_exact", "open_loop_plan", "estimate_detection",
+    "NavParams", "NavResult", "PairResult", "Trials", "NavMap", "nav_map", "navigate_pairs",
+    "start_tables", "navigate_paths",
+    "FAILURE_REASONS", "SENSING",
 ]

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import pomdp as _pomdp
+from .checks import validate
 from .elements import MapElements, ordering_index
 from .linkgraph import link_graph, shared_counts
 
@@ -82,7 +83,9 @@ def edge_costs(elements: MapElements, beta: int, kind: str = "unit",
     True
     """
     if kind not in ("unit", "expected_length", "neg_log_success"):
-        raise ValueError(f"unknown edge cost {kind!r}")
+        raise ValueError(f"kind must be 'unit', 'expected_length' or 'neg_log_success', "
+                         f"got {kind!r}")
+    validate(elements=elements, beta=beta, probs_used=kind != "unit")
     graph = link_graph(elements, beta)
     if kind == "unit":
         return graph

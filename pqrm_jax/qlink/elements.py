@@ -28,6 +28,7 @@ import numpy as np
 from .. import calculi, pqrm
 from .. import sim as _sim
 from ..triplets import ORDERING_INDEX, ORDERINGS
+from .checks import validate
 
 __all__ = ["ORDERINGS", "MapElements", "co_observed_triplets", "from_mapping_run",
            "exact_elements", "ordering_index", "incidence", "check_elements", "fuse"]
@@ -51,16 +52,9 @@ class MapElements(NamedTuple):
 
 
 def check_elements(elements: MapElements) -> None:
-    """Raise ``ValueError`` for an empty map or malformed element arrays."""
-    ids = np.asarray(elements.ids)
-    if ids.ndim != 2 or ids.shape[1] != 3:
-        raise ValueError(f"element ids must have shape (E, 3), got {ids.shape}")
-    if ids.shape[0] == 0:
-        raise ValueError("the map is empty: it has no map elements")
-    if ids.min() < 0 or ids.max() >= elements.num_landmarks:
-        raise ValueError("element ids must lie in [0, num_landmarks)")
-    if np.asarray(elements.probs).shape[:2] != (ids.shape[0], 6):
-        raise ValueError(f"probs must have shape (E, 6, Q), got {np.shape(elements.probs)}")
+    """Raise ``ValueError`` for an empty map or malformed element arrays
+    (:func:`pqrm_jax.qlink.checks.validate`; the probabilities are not read here)."""
+    validate(elements=elements, probs_used=False)
 
 
 def ordering_index(ids_row: jax.Array, a, b) -> jax.Array:
@@ -158,11 +152,16 @@ def from_mapping_run(key: jax.Array, landmarks: jax.Array, poses: jax.Array,
     >>> el.ids.tolist(), el.probs.shape
     ([[0, 1, 2]], (1, 6, 4))
     """
+    validate(landmarks=np.asarray(landmarks), finite={"poses": np.asarray(poses)},
+             positive={"sensor.max_range": float(sensor.max_range),
+                       "num_samples": num_samples, "max_obs": max_obs},
+             nonnegative={"sensor.sigma": float(sensor.sigma), "floor": floor})
     landmarks = jnp.asarray(landmarks)
-    if landmarks.ndim != 2 or landmarks.shape[1] != 2 or landmarks.shape[0] < 3:
-        raise ValueError(f"landmarks must have shape (N >= 3, 2), got {landmarks.shape}")
-    if not np.all(np.isfinite(np.asarray(poses))):
-        raise ValueError("mapping poses contain NaN or inf values")
+    if landmarks.shape[0] < 3:
+        raise ValueError(f"landmarks must have at least 3 rows, got {landmarks.shape[0]}")
+    poses = jnp.asarray(poses)
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise ValueError(f"poses must have shape (P, 3), got {poses.shape}")
     calc = calculi.get(calculus)
     k_obs, k_map = jax.random.split(key)
     keys = jax.random.split(k_obs, poses.shape[0])
@@ -183,18 +182,68 @@ def from_mapping_run(key: jax.Array, landmarks: jax.Array, poses: jax.Array,
     return MapElements(jnp.asarray(ids), probs, int(landmarks.shape[0])), visible
 
 
+def _exact_probs(lm: np.ndarray, trip: np.ndarray, calculus: str) -> np.ndarray | None:
+    """``[..., Q]`` noise-free distributions of ``{A, B : C}`` for ``trip [..., 3]`` with a
+    landmark on a dividing line split exactly (quadrant and lr; ``None`` for other calculi).
+
+    The two signs (left of AB: ``cross(B − A, C − A)``; in front of the mid-perpendicular:
+    ``(B − A)·(C − M)``) are computed in float64. A zero sign gives ½ to each side: the
+    σ → 0 limit of the PQRM (eq. 2.9) under symmetric noise (docs/qlink.md §boundary).
+    """
+    a, b, c = (lm[trip[..., i]] for i in range(3))
+    ab = b - a
+    left = np.sign(ab[..., 0] * (c - a)[..., 1] - ab[..., 1] * (c - a)[..., 0])
+    pl = np.where(left > 0, 1.0, np.where(left < 0, 0.0, 0.5))
+    if calculus == "lr":
+        return np.stack([pl, 1 - pl], -1)
+    if calculus != "quadrant":
+        return None
+    front = np.sign((ab * (c - (a + b) / 2)).sum(-1))
+    pf = np.where(front > 0, 1.0, np.where(front < 0, 0.0, 0.5))
+    return np.stack([pf * pl, pf * (1 - pl), (1 - pf) * pl, (1 - pf) * (1 - pl)], -1)
+
+
 def exact_elements(landmarks: jax.Array, ids: np.ndarray,
                    calculus: str = "quadrant") -> MapElements:
-    """Elements ``ids [E, 3]`` with the noise-free (one-hot) relations of ``landmarks``.
+    """Elements ``ids [E, 3]`` with the noise-free relations of ``landmarks [N, 2]``.
+
+    One-hot except where a landmark lies exactly on a dividing line of its ordering: for the
+    quadrant and lr calculi its probability is split evenly between the states the line
+    separates (½ each; ¼ each at the midpoint M), the σ → 0 limit of the PQRM; another
+    calculus refuses such an element (docs/qlink.md §boundary).
+
+    Raises:
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) non-finite or coincident
+            landmarks, ids not integers in ``[0, N)``, a landmark twice in one element.
 
     >>> lm = jnp.array([[0., 0.], [10., 0.], [8., 3.]])
     >>> exact_elements(lm, np.array([[0, 1, 2]])).probs[0, 0].tolist()   # {0, 1 : 2} = FL
     [1.0, 0.0, 0.0, 0.0]
+    >>> lm = jnp.array([[0., 0.], [10., 0.], [5., 6.]])                  # 2 on the bisector
+    >>> exact_elements(lm, np.array([[0, 1, 2]])).probs[0, 0].tolist()
+    [0.5, 0.0, 0.5, 0.0]
     """
     calc = calculi.get(calculus)
-    ids = np.sort(np.asarray(ids, np.int32), axis=1)
-    trip = jnp.asarray(ids)[:, ORDERINGS]
-    lm = jnp.asarray(landmarks)
-    st = calc.classify(lm[trip[..., 0]], lm[trip[..., 1]], lm[trip[..., 2]])
-    probs = jax.nn.one_hot(st, calc.num_states)
-    return MapElements(jnp.asarray(ids), probs, int(lm.shape[0]))
+    validate(landmarks=np.asarray(landmarks))
+    n = int(np.shape(landmarks)[0])
+    ids = np.asarray(ids)
+    if ids.ndim != 2 or ids.shape[1] != 3:
+        raise ValueError(f"ids must have shape (E, 3), got {ids.shape}")
+    if ids.shape[0] == 0:
+        raise ValueError("ids is empty: the map would have no map elements")
+    check = MapElements(ids, np.ones((ids.shape[0], 6, 1)), n)
+    validate(elements=check, elements_name="ids")
+    ids = np.sort(ids.astype(np.int32), axis=1)
+    trip = ids[:, ORDERINGS]
+    lm64 = np.asarray(landmarks, np.float64)
+    dtype = jnp.asarray(landmarks).dtype
+    probs = _exact_probs(lm64, trip, calculus)
+    if probs is None:
+        lm = jnp.asarray(landmarks)
+        st = calc.classify(lm[trip[..., 0]], lm[trip[..., 1]], lm[trip[..., 2]])
+        if (np.asarray(st) < 0).any():
+            e = int(np.argwhere(np.asarray(st) < 0)[0, 0])
+            raise ValueError(f"ids[{e}] = {ids[e].tolist()}: a landmark lies on a dividing "
+                             f"line of {calculus!r}, which has no exact split here")
+        probs = np.asarray(jax.nn.one_hot(st, calc.num_states))
+    return MapElements(jnp.asarray(ids), jnp.asarray(probs, dtype), n)

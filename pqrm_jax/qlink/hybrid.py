@@ -34,12 +34,23 @@ import numpy as np
 from .. import calculi, pqrm
 from .. import sim as _sim
 from . import pomdp as _pomdp
+from .checks import validate
 from .elements import ORDERINGS, MapElements, co_observed_triplets, fuse, ordering_index
-from .navigate import BUDGET, LINK_NOT_FOUND, REFS_NOT_FOUND, RUNNING, SUCCESS, where_tree
+from .navigate import (
+    BUDGET,
+    COLLISION,
+    GOAL_NOT_FOUND,
+    LINK_NOT_FOUND,
+    REFS_NOT_FOUND,
+    RUNNING,
+    SUCCESS,
+    where_tree,
+)
 
 __all__ = ["bands_calculus", "HybridMap", "hybrid_elements", "search_models", "hybrid_costs",
            "HybridParams", "HybridResult", "drive", "LR", "BANDS", "reference_rule",
-           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references"]
+           "qsr_tables", "uniform_sequence", "landmark_distances", "visible_references",
+           "wall_contact"]
 
 LR, BANDS = 0, 1
 ENTER, SEARCH = 0, 1
@@ -88,9 +99,18 @@ def hybrid_elements(key: jax.Array, points, walls, poses, max_range: float, sigm
     Returns:
         ``(map, landmarks [N + 2, 2] (walls at their midpoints), visible [P, N + 2])``.
     """
+    if np.shape(walls) != (2, 2, 2):
+        raise ValueError(f"walls must have shape (2, 2, 2), got {np.shape(walls)}")
+    validate(landmarks=np.concatenate([np.asarray(points, np.float64),
+                                       np.asarray(walls, np.float64).mean(1)]),
+             landmarks_name="points and wall midpoints",
+             finite={"walls": np.asarray(walls), "poses": np.asarray(poses)},
+             positive={"max_range": max_range, "num_samples": num_samples,
+                       "max_obs": max_obs},
+             nonnegative={"sigma": sigma, "floor": floor})
+    if max_side is not None:
+        validate(positive={"max_side": max_side})
     points, walls = jnp.asarray(points), jnp.asarray(walls)
-    if walls.shape != (2, 2, 2):
-        raise ValueError(f"walls must have shape (2, 2, 2), got {walls.shape}")
     n = points.shape[0]
     lm = jnp.concatenate([points, walls.mean(1)])
     k_obs, k_map = jax.random.split(key)
@@ -200,6 +220,7 @@ def hybrid_costs(hmap: HybridMap, beta: int, models, tables=None):
     """
     from .linkgraph import shared_counts
 
+    validate(elements=hmap.elements, elements_name="hmap.elements", beta=beta)
     ids = np.asarray(hmap.elements.ids)
     probs = np.asarray(hmap.elements.probs)
     tables = qsr_tables(hmap, models) if tables is None else tables
@@ -248,7 +269,8 @@ class HybridResult(NamedTuple):
     :data:`pqrm_jax.qlink.FAILURE_REASONS`), length driven, stops (loop iterations), hops,
     k (index on the path of the last element entered), pose ``[B, 2]`` final position,
     refs ``[B, 2]``, failed ``[B, 2]`` the edge (element ids) that failed (−1 if none),
-    trace ``[B, T, 2]`` the stop positions (NaN after the end)."""
+    trace ``[B, 2T − 1, 2]`` the driven polyline: the start, then per stop the waypoint round a
+    wall (the stop itself when the drive was straight) and the stop (NaN after the end)."""
 
     status: jax.Array
     length: jax.Array
@@ -275,6 +297,49 @@ class _S(NamedTuple):
     status: jax.Array
     hops: jax.Array
     trace: jax.Array
+    gseen: jax.Array        # [3] goal-element members measured so far (goal stage)
+    gxy: jax.Array          # [3, 2] their measured positions
+
+
+def wall_contact(p: jax.Array, q: jax.Array, walls: jax.Array, tol) -> tuple:
+    """Does the straight drive ``p [2] → q [2]`` meet a wall segment of ``walls [S, 2, 2]``?
+
+    Returns ``(hit, t, near_end, first)``: ``t`` ∈ [0, 1] the first contact along the drive
+    (1 when none), ``near_end`` whether ``q`` lies within ``tol`` of the wall met first, and
+    ``first`` that wall's index.
+
+    >>> w = jnp.array([[[5., -1.], [5., 1.]]])
+    >>> h, t, near, i = wall_contact(jnp.zeros(2), jnp.array([10., 0.]), w, 0.5)
+    >>> bool(h), float(t), bool(near), int(i)
+    (True, 0.5, False, 0)
+    """
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    a, b = walls[:, 0], walls[:, 1]
+    d = q - p
+    den = cross(d[None, :], b - a)                                    # [S]
+    t = cross(a - p, b - a) / jnp.where(den == 0, 1.0, den)
+    u = cross(a - p, d[None, :]) / jnp.where(den == 0, 1.0, den)
+    hit = (den != 0) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    t = jnp.where(hit, t, 1.0)
+    first = jnp.argmin(t)
+    near_end = _sim.segment_distance(q, walls)[first] <= tol
+    return jnp.any(hit), t[first], near_end, first
+
+
+def _detour(p, q, walls, first, standoff):
+    """``(via [2], length, blocked)``: round wall ``first`` by the end (``standoff`` beyond it
+    along the wall) that gives the shorter drive ``p → via → q``; ``blocked`` when a leg of
+    it meets a wall."""
+    a, b = walls[first, 0], walls[first, 1]
+    u = (b - a) / jnp.maximum(jnp.linalg.norm(b - a), 1e-30)
+    ends = jnp.stack([a - standoff * u, b + standoff * u])                 # [2, 2]
+    lens = jnp.linalg.norm(ends - p, axis=-1) + jnp.linalg.norm(q - ends, axis=-1)
+    via = ends[jnp.argmin(lens)]
+    blocked = (wall_contact(p, via, walls, 0.0)[0]
+               | wall_contact(via, q, walls, 0.0)[0])
+    return via, jnp.min(lens), blocked
 
 
 def landmark_distances(pos: jax.Array, landmarks: jax.Array, walls: jax.Array) -> jax.Array:
@@ -323,6 +388,54 @@ def _visible_references(ids, kind, lm, walls, pos, nav_range):
     return jax.vmap(_pair)(ids, kind, d[ids] <= nav_range)
 
 
+def _goal_stage(s: _S, mem_g, vis_g, meas_g, tau: int) -> _S:
+    """The goal element's step (docs/qlink.md §invivo, the goal rule): the centroid of L_goal
+    from what the robot has measured — the references (at entry) and the members a scan sees
+    (``vis_g [3]``, measured ``meas_g [3, 2]``); a member still unseen: drive to the
+    references' measured midpoint (with sides ≤ R every member is in range there) and scan
+    again, at most ``tau`` scans there, else ``GOAL_NOT_FOUND``."""
+    ref_of = mem_g[:, None] == s.refs[None, :]                       # [3, 2]
+    is_ref = ref_of.any(1)
+    ref_xy = jnp.where(ref_of[:, :1], s.refs_xy[0], s.refs_xy[1])
+    seen_g = s.gseen | is_ref | vis_g
+    gxy = jnp.where(s.gseen[:, None], s.gxy, jnp.where(is_ref[:, None], ref_xy, meas_g))
+    cen = jnp.mean(gxy, axis=0)
+    s_ok = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
+                      status=jnp.int32(SUCCESS), gseen=seen_g, gxy=gxy)
+    centre = jnp.where(s.c == 0, jnp.mean(s.refs_xy, axis=0), s.pos)
+    s_wait = s._replace(c=s.c + 1, gseen=seen_g, gxy=gxy, pos=centre,
+                        length=s.length + jnp.linalg.norm(centre - s.pos),
+                        status=jnp.where(s.c < tau, RUNNING, GOAL_NOT_FOUND).astype(jnp.int32))
+    return where_tree(seen_g.all(), s_ok, s_wait)
+
+
+def _around_walls(s: _S, out: _S, walls, params: HybridParams, scan) -> _S:
+    """The drive ``s.pos → out.pos`` with walls as obstacles (docs/qlink.md §invivo): a
+    straight line that meets a wall goes round the wall's nearer end (one waypoint,
+    ``standoff`` beyond it); a drive up to a wall stops at it; if the way round is blocked too,
+    the robot stops at the wall and the trial ends with ``COLLISION``. Writes the waypoint and
+    the stop into the trace (``2·scan − 1``, ``2·scan``)."""
+    standoff = jnp.maximum(params.sigma, 1e-3 * params.nav_range)
+    hit, t_hit, near_end, first = wall_contact(s.pos, out.pos, walls, 3 * standoff)
+    seg = out.pos - s.pos
+    d_seg = jnp.linalg.norm(seg)
+    back = jnp.maximum(t_hit * d_seg - standoff, 0.0)
+    contact = s.pos + seg * back / jnp.maximum(d_seg, 1e-30)
+    via, d_via, blocked = _detour(s.pos, out.pos, walls, first, standoff)
+    s_hit = s._replace(pos=contact, length=s.length + back, status=jnp.int32(COLLISION))
+    s_round = out._replace(length=s.length + d_via)
+    s_stop = out._replace(pos=contact, length=s.length + back)
+    out = where_tree(hit & near_end, s_stop,
+                     where_tree(hit & ~blocked, s_round, where_tree(hit, s_hit, out)))
+    via = jnp.where(hit & ~near_end & ~blocked, via, out.pos)
+    t2 = out.trace.shape[0]
+    i_via, i_pos = 2 * scan - 1, 2 * scan
+    tr_ = out.trace.at[jnp.minimum(i_via, t2 - 1)].set(
+        jnp.where(i_via < t2, via, out.trace[t2 - 1]))
+    tr_ = tr_.at[jnp.minimum(i_pos, t2 - 1)].set(jnp.where(i_pos < t2, out.pos, tr_[t2 - 1]))
+    return out._replace(stops=scan, trace=tr_)
+
+
 @partial(jax.jit, static_argnames=("trace_len",))
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
@@ -348,7 +461,8 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
         s0 = _S(pos0, jnp.zeros((), fdt), jnp.int32(0), jnp.int32(0), refs0,
                 measure(k_noise, 0, refs0), jnp.int32(ENTER), jnp.int32(0), jnp.int32(-1),
                 jnp.zeros(tau, jnp.int32), jnp.int32(RUNNING), jnp.int32(1),
-                jnp.full((trace_len, 2), jnp.nan, fdt).at[0].set(pos0))
+                jnp.full((2 * trace_len - 1, 2), jnp.nan, fdt).at[0].set(pos0),
+                jnp.zeros(3, bool), jnp.zeros((3, 2), fdt))
         budget = 3 * (tau + 2) * n + 4
 
         def pair_of(j, vis_j):
@@ -361,10 +475,10 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
             cur = path[s.k]
             nxt = path[jnp.minimum(s.k + 1, path.shape[0] - 1)]
             mem_n = ids[nxt]
-            # ---- goal: drive to the measured centroid of L_goal
-            cen = jnp.mean(measure(k_noise, scan, ids[cur]), axis=0)
-            s_goal = s._replace(pos=cen, length=s.length + jnp.linalg.norm(cen - s.pos),
-                                status=jnp.int32(SUCCESS))
+            # ---- goal: drive to the centroid of L_goal as measured (_goal_stage)
+            mem_g = ids[cur]
+            s_goal = _goal_stage(s, mem_g, visible(k_miss, scan, s.pos, mem_g),
+                                 measure(k_noise, scan, mem_g), tau)
             # ---- ENTER: 360° scan for the next element
             vis_full = visible(k_miss, scan, s.pos, mem_n)
             ok, new_refs = pair_of(nxt, vis_full)
@@ -415,10 +529,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
                           s._replace(status=jnp.int32(LINK_NOT_FOUND)))
             s_sweep = where_tree(ok_sw, enter_next(s, refs_sw), where_tree(e_seen, s_e, s_miss))
             out = where_tree(goal_stage, s_goal, where_tree(s.phase == ENTER, s_enter, s_sweep))
-            out = out._replace(stops=scan,
-                               trace=out.trace.at[jnp.minimum(scan, trace_len - 1)].set(
-                                   jnp.where(scan < trace_len, out.pos,
-                                             out.trace[trace_len - 1])))
+            out = _around_walls(s, out, walls, params, scan)
             over = (out.status == RUNNING) & (scan >= budget)
             return out._replace(status=jnp.where(over, BUDGET, out.status))
 
@@ -467,15 +578,17 @@ def drive(keys, hmap: HybridMap, landmarks, walls, paths, n_elements, refs, posi
         ValueError: ``nav_range <= 0``, ``p_miss`` outside [0, 1], a trial without a path,
             NaN positions.
     """
-    if not (np.isfinite(params.nav_range) and params.nav_range > 0):
-        raise ValueError(f"nav_range must be positive and finite, got {params.nav_range}")
-    if not 0.0 <= params.p_miss <= 1.0:
-        raise ValueError(f"p_miss must lie in [0, 1], got {params.p_miss}")
-    n_elements = np.asarray(n_elements, np.int32)
-    if np.any(n_elements < 1):
-        raise ValueError("every trial needs a planned path (|P| >= 1)")
-    if not np.all(np.isfinite(np.asarray(positions))):
-        raise ValueError("start positions contain NaN or inf values")
+    validate(positive={"params.nav_range": params.nav_range},
+             nonnegative={"params.sigma": params.sigma, "params.p_miss": params.p_miss},
+             finite={"positions": np.asarray(positions)},
+             landmarks=np.asarray(landmarks), elements=hmap.elements,
+             elements_name="hmap.elements")
+    if not params.p_miss <= 1.0:
+        raise ValueError(f"params.p_miss must lie in [0, 1], got {params.p_miss!r}")
+    n_elements = np.asarray(n_elements)
+    validate(paths=(np.asarray(paths), n_elements, np.asarray(hmap.elements.ids).shape[0],
+                    len(n_elements)))
+    n_elements = n_elements.astype(np.int32)
     p = HybridParams(*(float(x) for x in params))
     lm = jnp.asarray(landmarks, jnp.float32)
     # pad the batch to a power of two and the path width to a multiple of 8 (few compiles;

@@ -10,10 +10,13 @@ direction (P §4.3.3).
 Planning (eq. 4.1, ``P* = argmin_P Σ C_ij``) is multi-source and multi-target (P §4.3.2: the
 robot starts in any element whose references it sees and plans "to any map element containing
 landmark L_D"). :func:`bfs_distances` (unit costs; frontier expansion as boolean matrix
-products in one ``lax.while_loop``) and :func:`shortest_costs` (any non-negative costs;
-Bellman–Ford min-plus relaxation, ``lax.map`` over sources) give the distances from every start
-landmark's elements to every element at once; :func:`plan_pairs` then extracts the path of
-every (start, goal) pair in one ``vmap``. ``|P|`` counts map elements (edges + 1): P §4.4.1,
+products in one ``lax.while_loop``) and :func:`shortest_tree` (any non-negative costs;
+Bellman–Ford min-plus relaxation, ``lax.map`` over sources, recording the predecessor on every
+strict improvement) give the distances from every start landmark's elements to every element
+at once; :func:`plan_pairs` then follows the predecessors of every (start, goal) pair in one
+``vmap`` — simple optimal paths even with zero-cost edges, sized by hop counts
+(docs/qlink.md §linkgraph). Costs are scaled by :func:`work_costs`, never silently cast.
+``|P|`` counts map elements (edges + 1): P §4.4.1,
 "The paths for which |P| = 1 are paths where the goal is visible from the start".
 :func:`to_networkx` returns the graph object users inspect and export.
 """
@@ -29,11 +32,12 @@ import networkx as nx
 import numpy as np
 
 from ..triplets import shared_landmarks
+from .checks import validate
 from .elements import MapElements, check_elements, incidence
 
-__all__ = ["LinkGraph", "LinkPlan", "link_graph", "shared_counts", "bfs_distances",
-           "shortest_costs", "plan_pairs", "to_networkx", "path_cost", "goal_distances",
-           "plan_from", "neighbour_table"]
+__all__ = ["LinkGraph", "LinkPlan", "GoalTable", "link_graph", "shared_counts", "bfs_distances",
+           "shortest_costs", "shortest_tree", "plan_pairs", "to_networkx", "path_cost",
+           "goal_distances", "plan_from", "neighbour_table", "work_costs"]
 
 
 class LinkGraph(NamedTuple):
@@ -69,12 +73,19 @@ class LinkPlan(NamedTuple):
     cost: jax.Array
 
 
-def _check_beta(beta) -> int:
-    if isinstance(beta, bool) or not isinstance(beta, (int, np.integer)) or beta < 1:
-        raise ValueError(f"beta must be an integer >= 1, got {beta!r}")
-    if beta > 3:
-        raise ValueError(f"beta must be <= 3 for triplet elements, got {beta}")
-    return int(beta)
+class GoalTable(NamedTuple):
+    """Cost-to-go from every element to the elements holding each goal landmark.
+
+    cost: ``[G, E]`` float64 least cost to the goal's elements (``inf`` = unreachable).
+    next: ``[G, E]`` int32 successor of each element on an optimal path, recorded during the
+        relaxation (``-1`` at the goal's elements and where unreachable).
+    hops: ``[G, E]`` int32 edges to the goal along ``next`` (``-1`` = unreachable); a path
+        from element u holds ``hops[g, u] + 1`` elements.
+    """
+
+    cost: np.ndarray
+    next: jax.Array
+    hops: np.ndarray
 
 
 def shared_counts(elements: MapElements) -> np.ndarray:
@@ -102,14 +113,18 @@ def link_graph(elements: MapElements, beta: int, cost: np.ndarray | None = None)
     >>> link_graph(el, 2).adjacency.astype(int).tolist()
     [[0, 1, 0], [1, 0, 0], [0, 0, 0]]
     """
-    beta = _check_beta(beta)
+    validate(elements=elements, probs_used=False, beta=beta)
+    beta = int(beta)
     shared = shared_counts(elements)
     edge = shared >= beta
     base = np.ones(shared.shape, np.float64) if cost is None else np.asarray(cost, np.float64)
     if base.shape != shared.shape:
         raise ValueError(f"cost must have shape {shared.shape}, got {base.shape}")
-    if np.any(base[edge] < 0) or np.any(np.isnan(base[edge])):
-        raise ValueError("edge costs must be non-negative numbers")
+    bad = edge & ~(base >= 0)                   # NaN and negative costs (inf: no edge)
+    if bad.any():
+        i, j = (int(x) for x in np.argwhere(bad)[0])
+        raise ValueError(f"cost[{i}, {j}] = {base[i, j]!r}: an edge cost must be a number "
+                         ">= 0 (inf = no edge)")
     return LinkGraph(np.where(edge, base, np.inf), shared, beta)
 
 
@@ -164,43 +179,119 @@ def bfs_distances(adjacency, sources) -> jax.Array:
     return _bfs(jnp.asarray(adjacency, bool), jnp.asarray(sources, bool))
 
 
+def work_costs(graph: LinkGraph) -> tuple[np.ndarray, float, bool]:
+    """``(costs [E, E], scale, unit)``: the edge costs in the working float dtype (float32,
+    float64 under ``jax_enable_x64``) divided by their largest finite positive value.
+
+    Plans are invariant to a positive scale, so costs at 1e±40 (beyond float32) plan exactly
+    as at 1; ``unit`` is True when every edge has the same cost (breadth-first search then).
+
+    Raises:
+        ValueError: a NaN or negative cost, or positive costs spanning more than the working
+            dtype resolves (the smallest would become 0): the message names ``graph.cost``.
+
+    >>> g = LinkGraph(np.array([[np.inf, 3e40], [6e40, np.inf]]), np.zeros((2, 2), int), 1)
+    >>> w, scale, unit = work_costs(g)
+    >>> w.tolist(), scale, unit
+    ([[inf, 0.5], [1.0, inf]], 6e+40, False)
+    """
+    c = np.asarray(graph.cost, np.float64)
+    if c.ndim != 2 or c.shape[0] != c.shape[1]:
+        raise ValueError(f"graph.cost must be a square (E, E) matrix, got {c.shape}")
+    bad = ~(c >= 0)
+    if bad.any():
+        i, j = (int(x) for x in np.argwhere(bad)[0])
+        raise ValueError(f"graph.cost[{i}, {j}] = {c[i, j]!r}: edge costs must be >= 0")
+    edge = np.isfinite(c)
+    pos = c[edge & (c > 0)]
+    scale = float(pos.max()) if pos.size else 1.0
+    dt = np.dtype(jnp.zeros(()).dtype)
+    if pos.size and float(pos.min()) / scale < np.finfo(dt).tiny:
+        raise ValueError(f"graph.cost spans {float(pos.min()):.3g} to {scale:.3g}: the "
+                         f"smallest positive cost would be 0 in {dt}; enable float64 "
+                         "(jax_enable_x64) or plan with fewer orders of magnitude")
+    w = np.where(edge, c / scale, np.inf).astype(dt)
+    return w, scale, bool(np.all(w[edge] == 1.0))
+
+
+def _hops(pred, reach):
+    """``[E]`` edges from each node to its root along ``pred`` (pointer jumping), −1 where
+    not ``reach``."""
+    e = pred.shape[0]
+    root = pred < 0
+    anc = jnp.where(root, jnp.arange(e), pred)
+    h = jnp.where(root, 0, 1).astype(jnp.int32)
+
+    def body(_, c):
+        h, anc = c
+        return h + h[anc], anc[anc]
+
+    h, _ = jax.lax.fori_loop(0, max(1, (e - 1).bit_length()) + 1, body, (h, anc))
+    return jnp.where(reach, h, -1).astype(jnp.int32)
+
+
 @jax.jit
-def _bellman_ford(cost, sources):
+def _tree(cost, sources):
     e = cost.shape[0]
+    cols = jnp.arange(e)
 
     def one(src):
         d0 = jnp.where(src, 0.0, jnp.inf).astype(cost.dtype)
 
         def cond(c):
-            _, changed, it = c
+            _, _, changed, it = c
             return changed & (it < e)
 
         def body(c):
-            d, _, it = c
-            nd = jnp.minimum(d, jnp.min(d[:, None] + cost, axis=0))
-            return nd, jnp.any(nd < d), it + 1
+            d, p, _, it = c
+            cand = d[:, None] + cost                        # [u, v]
+            u = jnp.argmin(cand, axis=0).astype(jnp.int32)  # ties: the smallest u
+            best = cand[u, cols]
+            better = best < d                               # strict: p stays a forest
+            return jnp.where(better, best, d), jnp.where(better, u, p), jnp.any(better), it + 1
 
-        d, _, _ = jax.lax.while_loop(cond, body, (d0, jnp.bool_(True), jnp.int32(0)))
-        return d
+        d, p, _, _ = jax.lax.while_loop(
+            cond, body, (d0, jnp.full(e, -1, jnp.int32), jnp.bool_(True), jnp.int32(0)))
+        return d, p, _hops(p, jnp.isfinite(d))
 
     return jax.lax.map(one, sources)
+
+
+def shortest_tree(cost, sources) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Least costs, predecessors and hop counts ``([S, E], [S, E], [S, E])`` from each source
+    set ``sources [S, E]`` (costs ``[E, E]`` ≥ 0, ``inf`` = no edge).
+
+    Bellman–Ford min-plus relaxation (``d_v ← min(d_v, min_u d_u + C_uv)``) that records the
+    predecessor ``u`` whenever ``d_v`` strictly decreases. With costs ≥ 0 the predecessors
+    form a forest rooted at the sources even with zero-cost edges and under rounding (along
+    a predecessor edge ``d`` never increases, and the edge that would close a cycle needs a
+    strict decrease), so following them gives a simple optimal path; ``hops`` (pointer
+    jumping over the forest) sizes the path buffer. ``-1`` = source / unreachable.
+
+    >>> c = jnp.array([[jnp.inf, 0., 5.], [0., jnp.inf, 0.], [5., 0., jnp.inf]])
+    >>> d, p, h = shortest_tree(c, jnp.array([[1, 0, 0]], bool))
+    >>> d.tolist(), p.tolist(), h.tolist()
+    ([[0.0, 0.0, 0.0]], [[-1, 0, 1]], [[0, 1, 2]])
+    """
+    return _tree(jnp.asarray(cost), jnp.asarray(sources, bool))
 
 
 def shortest_costs(cost, sources) -> jax.Array:
     """Least path costs ``[S, E]`` from each source set (non-negative costs; ``inf`` = none).
 
-    Bellman–Ford min-plus relaxation (``d_v ← min(d_v, min_u d_u + C_uv)``) until no change.
+    The distances of :func:`shortest_tree`.
 
     >>> c = jnp.array([[jnp.inf, 1., 5.], [1., jnp.inf, 1.], [5., 1., jnp.inf]])
     >>> shortest_costs(c, jnp.array([[1, 0, 0]], bool)).tolist()
     [[0.0, 1.0, 2.0]]
     """
-    return _bellman_ford(jnp.asarray(cost), jnp.asarray(sources, bool))
+    return shortest_tree(cost, sources)[0]
 
 
 @partial(jax.jit, static_argnames=("max_len",))
 def _extract(dist_rows, cost, inc_start, inc_goal, *, max_len):
-    """Backtrack one path per pair from its best goal element (vmapped by the caller)."""
+    """Unit costs: backtrack one path per pair from its best goal element (d strictly
+    decreases by one along the way, so the argmin is a predecessor)."""
     def one(d, src, tgt):
         dt = jnp.where(tgt, d, jnp.inf)
         t = jnp.argmin(dt)
@@ -218,59 +309,104 @@ def _extract(dist_rows, cost, inc_start, inc_goal, *, max_len):
         path, _, _ = jax.lax.fori_loop(
             0, max_len, body, (jnp.full(max_len, -1, jnp.int32), t.astype(jnp.int32), ~ok))
         n = jnp.sum(path >= 0)
-        # reverse the valid prefix so the path runs start -> goal
-        idx = jnp.where(jnp.arange(max_len) < n, n - 1 - jnp.arange(max_len), 0)
-        fwd = jnp.where(jnp.arange(max_len) < n, path[idx], -1)
-        return ok, n.astype(jnp.int32), fwd, best
+        return ok, n.astype(jnp.int32), _reverse(path, n), best
 
     return jax.vmap(one)(dist_rows, inc_start, inc_goal)
 
 
+def _reverse(path, n):
+    """The first ``n`` entries of ``path`` reversed (start -> goal), ``-1`` padded."""
+    m = path.shape[0]
+    idx = jnp.where(jnp.arange(m) < n, n - 1 - jnp.arange(m), 0)
+    return jnp.where(jnp.arange(m) < n, path[idx], -1)
+
+
+@partial(jax.jit, static_argnames=("max_len",))
+def _follow(ptr, rows, u0, ok, *, max_len):
+    """From ``u0`` follow ``ptr[row]`` until ``-1``: ``[B, max_len]`` paths (``-1`` padded)."""
+    def one(r, u, ok):
+        def body(k, c):
+            path, u, done = c
+            path = path.at[k].set(jnp.where(done, -1, u))
+            v = ptr[r, u]
+            end = done | (v < 0)
+            return path, jnp.where(end, u, v), end
+
+        path, _, _ = jax.lax.fori_loop(
+            0, max_len, body, (jnp.full(max_len, -1, jnp.int32), u.astype(jnp.int32), ~ok))
+        return path
+
+    return jax.vmap(one)(rows, u0, ok)
+
+
+def _graph_matches(graph: LinkGraph, elements: MapElements) -> None:
+    e = np.asarray(elements.ids).shape[0]
+    if np.shape(graph.cost) != (e, e):
+        raise ValueError(f"graph.cost has shape {np.shape(graph.cost)} but elements has {e} "
+                         "map elements")
+
+
+def _path_costs(graph: LinkGraph, path: np.ndarray) -> np.ndarray:
+    """``[B]`` float64 Σ C_ij along each ``path [B, L]`` (``-1`` padded)."""
+    path = np.asarray(path)
+    if path.shape[1] < 2:
+        return np.zeros(path.shape[0])
+    a, b = path[:, :-1], path[:, 1:]
+    ok = (a >= 0) & (b >= 0)
+    c = np.asarray(graph.cost, np.float64)[np.maximum(a, 0), np.maximum(b, 0)]
+    return np.where(ok, c, 0.0).sum(1)
+
+
 def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> LinkPlan:
-    """LinkPlan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
+    """Plan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
 
     Sources are all elements containing the start landmark, targets all elements containing
-    the goal landmark. Unit-cost graphs use :func:`bfs_distances`, others
-    :func:`shortest_costs`; distances are computed once per distinct start landmark.
+    the goal landmark. Equal edge costs use :func:`bfs_distances`, others
+    :func:`shortest_tree` (predecessors recorded during the relaxation, so zero-cost edges
+    give simple optimal paths) on :func:`work_costs` (scaled, never silently cast);
+    distances are computed once per distinct start landmark. Paths are sized by hop counts.
+    ``cost`` is Σ C_ij along the returned path in float64 (hops × the cost for equal costs).
 
     Raises:
-        ValueError: a start or goal landmark is not in the map (in no element), or the
-            arrays differ in length.
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) empty, non-integer, negative
+            or out-of-range ids, a start or goal landmark in no element, malformed elements,
+            a graph of another map, costs that cannot be planned, or lengths that differ.
 
-    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
+    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.ones((3, 6, 4)), 5)
     >>> p = plan_pairs(link_graph(el, 2), el, [0, 4], [4, 4])
     >>> p.n_elements.tolist(), p.path.tolist()
     ([3, 1], [[0, 1, 2], [2, -1, -1]])
     """
-    inc = incidence(elements)
-    starts, goals = np.asarray(starts, np.int64).ravel(), np.asarray(goals, np.int64).ravel()
+    got = validate(elements=elements, landmark_ids={"starts": starts, "goals": goals},
+                   probs_used=False)
+    starts, goals = got["starts"].ravel(), got["goals"].ravel()
     if starts.shape != goals.shape:
         raise ValueError(f"starts and goals differ in length: {starts.shape} vs {goals.shape}")
-    for name, lm in (("start", starts), ("goal", goals)):
-        bad = (lm < 0) | (lm >= elements.num_landmarks)
-        bad[~bad] = ~inc[lm[~bad]].any(axis=1)
-        if bad.any():
-            raise ValueError(f"{name} landmark {int(lm[bad][0])} is not in the map "
-                             "(it belongs to no map element)")
+    _graph_matches(graph, elements)
+    inc = incidence(elements)
+    w, scale, unit = work_costs(graph)
     uniq, inv = np.unique(starts, return_inverse=True)
     src = jnp.asarray(inc[uniq])
-    unit = bool(np.all(graph.cost[graph.adjacency] == 1.0))
     if unit:
         hops = np.asarray(bfs_distances(graph.adjacency, src))
         dist = np.where(hops < 0, np.inf, hops).astype(np.float32)
         cost = np.where(graph.adjacency, 1.0, np.inf).astype(np.float32)
-    else:
-        dist = np.asarray(shortest_costs(jnp.asarray(graph.cost, jnp.float32), src))
-        cost = graph.cost.astype(np.float32)
-    hop_bound = int(np.max(bfs_distances(graph.adjacency, src))) + 1
-    max_len = max(1, hop_bound if unit else graph.cost.shape[0])
-    ok, n, path, best = _extract(jnp.asarray(dist[inv]), jnp.asarray(cost),
-                                 jnp.asarray(inc[starts]), jnp.asarray(inc[goals]),
-                                 max_len=max_len)
-    if not unit:  # trim padding to the longest path found
-        width = max(1, int(np.max(np.asarray(n))))
-        path = path[:, :width]
-    return LinkPlan(ok, jnp.where(ok, n, 0), path, best)
+        ok, n, path, best = _extract(jnp.asarray(dist[inv]), jnp.asarray(cost),
+                                     jnp.asarray(inc[starts]), jnp.asarray(inc[goals]),
+                                     max_len=max(1, int(np.max(hops)) + 1))
+        return LinkPlan(ok, jnp.where(ok, n, 0), path, best if scale == 1.0 else
+                    np.asarray(best, np.float64) * scale)    # equal costs: hops × the cost
+    d, pred, hops = (np.asarray(x) for x in shortest_tree(w, src))
+    dt = np.where(inc[goals], d[inv], np.inf)
+    t = np.argmin(dt, axis=1)
+    rows = np.arange(len(goals))
+    ok = np.isfinite(dt[rows, t])
+    n = np.where(ok, hops[inv, t] + 1, 0)
+    back = _follow(jnp.asarray(pred), jnp.asarray(inv, jnp.int32), jnp.asarray(t, jnp.int32),
+                   jnp.asarray(ok), max_len=max(1, int(n.max(initial=1))))
+    path = np.asarray(jax.vmap(_reverse)(back, jnp.asarray(n, jnp.int32)))
+    cost = np.where(ok, _path_costs(graph, path), np.inf)
+    return LinkPlan(jnp.asarray(ok), jnp.asarray(n, jnp.int32), jnp.asarray(path), cost)
 
 
 def path_cost(graph: LinkGraph, path: np.ndarray) -> float:
@@ -279,20 +415,48 @@ def path_cost(graph: LinkGraph, path: np.ndarray) -> float:
     return float(sum(graph.cost[a, b] for a, b in zip(p[:-1], p[1:], strict=True)))
 
 
-def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> jax.Array:
-    """Cost-to-go ``[G, E]`` from every element to the elements holding each goal landmark.
+@jax.jit
+def _bfs_next(hops, nbr):
+    """``[G, E]`` the first out-neighbour one hop closer to the goal (−1 at the goal)."""
+    def one(h):
+        hn = jnp.where(nbr >= 0, h[jnp.maximum(nbr, 0)], -2)          # [E, D]
+        ok = (hn >= 0) & (hn == h[:, None] - 1)
+        j = jnp.argmax(ok, axis=1)
+        return jnp.where(ok.any(1), nbr[jnp.arange(nbr.shape[0]), j], -1).astype(jnp.int32)
 
-    Computed once per world and goal (reverse search on the transposed costs), so a robot can
-    plan from whatever elements it has in view (P §4.3.2: "The robot defines its start as M_1
-    since it has a set of reference landmarks from M_1 in view"). ``inf`` = unreachable.
+    return jax.lax.map(one, hops)
+
+
+def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> GoalTable:
+    """Cost-to-go, successor and hop tables ``[G, E]`` to the elements holding each goal.
+
+    Computed once per world and goal (reverse search on the transposed costs: the
+    predecessor in the reversed graph is the successor towards the goal), so a robot can
+    plan from whatever elements it has in view (P §4.3.2: "The robot defines its start as
+    M_1 since it has a set of reference landmarks from M_1 in view"). Equal costs: breadth-
+    first search, successor = the first out-neighbour one hop closer. ``inf`` = unreachable.
+
+    Raises:
+        ValueError: as :func:`plan_pairs` for ``goals``.
+
+    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.ones((3, 6, 4)), 5)
+    >>> t = goal_distances(link_graph(el, 2), el, [4])
+    >>> t.cost.tolist(), t.next.tolist(), t.hops.tolist()
+    ([[2.0, 1.0, 0.0]], [[1, 2, -1]], [[2, 1, 0]])
     """
+    goals = validate(elements=elements, landmark_ids={"goals": goals},
+                     probs_used=False)["goals"].ravel()
+    _graph_matches(graph, elements)
     inc = incidence(elements)
-    goals = np.asarray(goals, np.int64)
     tgt = jnp.asarray(inc[goals])
-    if bool(np.all(graph.cost[graph.adjacency] == 1.0)):
+    w, scale, unit = work_costs(graph)
+    if unit:
         hops = np.asarray(bfs_distances(graph.adjacency.T, tgt))
-        return jnp.asarray(np.where(hops < 0, np.inf, hops), jnp.float32)
-    return shortest_costs(jnp.asarray(graph.cost.T, jnp.float32), tgt)
+        nxt = _bfs_next(jnp.asarray(hops), neighbour_table(graph)[0])
+        cost = np.where(hops < 0, np.inf, hops * scale)
+        return GoalTable(cost, nxt, hops.astype(np.int32))
+    d, nxt, hops = shortest_tree(jnp.asarray(w.T), tgt)
+    return GoalTable(np.asarray(d, np.float64) * scale, nxt, np.asarray(hops))
 
 
 def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
@@ -320,53 +484,42 @@ def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
     return jnp.asarray(nbr), jnp.asarray(cost)
 
 
-@partial(jax.jit, static_argnames=("max_len",))
-def _forward(to_go, nbr, ncost, rows, cands, *, max_len):
-    def one(row, cand):
-        d = to_go[row]
-        ds = jnp.where(cand >= 0, d[jnp.maximum(cand, 0)], jnp.inf)
-        u0 = jnp.maximum(cand[jnp.argmin(ds)], 0).astype(jnp.int32)
-        best = jnp.min(ds)
-        ok = jnp.isfinite(best)
+def plan_from(graph: LinkGraph, to_go: GoalTable, rows, candidates,
+              max_len: int | None = None) -> LinkPlan:
+    """Paths from per-trial candidate start elements down a :class:`GoalTable`.
 
-        def body(k, c):
-            path, u, done = c
-            path = path.at[k].set(jnp.where(done, -1, u))
-            at_goal = d[u] <= 0
-            heads = nbr[u]
-            cand_cost = jnp.where(heads >= 0, ncost[u] + d[jnp.maximum(heads, 0)], jnp.inf)
-            v = jnp.maximum(heads[jnp.argmin(cand_cost)], 0)
-            return path, jnp.where(done | at_goal, u, v).astype(jnp.int32), done | at_goal
-
-        path, _, _ = jax.lax.fori_loop(0, max_len, body,
-                                       (jnp.full(max_len, -1, jnp.int32), u0, ~ok))
-        return ok, jnp.sum(path >= 0).astype(jnp.int32), path, best
-
-    return jax.vmap(one)(rows, cands)
-
-
-def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int,
-              neighbours: tuple[jax.Array, jax.Array] | None = None) -> LinkPlan:
-    """Paths from per-trial candidate start elements down a cost-to-go table.
+    The candidate with the least cost-to-go (ties: the first) is ``M_1``; the path follows
+    the recorded successors to the goal, so it is simple and optimal for any costs ≥ 0.
 
     Args:
-        graph: the Link Graph.
-        to_go: ``[G, E]`` rows of :func:`goal_distances`.
+        graph: the Link Graph (the table's).
+        to_go: :func:`goal_distances` of ``graph``.
         rows: ``[B]`` row of ``to_go`` (the goal) of each trial.
-        candidates: ``[B, C]`` element indices the robot may start from (``-1`` padded); the
-            one with the least cost-to-go is ``M_1``.
-        max_len: path array width (≥ the longest path).
-        neighbours: :func:`neighbour_table` of ``graph`` (computed when not given; pass it
-            when planning many batches on one graph).
+        candidates: ``[B, C]`` element indices the robot may start from (``-1`` padded).
+        max_len: path array width, at least the longest path (hops + 1); default the
+            longest of this batch.
 
-    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
+    >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.ones((3, 6, 4)), 5)
     >>> g = link_graph(el, 2)
     >>> p = plan_from(g, goal_distances(g, el, [4]), jnp.array([0]), jnp.array([[0, -1]]), 4)
     >>> p.n_elements.tolist(), p.path.tolist()
     ([3], [[0, 1, 2, -1]])
     """
-    nbr, ncost = neighbour_table(graph) if neighbours is None else neighbours
-    ok, n, path, best = _forward(jnp.asarray(to_go, jnp.float32), nbr, ncost,
-                                 jnp.asarray(rows, jnp.int32), jnp.asarray(candidates, jnp.int32),
-                                 max_len=int(max_len))
-    return LinkPlan(ok, jnp.where(ok, n, 0), path, best)
+    cost, hops = np.asarray(to_go.cost), np.asarray(to_go.hops)
+    if cost.shape[1] != np.shape(graph.cost)[0]:
+        raise ValueError(f"to_go has {cost.shape[1]} elements, graph {np.shape(graph.cost)[0]}")
+    rows, cands = np.asarray(rows, np.int64), np.asarray(candidates, np.int64)
+    ds = np.where(cands >= 0, cost[rows[:, None], np.maximum(cands, 0)], np.inf)
+    j = np.argmin(ds, axis=1) if ds.shape[1] else np.zeros(len(rows), np.int64)
+    ar = np.arange(len(rows))
+    best = ds[ar, j] if ds.shape[1] else np.full(len(rows), np.inf)
+    ok = np.isfinite(best)
+    u0 = np.where(ok, cands[ar, j] if ds.shape[1] else 0, 0)
+    n = np.where(ok, hops[rows, u0] + 1, 0).astype(np.int32)
+    need = int(n.max(initial=1))
+    max_len = need if max_len is None else int(max_len)
+    if max_len < need:
+        raise ValueError(f"max_len = {max_len} is shorter than the longest path ({need})")
+    path = _follow(to_go.next, jnp.asarray(rows, jnp.int32), jnp.asarray(u0, jnp.int32),
+                   jnp.asarray(ok), max_len=max(1, max_len))
+    return LinkPlan(jnp.asarray(ok), jnp.asarray(n), path, best)

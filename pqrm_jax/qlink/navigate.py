@@ -38,20 +38,32 @@ from .. import calculi
 from .. import sim as _sim
 from . import pomdp as _pomdp
 from . import trajectory as tr
+from .checks import validate
 from .elements import MapElements, ordering_index
 
-__all__ = ["NavParams", "NavResult", "navigate", "FAILURE_REASONS", "SUCCESS", "RUNNING",
-           "step_budget", "replan_inputs", "localize", "start_tables", "start_poses",
+__all__ = ["NavParams", "NavResult", "Trials", "NavMap", "nav_map", "navigate",
+           "FAILURE_REASONS", "SUCCESS", "RUNNING",
+           "step_budget", "replan_inputs", "UNREACHABLE", "COLLISION", "localize",
+           "start_tables", "start_poses",
            "PairResult", "navigate_pairs", "qsr_plans", "where_tree"]
 
 RUNNING, SUCCESS = 0, 1
 LINK_NOT_FOUND, REFS_NOT_FOUND, START_NOT_LOCALIZED, GOAL_NOT_FOUND, BUDGET = 2, 3, 4, 5, 6
+UNREACHABLE, COLLISION = 7, 8
 FAILURE_REASONS = {RUNNING: "running", SUCCESS: "success", LINK_NOT_FOUND: "link_not_found",
                    REFS_NOT_FOUND: "refs_not_found", START_NOT_LOCALIZED: "start_not_localized",
-                   GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget"}
-"""Status codes of :class:`NavResult`."""
+                   GOAL_NOT_FOUND: "goal_not_found", BUDGET: "budget",
+                   UNREACHABLE: "unreachable", COLLISION: "collision"}
+"""Status codes of :class:`NavResult` and :class:`PairResult` (``unreachable``: localised,
+but no Link Graph path leads from the elements in view to the goal; ``collision``: the in-vivo
+executive's straight drive met a wall, :mod:`pqrm_jax.qlink.hybrid`)."""
 
-PLAN, ARC, CIRCLE = 0, 1, 2
+SENSING = ("step", "epoch")
+"""Sensing models (docs/qlink.md §sensing): ``step`` senses after every rover step; ``epoch``
+senses during the QSR search only at its decision epochs (the plan step and the end of each
+quarter arc), the circle searches still every step."""
+
+PLAN, ARC, CIRCLE, LOOK = 0, 1, 2, 3
 
 
 class NavParams(NamedTuple):
@@ -67,6 +79,8 @@ class NavParams(NamedTuple):
     start_offset: start pose distance from the start landmark.
     circle_only: 1.0 = skip the QSR search and circle a reference that is a link landmark
         whenever there is one (the strategy of Prop. 2, P §4.3.4); 0.0 = Q-Link's QSR search.
+    sense_epochs: 1.0 = the ``epoch`` sensing model (:data:`SENSING`): along a QSR arc the
+        robot looks only at the arc's end; 0.0 = ``step`` (after every step).
     """
 
     map_range: float
@@ -78,6 +92,7 @@ class NavParams(NamedTuple):
     circle_margin: float = 0.999
     start_offset: float = 1.0
     circle_only: float = 0.0
+    sense_epochs: float = 0.0
 
 
 class NavResult(NamedTuple):
@@ -99,6 +114,64 @@ class NavResult(NamedTuple):
     pose: jax.Array
     refs: jax.Array
     trace: jax.Array
+
+
+class Trials(NamedTuple):
+    """The trials bundle of :func:`navigate` and :func:`navigate_pairs` (arrays ``[B]``).
+
+    keys: ``[B]`` per-trial PRNG keys (first: derive them from (world, setting, pair)).
+    starts, goals: ``[B]`` start and goal landmark ids.
+    paths: ``[B, L]`` planned element paths (``-1`` padded) and n_elements ``[B]`` ``|P|``
+        (:func:`navigate` only; :func:`navigate_pairs` plans them itself).
+    poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
+    budget: optional ``[B]`` step budgets (default :func:`step_budget`; :func:`navigate`).
+    """
+
+    keys: jax.Array
+    starts: np.ndarray
+    goals: np.ndarray
+    paths: np.ndarray | None = None
+    n_elements: np.ndarray | None = None
+    poses: jax.Array | None = None
+    budget: np.ndarray | None = None
+
+
+class NavMap(NamedTuple):
+    """The map bundle a robot navigates on (build it with :func:`nav_map`).
+
+    landmarks: ``[N, 2]`` true landmark positions. elements: the map elements.
+    graph: the Link Graph; to_go: its :class:`~pqrm_jax.qlink.linkgraph.GoalTable` for every
+        mapped landmark; goal_row: ``[N]`` the row of ``to_go`` of each landmark (−1 = none);
+        tables: :func:`start_tables` (these four for :func:`navigate_pairs`).
+    plans: optional :func:`qsr_plans` table (computed per call when not given).
+    """
+
+    landmarks: jax.Array
+    elements: MapElements
+    graph: object = None
+    to_go: object = None
+    goal_row: np.ndarray | None = None
+    tables: tuple | None = None
+    plans: jax.Array | None = None
+
+
+def nav_map(landmarks, elements: MapElements, graph=None,
+            model: _pomdp.SearchPOMDP | None = None) -> NavMap:
+    """A :class:`NavMap`: with ``graph`` the goal table, goal rows and start tables of every
+    mapped landmark; with ``model`` the QSR plan table (both computed once per map)."""
+    from .elements import incidence
+    from .linkgraph import goal_distances
+
+    validate(landmarks=np.asarray(landmarks), elements=elements)
+    to_go = goal_row = tables = None
+    if graph is not None:
+        lms = np.flatnonzero(incidence(elements).any(1))
+        goal_row = np.full(elements.num_landmarks, -1, np.int64)
+        goal_row[lms] = np.arange(len(lms))
+        to_go = goal_distances(graph, elements, lms)
+        tables = start_tables(elements)
+    plans = None if model is None else qsr_plans(elements, model)
+    return NavMap(jnp.asarray(landmarks), elements, graph, to_go, goal_row, tables, plans)
 
 
 class _S(NamedTuple):
@@ -213,7 +286,9 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         nxt = path[jnp.clip(s.k + 1, 0, path.shape[0] - 1)]
         members = jnp.where(goal_stage, -1, ids[jnp.maximum(nxt, 0)])       # [3]
         targets = jnp.concatenate([members, jnp.stack([goal, s.e])])
-        vis = _sense(pos, landmarks, targets, occ_tab, params, occlusion)
+        epochs = params.sense_epochs > 0.5
+        look = ~epochs | (s.phase != ARC)      # epoch model: blind while driving an arc
+        vis = _sense(pos, landmarks, targets, occ_tab, params, occlusion) & look
         vm, g_vis, e_vis = vis[:3], vis[3], vis[4]
         # --- event A: goal reached
         done_goal = goal_stage & g_vis
@@ -230,7 +305,7 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         s_trans = s._replace(k=s.k + 1, refs=new_refs, refs_xy=new_xy, phase=jnp.int32(PLAN),
                              hops=s.hops + 1)
         # --- event C: link seen during the QSR search -> circle of radius R' about it
-        see_e = (s.phase == ARC) & e_vis
+        see_e = ((s.phase == ARC) | (s.phase == LOOK)) & e_vis
         e_xy = noisy(key_noise, s.e, s.steps)
         s_circ = s._replace(phase=jnp.int32(CIRCLE), e_xy=e_xy,
                             motion=tr.circle_motion(pos, e_xy,
@@ -279,13 +354,21 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
         s_arc_end = where_tree(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
         s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
+        # epoch model: an arc that ends is followed by one look from its end point
+        s_arc_end = where_tree(epochs, s_move._replace(phase=jnp.int32(LOOK)), s_arc_end)
         s_moved = where_tree(finished & (s.phase == ARC), s_arc_end,
                        where_tree(finished & (s.phase == CIRCLE), s_circ_end, s_move))
+        # LOOK (epoch model): nothing seen from the arc's end: next command or failure
+        s_look = where_tree(more, s._replace(c=c2, phase=jnp.int32(ARC),
+                                             motion=tr.arc_motion(pos, centre2,
+                                                                  params.map_range, lo2)),
+                            s._replace(status=jnp.int32(arc_fail)))
         # --- priority: goal > transition > link seen > plan > move
         out = where_tree(done_goal, s._replace(status=jnp.int32(SUCCESS)),
                    where_tree(trans, s_trans,
                         where_tree(see_e, s_circ,
-                             where_tree(s.phase == PLAN, s_plan, s_moved))))
+                             where_tree(s.phase == PLAN, s_plan,
+                                        where_tree(s.phase == LOOK, s_look, s_moved)))))
         out = out._replace(steps=s.steps + 1)
         if record:
             out = out._replace(trace=out.trace.at[jnp.minimum(s.steps, record - 1)].set(
@@ -368,6 +451,20 @@ def _navigate(keys, starts, goals, paths, n, budget, start_poses, n_valid, landm
     return _pool(trials, n_valid, init, body, width, max(1, width // 8))
 
 
+def _check_params(params: NavParams) -> None:
+    """Ranges and steps of :class:`NavParams` (one message per argument, naming the value)."""
+    validate(positive={"params.nav_range (R')": params.nav_range,
+                       "params.map_range (R)": params.map_range, "params.ds": params.ds,
+                       "params.turn_per_step": params.turn_per_step,
+                       "params.circle_margin": params.circle_margin},
+             nonnegative={"params.occluder_radius": params.occluder_radius,
+                          "params.sigma": params.sigma, "params.start_offset":
+                          params.start_offset})
+    for name in ("circle_only", "sense_epochs"):
+        if getattr(params, name) not in (0.0, 1.0):
+            raise ValueError(f"params.{name} must be 0 or 1, got {getattr(params, name)!r}")
+
+
 def start_poses(keys, landmarks, starts, offset):
     """Start poses ``[B, 3]``: the start landmark + ``offset`` in a seeded direction, seeded
     heading (P §4.4.1 start landmark; docs/qlink.md §Q20)."""
@@ -379,55 +476,54 @@ def start_poses(keys, landmarks, starts, offset):
     return jax.vmap(one)(keys, jnp.asarray(starts))
 
 
-def navigate(keys, landmarks, elements: MapElements, starts, goals, paths, n_elements,
-             params: NavParams, model: _pomdp.SearchPOMDP | None = None,
-             poses=None, budget=None, chunk: int = 64, record: int = 0,
-             plans=None, compile_only: bool = False) -> NavResult:
+def navigate(trials: Trials, world: NavMap, params: NavParams,
+             model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64, record: int = 0,
+             compile_only: bool = False) -> NavResult:
     """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
 
     Args:
-        keys: ``[B]`` per-trial PRNG keys (derive them from (world, setting, pair)).
-        landmarks: ``[N, 2]`` true landmark positions.
-        elements: the map elements the paths refer to.
-        starts, goals: ``[B]`` landmark ids.
-        paths: ``[B, L]`` element indices (``-1`` padded), from
-            :func:`pqrm_jax.qlink.linkgraph.plan_pairs`; n_elements: ``[B]`` ``|P|`` (≥ 1).
+        trials: :class:`Trials` — keys ``[B]`` (first), starts, goals, ``paths [B, L]``
+            (element indices, ``-1`` padded, e.g. from
+            :func:`pqrm_jax.qlink.linkgraph.plan_pairs`), ``n_elements [B]`` ``|P|`` (≥ 1),
+            optional start poses ``[B, 3]`` and step budgets ``[B]``.
+        world: :class:`NavMap` — landmarks ``[N, 2]`` (true positions), the map elements the
+            paths refer to, optional :func:`qsr_plans` table.
         params: :class:`NavParams`.
         model: the search POMDP (``p_move = 1``); default :func:`pomdp.search_model`.
-        poses: optional ``[B, 3]`` start poses (default :func:`start_poses`).
-        budget: optional ``[B]`` step budgets (default :func:`step_budget`).
         chunk: lanes of the pool (``vmap`` width; a lane takes the next trial as soon as its
             own ends); results do not depend on it.
         record: keep the first ``record`` positions of every trial (for plots).
-        plans: optional :func:`qsr_plans` table (computed when not given).
         compile_only: return the pool program compiled for these inputs instead of running
             it (its XLA memory analysis sizes ``chunk``; nothing is driven).
 
     Raises:
-        ValueError: NaN/inf poses or landmarks, R′ ≤ 0, R ≤ 0, a trial without a path.
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) NaN/inf or coincident
+            landmarks, bad ids, malformed elements, NaN/inf poses, a range or step that is
+            not positive and finite, a trial without a path (``|P| < 1``), a path entry that
+            is not an element.
     """
+    keys, starts, goals, paths, n_elements, poses, budget = trials
+    landmarks, elements, plans = world.landmarks, world.elements, world.plans
+    if paths is None or n_elements is None:
+        raise ValueError("navigate drives planned trials: trials.paths and trials.n_elements "
+                         "are needed (navigate_pairs plans them)")
     model = model or _pomdp.search_model(horizon=4)
     if model.p_move != 1.0:
         raise ValueError("the executive needs p_move = 1 (the open-loop plan is exact then)")
-    for name, v in (("nav_range R'", params.nav_range), ("map_range R", params.map_range),
-                    ("ds", params.ds), ("turn_per_step", params.turn_per_step)):
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be positive and finite, got {v}")
-    if params.occluder_radius < 0 or params.sigma < 0:
-        raise ValueError("occluder_radius and sigma must be non-negative")
+    _check_params(params)
+    validate(landmarks=np.asarray(landmarks), elements=elements,
+             landmark_ids={"starts": starts, "goals": goals})
     landmarks = jnp.asarray(landmarks)
-    if not np.all(np.isfinite(np.asarray(landmarks))):
-        raise ValueError("landmarks contain NaN or inf values")
-    n_elements = np.asarray(n_elements, np.int32)
-    if np.any(n_elements < 1):
-        raise ValueError("every trial needs a planned path (|P| >= 1); unreachable pairs are "
-                         "reported by the planner, not navigated")
+    n_elements = np.asarray(n_elements)
+    paths = np.asarray(paths)
+    validate(paths=(paths, n_elements, np.asarray(elements.ids).shape[0],
+                    len(np.ravel(starts))))
+    n_elements = n_elements.astype(np.int32)
     keys = jnp.asarray(keys)
     if poses is None:
         poses = start_poses(keys, landmarks, starts, params.start_offset)
+    validate(finite={"poses": np.asarray(poses)})
     poses = jnp.asarray(poses, landmarks.dtype)
-    if not np.all(np.isfinite(np.asarray(poses))):
-        raise ValueError("start poses contain NaN or inf values")
     budget = step_budget(n_elements, params) if budget is None else np.asarray(budget)
     p = NavParams(*(float(x) for x in params))
     paths = np.asarray(paths, np.int32)
@@ -482,8 +578,8 @@ def replan_inputs(result: NavResult, landmarks, elements: MapElements, graph, go
 
     Returns ``(trial indices [M], paths [M, L'], n_elements [M])`` for the trials that can
     continue (host side, networkx on the Link Graph with the failed edge removed); resume them
-    with :func:`navigate` (``poses = result.pose[idx]``; the start landmark is any visible
-    reference of the new first element).
+    with :func:`navigate` (``Trials(..., poses=result.pose[idx])``; the start landmark is any
+    visible reference of the new first element).
     """
     import networkx as nx
 
@@ -622,46 +718,70 @@ class PairResult(NamedTuple):
     nav: NavResult
 
 
-def navigate_pairs(keys, landmarks, elements: MapElements, graph, to_go, goal_row, tables,
-                   starts, goals, params: NavParams,
-                   model: _pomdp.SearchPOMDP | None = None, chunk: int = 64,
-                   record: int = 0, plans=None, neighbours=None) -> PairResult:
+def navigate_pairs(trials: Trials, world: NavMap, params: NavParams,
+                   model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64,
+                   record: int = 0) -> PairResult:
     """Localise, plan from the elements in view, and drive B start/goal trials (batched).
 
-    Args:
-        keys: ``[B]`` per-trial keys. landmarks: ``[N, 2]``. elements, graph: the map and its
-            Link Graph. to_go: ``[G, E]`` :func:`~pqrm_jax.qlink.linkgraph.goal_distances`.
-        goal_row: ``[N_L]`` int, the row of ``to_go`` for each goal landmark (−1 = none).
-        tables: :func:`start_tables` of ``elements``. starts, goals: ``[B]`` landmark ids.
-        params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
-        plans: optional :func:`qsr_plans` table; neighbours: optional
-            :func:`~pqrm_jax.qlink.linkgraph.neighbour_table` of ``graph`` (both computed when
-            not given; pass them when driving many batches on one map).
-    """
-    from .linkgraph import plan_from
+    The whole planned path is driven on any Link Graph (unit, −log p, zero costs): plans
+    follow the successors recorded in ``world.to_go`` and the path buffer is sized from its
+    hop counts. A trial localised in the start element but with no path from the elements in
+    view gets the status ``UNREACHABLE``.
 
-    starts, goals = np.asarray(starts, np.int32), np.asarray(goals, np.int32)
+    Args:
+        trials: :class:`Trials` — keys ``[B]`` (first), starts and goals ``[B]`` landmark ids
+            (paths, poses and budgets are not used: the trial plans from where it localises).
+        world: :class:`NavMap` with the Link Graph, its goal table, goal rows and start tables
+            (:func:`nav_map`) and optionally the :func:`qsr_plans` table (pass it when driving
+            many batches on one map).
+        params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
+        record: keep the first ``record`` positions of every trial (for plots).
+
+    Raises:
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) as :func:`navigate`, and a goal
+            without a row of ``world.to_go``.
+    """
+    keys, starts, goals = trials.keys, trials.starts, trials.goals
+    landmarks, elements, graph, to_go, goal_row, tables, plans = world
+    from .linkgraph import GoalTable, plan_from
+
+    if not isinstance(to_go, GoalTable):
+        raise ValueError("world.to_go must be the GoalTable of linkgraph.goal_distances, got "
+                         f"{type(to_go).__name__}")
+    _check_params(params)
+    got = validate(landmarks=np.asarray(landmarks), elements=elements,
+                   landmark_ids={"starts": starts, "goals": goals})
+    starts, goals = got["starts"].astype(np.int32), got["goals"].astype(np.int32)
+    if starts.shape != goals.shape or starts.ndim != 1:
+        raise ValueError(f"starts and goals must be [B] of one length, got {starts.shape} "
+                         f"and {goals.shape}")
+    goal_row = np.asarray(goal_row)
+    if goal_row.shape != (elements.num_landmarks,):
+        raise ValueError(f"goal_row must have shape ({elements.num_landmarks},), got "
+                         f"{goal_row.shape}")
+    rows = goal_row[goals]
+    if np.any((rows < 0) | (rows >= np.shape(to_go.cost)[0])):
+        g = int(goals[(rows < 0) | (rows >= np.shape(to_go.cost)[0])][0])
+        raise ValueError(f"goal_row[{g}] = {int(goal_row[g])}: to_go has no row for goal {g}")
     cand = tables[0]
-    if np.any(cand[starts, 0] < 0) or np.any(cand[goals, 0] < 0):
-        bad = starts[cand[starts, 0] < 0].tolist() + goals[cand[goals, 0] < 0].tolist()
-        raise ValueError(f"landmark {bad[0]} is not in the map (it belongs to no map element)")
-    if np.any(goal_row[goals] < 0):
-        raise ValueError("goal_row has no cost-to-go row for some goal landmark")
     keys = jnp.asarray(keys)
     poses = start_poses(keys, jnp.asarray(landmarks), starts, params.start_offset)
-    if not np.all(np.isfinite(np.asarray(poses))):
-        raise ValueError("start poses contain NaN or inf values")
+    validate(finite={"start poses": np.asarray(poses)})
     pose1, len1, _, st1, in_view = localize(keys, landmarks, starts, poses, tables, params,
                                             chunk=chunk)
     cands = np.where(np.asarray(in_view), cand[starts], -1)
-    max_len = int(np.nanmax(np.where(np.isfinite(np.asarray(to_go)), np.asarray(to_go), 0))) + 2
-    plan = plan_from(graph, to_go, goal_row[goals], cands, max_len, neighbours)
+    # path buffer from hop counts (the longest path of the table: one width per world)
+    max_len = int(np.max(np.asarray(to_go.hops), initial=0)) + 1
+    plan = plan_from(graph, to_go, rows, cands, max_len)
     st1 = np.asarray(st1)
     reach = np.asarray(plan.reachable) & (st1 == SUCCESS)
     n = np.where(reach, np.asarray(plan.n_elements), 1)
-    res = navigate(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), landmarks, elements,
-                   starts, goals, plan.path, n, params, model, poses=pose1, chunk=chunk,
-                   record=record, plans=plans)
-    status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, RUNNING, st1))
+    # a trial without a plan rides along on a one-element placeholder (its start element);
+    # its result is masked below and no other trial depends on it
+    path = np.asarray(plan.path).copy()
+    path[~reach, 0] = cand[starts[~reach], 0]
+    res = navigate(Trials(jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys), starts, goals,
+                          path, n, pose1), world, params, model, chunk=chunk, record=record)
+    status = np.where(reach, np.asarray(res.status), np.where(st1 == SUCCESS, UNREACHABLE, st1))
     length = np.asarray(len1) + np.where(reach, np.asarray(res.length), 0.0)
     return PairResult(reach, status, np.where(reach, n, 0), length, res)

@@ -48,7 +48,7 @@ from .. import calculi
 
 __all__ = ["SearchPOMDP", "search_model", "edge_adjacency", "solve_exact", "open_loop_plan",
            "greedy_sequence", "open_loop_best", "hazards", "success_probability",
-           "expected_commands", "sequence_value", "DEFAULT_DETECTION"]
+           "expected_commands", "sequence_value", "DEFAULT_DETECTION", "estimate_detection"]
 
 DEFAULT_DETECTION = (0.95, 0.2, 0.02)
 """Detection probability (same state, adjacent state, opposite state) when none is estimated."""
@@ -301,3 +301,32 @@ def expected_commands(h: jax.Array) -> jax.Array:
     """
     alive = jnp.concatenate([jnp.ones(1, h.dtype), jnp.cumprod(1.0 - h)[:-1]])
     return jnp.sum(alive)
+
+
+def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
+    """``[Q, Q]`` d[q_r, q_l]: fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
+    whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r``
+    (docs/qlink.md §Q12; ``[E, 3]`` element ids, ``[N, 2]`` landmarks).
+
+    Args:
+        landmarks: ``[N, 2]`` true landmark positions. elements: the map elements.
+        r_map: R, the arc radius. r_nav: the range within which C counts as seen.
+
+    Returns:
+        ``[Q, Q]`` float64, clipped to [0.01, 0.99].
+    """
+    from . import elements as qel
+    from . import trajectory as tr
+
+    lm = jnp.asarray(landmarks)
+    trip = jnp.asarray(np.asarray(elements.ids)[:, qel.ORDERINGS]).reshape(-1, 3)
+    a, b, c = lm[trip[:, 0]], lm[trip[:, 1]], lm[trip[:, 2]]
+    ql = np.asarray(calculi.get("quadrant").classify(a, b, c))
+    d = np.zeros((4, 4))
+    for qr in range(4):
+        centre, lo = jax.vmap(tr.quadrant_wedge, (0, 0, None))(a, b, qr)
+        dist = np.asarray(jax.vmap(tr.arc_min_distance, (0, 0, None, 0))(c, centre, r_map, lo))
+        for q in range(4):
+            m = ql == q
+            d[qr, q] = float((dist[m] <= r_nav).mean()) if m.any() else 0.0
+    return np.clip(d, 0.01, 0.99)

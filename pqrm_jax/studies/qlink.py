@@ -77,6 +77,11 @@ REASONS = {
                      "rounding",
     "start_offset": "start pose R/20 = 1 m from the start landmark, seeded direction",
     "nav_sigma": "navigation measurement noise, the same sensor as mapping",
+    "sensing": "'step': the navigating robot senses after every 0.5 m step, P section 4.4.1: "
+               "a transition is made if the references of M_j 'are visible at some time' and "
+               "the circle 'searches for reference landmarks'; 'epoch' (variant, measured "
+               "beside it): along a QSR arc it looks only at the arc's end (docs/qlink.md "
+               "section sensing)",
     "max_pairs": "ordered start/goal pairs per world (0 = all, P: every pairwise combination)",
     "chunk": "pool lanes of the navigation executive (results do not depend on it); None = "
              "sized per world from the device memory (auto_chunk), on CPU at most 128",
@@ -105,6 +110,7 @@ class Config:
     circle_margin: float = 0.999
     start_offset: float = 1.0
     nav_sigma: float = 0.3
+    sensing: str = "step"
     max_pairs: int = 0
     chunk: int | None = None  # None: sized from the device memory per world (auto_chunk)
     seed: int = 0
@@ -118,28 +124,6 @@ def settings(cfg: Config) -> list[tuple[str, float, float]]:
     """``(name, R'/R, occluder diameter)`` of every setting."""
     out = [("R" if f == 1.0 else f"{f:g}R", f, 0.0) for f in cfg.sensor_fracs]
     return out + [(f"occ {s:g} m", 1.0, s) for s in cfg.occluder_sizes]
-
-
-def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
-    """``[Q, Q]`` d[q_r, q_l]: fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
-    whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r``
-    (docs/qlink.md §Q12)."""
-    from pqrm_jax import calculi
-    from pqrm_jax.qlink import elements as qel
-    from pqrm_jax.qlink import trajectory as tr
-
-    lm = jnp.asarray(landmarks)
-    trip = jnp.asarray(np.asarray(elements.ids)[:, qel.ORDERINGS]).reshape(-1, 3)
-    a, b, c = lm[trip[:, 0]], lm[trip[:, 1]], lm[trip[:, 2]]
-    ql = np.asarray(calculi.get("quadrant").classify(a, b, c))
-    d = np.zeros((4, 4))
-    for qr in range(4):
-        centre, lo = jax.vmap(tr.quadrant_wedge, (0, 0, None))(a, b, qr)
-        dist = np.asarray(jax.vmap(tr.arc_min_distance, (0, 0, None, 0))(c, centre, r_map, lo))
-        for q in range(4):
-            m = ql == q
-            d[qr, q] = float((dist[m] <= r_nav).mean()) if m.any() else 0.0
-    return np.clip(d, 0.01, 0.99)
 
 
 def build_world(cfg: Config, w: int):
@@ -178,7 +162,8 @@ def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: fl
     params = nav.NavParams(map_range=cfg.map_range, nav_range=frac * cfg.map_range,
                            occluder_radius=occ / 2, sigma=cfg.nav_sigma, ds=cfg.ds,
                            turn_per_step=cfg.turn_per_step, circle_margin=cfg.circle_margin,
-                           start_offset=cfg.start_offset)
+                           start_offset=cfg.start_offset,
+                           sense_epochs=float(cfg.sensing == "epoch"))
     model = pomdp.search_model("quadrant", horizon=cfg.horizon, detect=detect)
     sid = zlib.crc32(f"{beta}/{name}".encode()) & 0x7FFFFFFF
     base = jax.random.fold_in(jax.random.fold_in(jax.random.key(cfg.seed), w), sid)
@@ -190,15 +175,13 @@ def _trial_setup(cfg: Config, w: int, beta: int, name: str, frac: float, occ: fl
 def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: float, world,
                 progress: bool = True) -> list[dict]:
     """All trials of one (world, β, setting); rows for ``trials.csv``."""
-    from pqrm_jax.qlink import linkgraph as lg
     from pqrm_jax.qlink import navigate as nav
 
     lm, el, g, to_go, goal_row, tables, pairs, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
-    nbrs = lg.neighbour_table(g)
     # static Link Graph reachability from the start landmark's elements
     cand = tables[0][pairs[:, 0]]
-    tg = np.asarray(to_go)[goal_row[pairs[:, 1]]]
+    tg = np.asarray(to_go.cost)[goal_row[pairs[:, 1]]]
     static_reach = np.isfinite(np.where(cand >= 0, np.take_along_axis(
         tg, np.maximum(cand, 0), 1), np.inf).min(1))
     rows = []
@@ -208,9 +191,9 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
                   leave=False):
         sl = slice(i, i + block)
         try:
-            r = nav.navigate_pairs(keys[sl], lm, el, g, to_go, goal_row, tables, pairs[sl, 0],
-                                   pairs[sl, 1], params, model, chunk=cfg.chunk, plans=plans,
-                                   neighbours=nbrs)
+            r = nav.navigate_pairs(nav.Trials(keys[sl], pairs[sl, 0], pairs[sl, 1]),
+                                   nav.NavMap(lm, el, g, to_go, goal_row, tables, plans),
+                                   params, model, chunk=cfg.chunk)
         except Exception as exc:  # noqa: BLE001  (XLA raises its OOM as several types)
             text = str(exc)
             if "RESOURCE_EXHAUSTED" not in text and "out of memory" not in text.lower():
@@ -222,8 +205,8 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
             st = int(r.status[j])
             if not static_reach[k]:
                 reason = "unreachable"
-            elif st == nav.RUNNING:
-                reason = "no_plan_from_view"
+            elif st == nav.UNREACHABLE:    # reachable from the start landmark's elements,
+                reason = "no_plan_from_view"  # not from those the robot localised in
             else:
                 reason = nav.FAILURE_REASONS[st]
             rows.append(dict(world=w, beta=beta, setting=name, start=int(pairs[k, 0]),
@@ -297,6 +280,11 @@ def main(argv: list[str]) -> int:
                    "not depend on it")
     p.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
                    "sized for (default: what the device reports)")
+    p.add_argument("--sensing", choices=("step", "epoch"), help="sensing model of the "
+                   "navigating robot (default step; docs/qlink.md §sensing)")
+    p.add_argument("--ablation", nargs="*", metavar="SETTING", help="instead of the study: "
+                   "the variants of ABLATIONS on the given settings (default R) of each world; "
+                   "writes ablation.csv to --out")
     p.add_argument("--no-progress", "--quiet", action="store_true",
                    help="no progress bars (--quiet: deprecated alias)")
     from . import distributed, protocol
@@ -310,10 +298,14 @@ def main(argv: list[str]) -> int:
         cfg.worlds = tuple(a.worlds)
     if a.max_pairs is not None:
         cfg.max_pairs = a.max_pairs
+    if a.sensing is not None:
+        cfg.sensing = a.sensing
     if a.chunk is not None:
         if a.chunk < 0:
             p.error("--chunk must be positive or 'auto'")
         cfg.chunk = a.chunk or None
+    if a.ablation is not None:
+        return _run_ablation(cfg, a.out, tuple(a.ablation) or ("R",))
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
     cluster = distributed.initialize_from(a)  # before any JAX computation
@@ -376,6 +368,27 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def _run_ablation(cfg: Config, out: str, names: tuple[str, ...]) -> int:
+    import csv
+    import os
+    from pathlib import Path
+
+    known = {n for n, _, _ in settings(cfg)}
+    if not set(names) <= known:
+        raise SystemExit(f"--ablation: unknown setting {sorted(set(names) - known)}; "
+                         f"choose from {sorted(known)}")
+    rows = [r for w in cfg.worlds for r in ablation(cfg, w, names)]
+    Path(out).mkdir(parents=True, exist_ok=True)
+    tmp = Path(out) / "ablation.csv.tmp"
+    with open(tmp, "w", newline="") as f:
+        wr = csv.DictWriter(f, list(rows[0]))
+        wr.writeheader()
+        wr.writerows(rows)
+    os.replace(tmp, Path(out) / "ablation.csv")
+    print(f"wrote {Path(out) / 'ablation.csv'}")
+    return 0
+
+
 CPU_CHUNK = 128  # pool lanes on CPU: wider pools only add idle lanes to a few cores
 QUEUE_PER_LANE = 32  # trials queued per pool lane by run_setting (block = 32 x chunk)
 
@@ -399,9 +412,10 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
                                        pairs[:1])
     q = QUEUE_PER_LANE
-    compiled = nav.navigate(jnp.concatenate([keys] * q), lm, el, np.repeat(pairs[:1, 0], q),
-                            np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
-                            np.ones(q, np.int32), params, model, chunk=1, plans=plans,
+    trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
+                        np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
+                        np.ones(q, np.int32))
+    compiled = nav.navigate(trials, nav.NavMap(lm, el, plans=plans), params, model, chunk=1,
                             compile_only=True)
     nbytes = chunking.program_bytes(compiled)
     budget = chunking.budget(memory_bytes)
@@ -413,6 +427,68 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     return lanes
 
 
+ABLATIONS = {
+    "baseline": {},
+    "nav_sigma 0": dict(nav_sigma=0.0),
+    "circle_margin 1": dict(circle_margin=1.0),
+    "exact map": dict(exact_map=True),
+    "nav_sigma 0 + exact map": dict(nav_sigma=0.0, exact_map=True),
+    "nav_sigma 0 + exact map + margin 1": dict(nav_sigma=0.0, exact_map=True,
+                                               circle_margin=1.0),
+    "epoch sensing": dict(sensing="epoch"),
+}
+"""Variants of :func:`ablation` (``exact_map``: the noise-free relations of the mapped
+elements instead of the PQRM's; every other key is a :class:`Config` field)."""
+
+
+def ablation(cfg: Config, w: int, settings_: tuple[str, ...] = ("R",),
+             variants: dict | None = None) -> list[dict]:
+    """Failure counts of world ``w`` under each variant of :data:`ABLATIONS` (docs/qlink.md
+    §results: the measured cause of the R′ = R failures). Same map, pairs and per-trial keys
+    in every variant, so the variants differ only in the knob they change.
+
+    Returns one row per (variant, setting): trials, reachable, failures and each reason.
+    """
+    from pqrm_jax.qlink import elements as qel
+    from pqrm_jax.qlink import linkgraph as lg
+    from pqrm_jax.qlink import navigate as nav
+    from pqrm_jax.qlink import pomdp
+
+    lm, el, detect = _build(cfg, w)
+    lms = np.flatnonzero(qel.incidence(el).any(1))
+    goal_row = np.full(el.num_landmarks, -1, np.int64)
+    goal_row[lms] = np.arange(len(lms))
+    pairs = _pairs(cfg, lms, w)
+    beta = cfg.betas[0]
+    g = lg.link_graph(el, beta)
+    to_go = lg.goal_distances(g, el, lms)
+    out = []
+    for vname, kw in (variants or ABLATIONS).items():
+        kw = dict(kw)
+        el_v = qel.exact_elements(lm, np.asarray(el.ids)) if kw.pop("exact_map", False) else el
+        cfg_v = dataclasses.replace(cfg, **kw)
+        if cfg_v.chunk is None:
+            cfg_v = dataclasses.replace(cfg_v, chunk=CPU_CHUNK)
+        plans = nav.qsr_plans(el_v, pomdp.search_model("quadrant", horizon=cfg.horizon,
+                                                       detect=detect))
+        world = (lm, el_v, g, to_go, goal_row, nav.start_tables(el_v), pairs, detect, plans)
+        for name, frac, occ in settings(cfg):
+            if name not in settings_:
+                continue
+            t0 = time.process_time()
+            rows = run_setting(cfg_v, w, beta, name, frac, occ, world, progress=False)
+            reach = [r for r in rows if r["reachable"]]
+            c = Counter(r["reason"] for r in reach if not r["success"])
+            out.append(dict(world=w, variant=vname, setting=name, trials=len(rows),
+                            reachable=len(reach), failures=sum(c.values()),
+                            failure_pct=round(100.0 * sum(c.values()) / max(len(reach), 1),
+                                              3),
+                            reasons=" ".join(f"{k}:{v}" for k, v in sorted(c.items())),
+                            cpu_s=round(time.process_time() - t0, 1)))
+            print(out[-1], flush=True)
+    return out
+
+
 def _build(cfg: Config, w: int):
     """The map of world ``w`` and its detection model; a table it needs that cannot be read
     fails the study."""
@@ -420,6 +496,8 @@ def _build(cfg: Config, w: int):
 
     try:
         lm, el = build_world(cfg, w)
+        from pqrm_jax.qlink.pomdp import estimate_detection
+
         detect = (estimate_detection(lm, el, cfg.map_range, cfg.map_range)
                   if cfg.detection == "estimated" else None)
     except CacheError as exc:
@@ -606,7 +684,7 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
 
     lm, el, g, to_go, goal_row, tables, _, detect, plans = world
     params, model, keys = _trial_setup(cfg, w, beta, name, frac, occ, detect, pairs)
-    return nav.navigate_pairs(keys, lm, el, g, to_go, goal_row, tables, pairs[:, 0],
-                              pairs[:, 1], params, model,
-                              chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
-                              record=record, plans=plans)    # few lanes: the traces are big
+    return nav.navigate_pairs(nav.Trials(keys, pairs[:, 0], pairs[:, 1]),
+                              nav.NavMap(lm, el, g, to_go, goal_row, tables, plans), params,
+                              model, chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
+                              record=record)    # few lanes: the traces are big

@@ -370,14 +370,22 @@ def _figure(cfg, world, rows, out):
             ax.plot(w[:, 0], w[:, 1], "b-", lw=4, label="walls" if i == 0 else None)
         rs = sorted((r for r in rows if r["p_miss"] == pm),     # re-planned/failed first
                     key=lambda r: (-(r["replans"] > 0 or not r["success"]), r["trial"]))[:6]
-        for r in rs:
+        for k, r in enumerate(rs):
+            # the driven trajectory: every stop (straight drives between them; a drive that
+            # meets a wall stops there, docs/qlink.md §invivo) and the final position
             xy = np.concatenate([np.asarray(t).reshape(-1, 2) for t in r["trace"]] +
                                 [np.array([[r["final_x"], r["final_y"]]])])
-            ax.plot(xy[:, 0], xy[:, 1], marker="o", ms=3, lw=1,
-                    ls="-" if r["success"] else "--",
-                    label=f"trial {r['trial']}: |P|={r['n_planned']}, re-plans {r['replans']}"
-                          f"{'' if r['success'] else ', ' + r['reason']}")
+            line, = ax.plot(xy[:, 0], xy[:, 1], marker="o", ms=3, lw=1,
+                            ls="-" if r["success"] else "--",
+                            label=f"trial {r['trial']}: |P|={r['n_planned']}, re-plans "
+                                  f"{r['replans']}"
+                                  f"{'' if r['success'] else ', ' + r['reason']}")
+            ax.plot(*xy[0], "^", color=line.get_color(), ms=8, mec="k",
+                    label="start" if k == 0 else None)
+            ax.plot(*xy[-1], "*", color=line.get_color(), ms=11, mec="k",
+                    label="end (goal)" if k == 0 else None)
         ax.set_title(f"p_miss = {pm}")
+        ax.set(xlabel="x (m)", ylabel="y (m)")
         ax.set_aspect("equal")
         ax.legend(fontsize=6, loc="upper right")
     atomic_savefig(fig, out / "invivo_world.png", dpi=110)
