@@ -9,7 +9,8 @@ Steps (B §6.1.1): drop skeleton cells over unknown space; keep cells reachable 
 through free space; ``c`` = the skeleton cell closest to the robot; crawl from ``c``, stopping
 at *exits* (skeleton cells on the grid border or next to unknown cells); keep the minimum
 spanning tree of the crawled cells and strip every leaf that is not an exit (with at most one
-exit, ``c`` is kept as a terminal too: the dead-end case); recompute ``c`` on the tree.
+exit, ``c`` is kept as a terminal too: the dead-end case; touching exit cells count as one
+exit); recompute ``c`` on the tree.
 """
 
 from __future__ import annotations
@@ -132,7 +133,15 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     # at most one exit: the dead-end case)
     comp = csgraph.breadth_first_order(mst, ci, directed=False, return_predecessors=False)
     exit_idx = sorted(int(k) for k in comp[is_exit[comp]])
-    terminals = exit_idx if len(exit_idx) > 1 else sorted(set(exit_idx) | {ci})
+    # exits are counted as groups of touching exit cells: a corridor that leaves the grid
+    # through a corner (a 45° corridor) meets the border in two adjacent cells, which is one
+    # way out (counted as two, a dead end's own branch was stripped as a non-terminal leaf)
+    both = is_exit[u] & is_exit[v]
+    groups = csgraph.connected_components(
+        sparse.coo_matrix((np.ones(int(both.sum())), (u[both], v[both])), shape=(n, n)),
+        directed=False)[1]
+    n_ways = len({int(groups[k]) for k in exit_idx})
+    terminals = exit_idx if n_ways > 1 else sorted(set(exit_idx) | {ci})
     # stripping every non-terminal leaf until none is left leaves the smallest subtree that
     # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
     # paths to the root (one walk up the BFS predecessors, each node visited once)

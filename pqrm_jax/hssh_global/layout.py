@@ -297,6 +297,53 @@ def relax_loop(problem: LayoutProblem, iters: int = 10, damping: float = 1e-3,
     return jnp.stack([o[0] for o in outs]), jnp.stack([o[1] for o in outs])
 
 
+def relax_many(leaves: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
+               sigma_theta: float = 0.01, chunk: int = 1024,
+               least: int = 64) -> tuple[LayoutProblem, np.ndarray, np.ndarray]:
+    """Relaxes many hypotheses of one experience in chunks of bucketed shapes (B §9.2).
+
+    Hypotheses are padded (by repeating the first) to a power of two, at least ``least`` and
+    at most ``chunk`` per call, and places to travels + 1, so that experiences of equal length
+    share compiled code (a compile costs seconds, 64 padded hypotheses milliseconds); the
+    padding is dropped from the results.
+
+    Args:
+        leaves: hypotheses sharing one experience (``H >= 1``).
+        odometry: ``[N, 3]`` λ_i (see :func:`pack`).
+        sigma_xy, sigma_theta: odometry noise model (see :func:`pack`).
+        chunk: most hypotheses per relaxation call (``>= 1``).
+        least: fewest padded hypotheses per call (``>= 1``).
+
+    Returns:
+        ``(problem, chi, cost)``: the packed :class:`LayoutProblem` (NumPy, ``[H, ...]``), the
+        relaxed poses ``[H, N + 1, 3]`` and the costs ``[H]``.
+
+    >>> from pqrm_jax.hssh_global import grid_world, explore, build_tree
+    >>> e = explore(grid_world(2, 2, seed=0), 4, seed=0)
+    >>> leaves = build_tree(e).leaves
+    >>> _, chi, cost = relax_many(leaves, e.odometry)
+    >>> chi.shape[0] == cost.shape[0] == len(leaves)
+    True
+    """
+    if not leaves:
+        raise ValueError("no hypothesis to lay out")
+    if int(chunk) < 1 or int(least) < 1:
+        raise ValueError(f"chunk and least must be >= 1, got chunk={chunk}, least={least}")
+    odometry = np.asarray(odometry, float)
+    probs, chis, costs = [], [], []
+    for s in range(0, len(leaves), chunk):
+        part = list(leaves[s:s + chunk])
+        h = len(part)
+        padded = part + [part[0]] * (min(max(1 << (h - 1).bit_length(), least), chunk) - h)
+        prob = pack(padded, odometry, sigma_xy, sigma_theta, m_max=len(odometry) + 1)
+        chi, cost = relax(prob)
+        probs.append(LayoutProblem(*(np.asarray(x[:h]) for x in prob)))
+        chis.append(np.asarray(chi[:h]))
+        costs.append(np.asarray(cost)[:h])
+    prob = LayoutProblem(*(np.concatenate(xs) for xs in zip(*probs, strict=True)))
+    return prob, np.concatenate(chis), np.concatenate(costs)
+
+
 def score_hypotheses(hypotheses, odometry, **kw) -> np.ndarray:
     """Layout cost of each hypothesis (lower is more likely), ``[H]``."""
     _, cost = relax(pack(hypotheses, odometry, **kw))
@@ -319,7 +366,6 @@ def true_layout(world, experience) -> np.ndarray:
     return np.stack([np.asarray(compose(inverse(x0), first[c])) for c in range(len(first))])
 
 
-@jax.jit
 def scale_trajectory(x_start, x_end, increments) -> jax.Array:
     """Trajectory fitting between two relaxed place poses (B §9.3.3).
 
@@ -339,7 +385,21 @@ def scale_trajectory(x_start, x_end, increments) -> jax.Array:
     >>> p = scale_trajectory(np.zeros(3), np.array([2.2, 0.0, 0.0]), np.array([[1.0, 0, 0]] * 2))
     >>> [round(float(v), 3) for v in p[:, 0]]
     [0.0, 1.1, 2.2]
+
+    Raises ``ValueError`` for a zero-length trajectory (no increment) or shapes other than
+    ``[3]``, ``[3]``, ``[J, 3]``.
     """
+    shapes = [np.shape(x_start), np.shape(x_end), np.shape(increments)]
+    if shapes[0] != (3,) or shapes[1] != (3,) or len(shapes[2]) != 2 or shapes[2][1] != 3:
+        raise ValueError(f"x_start, x_end must be [3] and increments [J, 3], got {shapes}")
+    if shapes[2][0] == 0:
+        raise ValueError("increments must hold at least one step (a zero-length trajectory "
+                         "has nothing to scale)")
+    return _scale_trajectory(x_start, x_end, increments)
+
+
+@jax.jit
+def _scale_trajectory(x_start, x_end, increments) -> jax.Array:
     mu = jnp.asarray(increments)
     x0, x1 = jnp.asarray(x_start), jnp.asarray(x_end)
     delta = x1 - x0 - mu.sum(0)

@@ -101,23 +101,9 @@ def config_for(a) -> dict:
     return cfg
 
 
-def _relax_padded(hg, leaves, odometry, cfg, chunk: int = 1024, least: int = 64):
-    """Relaxes all leaves in chunks with shapes bucketed (hypotheses to a power of two, at
-    least ``least`` and at most ``chunk``, places to travels + 1) so that worlds share compiled
-    code (a compile costs seconds, 64 padded hypotheses milliseconds); padding is dropped."""
-    probs, chis, costs = [], [], []
-    for s in range(0, len(leaves), chunk):
-        part = leaves[s:s + chunk]
-        h = len(part)
-        padded = part + [part[0]] * (min(max(1 << (h - 1).bit_length(), least), chunk) - h)
-        prob = hg.pack(padded, odometry, cfg["sigma_xy"], cfg["sigma_theta"],
-                       m_max=len(odometry) + 1)
-        chi, cost = hg.relax(prob)
-        probs.append(hg.LayoutProblem(*(np.asarray(x[:h]) for x in prob)))
-        chis.append(np.asarray(chi[:h]))
-        costs.append(np.asarray(cost)[:h])
-    prob = hg.LayoutProblem(*(np.concatenate(xs) for xs in zip(*probs, strict=True)))
-    return prob, np.concatenate(chis), np.concatenate(costs)
+def _relax_padded(hg, leaves, odometry, cfg):
+    """All leaves relaxed by :func:`pqrm_jax.hssh_global.layout.relax_many` (bucketed shapes)."""
+    return hg.relax_many(leaves, odometry, cfg["sigma_xy"], cfg["sigma_theta"])
 
 
 def run_world(cfg: dict, i: int) -> dict:

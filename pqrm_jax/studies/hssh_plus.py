@@ -88,7 +88,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _config(args) -> dict:
-    from ..hssh.gateways import SIDE_SLACK
+    from ..hssh.gateways import SIDE_CONE, SIDE_SLACK
 
     grid = REDUCED if args.reduced else {"rotations": ROTATIONS, "sizes": SIZES, "noise": NOISE}
     return {
@@ -99,6 +99,9 @@ def _config(args) -> dict:
         "robot_radius": 0.0, "robot_cell": "image centre (side // 2, side // 2)",
         "arm_width_fraction": 1 / 3, "supersample": args.supersample,
         "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK, "method": args.method,
+        # side obstacles within +-side_cone degrees of the branch normal (issue 26: B's
+        # half-plane rule, 90, lays gateways across wide grid-aligned T and L junctions)
+        "side_cone": SIDE_CONE,
         "seed": args.seed,
         "success": "4 gateways, star isomorphic to the + star (B §5.1)",
     }
@@ -159,7 +162,8 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
         try:
             lt = topology_from_maps(maps.occupied[i], maps.unknown[i], maps.free_space[i],
                                     maps.dist2[i], maps.skeleton[i], rc, method=cfg["method"],
-                                    side_slack=cfg["side_slack"])
+                                    side_slack=cfg["side_slack"],
+                                    side_cone=cfg.get("side_cone", 90.0))
         except ValueError as e:
             rec.update(success=False, gateways=0, paths=0, kind="error", reason=str(e))
         else:
