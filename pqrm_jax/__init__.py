@@ -10,10 +10,13 @@ Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.; design notes 
 * :mod:`~pqrm_jax.compositions` — composable sets and composition propagation (Z).
 * :mod:`~pqrm_jax.qlink` — Q-Link navigation over qualitative maps (P ch. 4).
 * :mod:`~pqrm_jax.bsp` — Zilberman's belief-space planning with compositions (Z ch. 4).
+* :mod:`~pqrm_jax.hssh` — HSSH local levels: LPM, localization, gateways, places (B ch. 4–6).
 * :mod:`~pqrm_jax.hssh_global` — HSSH global levels: tree of maps, layout, navigation (B ch. 8–9).
 * :mod:`~pqrm_jax.sim` — the JAX 2D rover simulator.
 * :mod:`~pqrm_jax.studies` — long studies run by ``pqrm-jax study NAME``.
-* :mod:`~pqrm_jax.triplets` — the triplet layouts (rows, dense) and their converters.
+* :mod:`~pqrm_jax.triplets` — the triplet vocabulary: orderings, layouts and converters.
+* :mod:`~pqrm_jax.protocols` — the step convention ``init`` / ``update(state, key, *obs)`` and
+  :func:`~pqrm_jax.protocols.run`.
 
 >>> import pqrm_jax
 >>> pqrm_jax.calculi.get("lr").states
@@ -30,7 +33,7 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global"]
+           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global", "protocols"]
 SUBPACKAGES = tuple(__all__)
 
 

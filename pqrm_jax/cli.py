@@ -6,6 +6,7 @@
     pqrm-jax tables --rebuild [NAME ...]    regenerate cached tables (progress bar)
     pqrm-jax tables --plot DIR              table figures and a report (the main job's first part)
     pqrm-jax study NAME [args...]           run a study (``pqrm-jax study --list``)
+    pqrm-jax --version                      the installed version
     pqrm-jax study NAME --sweep KEY=V1,V2 [--sweep ...] [args...]
                                             one study per grid cell of Config fields, and a
                                             sensitivity report (docs/studies.md §sweeps)
@@ -48,8 +49,14 @@ def _study(argv: list[str]) -> int:
         return 0
     name, rest = argv[0], argv[1:]
     if name not in studies:
-        print(f"unknown study {name!r}; known: {', '.join(sorted(studies))}", file=sys.stderr)
-        return 2
+        import difflib
+
+        near = difflib.get_close_matches(name, list(studies), n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        raise SystemExit(f"unknown study {name!r}{hint} (known: {', '.join(sorted(studies))})")
+    from .studies.protocol import check_argv_finite
+
+    check_argv_finite(rest)  # no study runs on a NaN or infinite setting
     if any(a == "--sweep" or a.startswith("--sweep=") for a in rest):
         from .studies import sweep
 
@@ -97,11 +104,19 @@ def _dispatch(argv: list[str]) -> int:
     import os
 
     commands = {"tables": _tables, "study": _study}
+    if argv and argv[0] == "--version":
+        from . import __version__
+
+        print(f"pqrm-jax {__version__}")
+        return 0
     if not argv or argv[0] not in commands:
         print(__doc__)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
+    ok = False
     try:
-        return commands[argv[0]](argv[1:])
+        rc = commands[argv[0]](argv[1:])
+        ok = rc == 0
+        return rc
     except SystemExit as exc:
         if isinstance(exc.code, str):  # SystemExit("message") from a command
             print(f"pqrm-jax: error: {exc.code}", file=sys.stderr)
@@ -113,6 +128,10 @@ def _dispatch(argv: list[str]) -> int:
         msg = " ".join(_message(exc).split())
         print(f"pqrm-jax: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        dist = sys.modules.get("pqrm_jax.studies.distributed")
+        if dist is not None:  # tell the other processes of a run how this one ended
+            dist.finish(ok)
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -207,7 +207,7 @@ def test_mapper_update_documented(pts, vis, sigma):
     pos = np.concatenate([a, b, c, a + 1 if not dtype.startswith("int") else a])
     pq = _mapper(("edc", "lr"), 4, 16)
     try:
-        st_ = pq.update(pq.init(), jax.random.key(1), pos, np.asarray(vis), sigma)
+        st_, _ = pq.update(pq.init(), jax.random.key(1), pos, np.asarray(vis), sigma)
     except (ValueError, TypeError) as err:
         assert dtype.startswith("complex") or not (sigma >= 0 and np.isfinite(sigma)), err
         return
@@ -228,7 +228,7 @@ def test_update_observed_documented(ids, scale, special):
     if special and len(ids):
         pos[0, 0] = np.nan
     try:
-        st_ = pqrm.update_observed(pq, pq.init(), jax.random.key(0), np.asarray(ids, int), pos,
+        st_, _ = pqrm.update_observed(pq, pq.init(), jax.random.key(0), np.asarray(ids, int), pos,
                                    0.1 * scale)
     except (ValueError, TypeError) as err:
         assert str(err)

@@ -131,3 +131,27 @@ def test_merged_calculus_classifies_internal_boundaries():
     assert lune.states[int(lune.classify(A0, B0, np.array([0.0, 0.3])))] == "lune"
     lr = calculi.get("lr")
     assert lr.states[int(lr.classify(A0, B0, np.array([-1.0, 0.5])))] == "l"
+
+
+def test_a_calculus_is_frozen():
+    """Issue 28: ``calculi.get("lr").name = "x"`` used to succeed and rename the registry's
+    object; a calculus is a registry singleton and a static jit argument."""
+    from pqrm_jax import serge as sg
+
+    for name in ("lr", "edc", "lr_full"):
+        c = calculi.get(name)
+        for attr, value in (("name", "x"), ("states", ("a",)), ("parent", None),
+                            ("new_attribute", 1)):
+            with pytest.raises(AttributeError, match="frozen"):
+                setattr(c, attr, value)
+        with pytest.raises(AttributeError, match="frozen"):
+            del c.description
+        with pytest.raises(ValueError, match="read-only"):
+            c.sign_table[0] = 0
+        assert calculi.get(name).name == name
+    g = sg.Grid((-2.0, -2.0), (2.0, 3.0), (4, 5))
+    sc = sg.SergeCalculus("lr_frozen_t", g, np.tile([0, 0, 1, 1], 5))
+    with pytest.raises(AttributeError, match="frozen"):
+        sc.name = "x"
+    with pytest.raises(ValueError, match="read-only"):
+        sc.cell_labels[0] = 1

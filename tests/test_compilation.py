@@ -67,10 +67,10 @@ def test_pqrm_mapper_update_compiles_once():
     pos1 = jax.random.uniform(jax.random.key(1), (5, 2)) * 10
     k0, k1 = jax.random.key(2), jax.random.key(3)
     vis1 = jnp.array([False, True, True, True, True])
-    s1 = pq.update(st, k0, pos0, vis, 0.5)
+    s1, _ = pq.update(st, k0, pos0, vis, 0.5)
     jax.block_until_ready(s1)
     with count_compiles() as again:
-        s2 = pq.update(s1, k1, pos1, vis1, 0.75)
+        s2, _ = pq.update(s1, k1, pos1, vis1, 0.75)
         jax.block_until_ready(s2)
     assert again == []
 
@@ -143,3 +143,81 @@ def test_serge_compiles_once():
         r1 = sg.serge(prob, mu=2, sigma=1.5, key=jax.random.key(2), trials=16)
     assert again == []
     assert r0.n_regions >= 1 and r1.n_regions >= 1
+
+
+def _tiny_log(steps: int = 3):
+    """A short lidar log in a small corridor world (for the tracker's compile count)."""
+    from pqrm_jax.sim import corridors
+    from pqrm_jax.sim.lidar import LidarParams, lidar_scan
+
+    img = np.asarray(corridors.render_free_rectangles(41, corridors.network_rectangles(),
+                                                      supersample=1))
+    world = jnp.asarray((img < 128)[::-1].copy())
+    x = np.linspace(0.3, 0.4, steps + 1) * 4.1
+    true = np.stack([x, np.full_like(x, 0.65 * 4.1), np.zeros_like(x)], 1).astype(np.float32)
+    keys = jax.random.split(jax.random.key(0), steps + 1)
+    lp = LidarParams(n_beams=16, max_range=2.0)
+    scans = jax.vmap(lambda k, p: lidar_scan(k, p, world, 0.1, params=lp))(keys,
+                                                                          jnp.asarray(true))
+    return jnp.asarray(true), scans
+
+
+def test_equal_trackers_share_one_track_run_program():
+    """Issue 28: each ``lpm_tracker(...)`` call used to compile ``track_run`` again."""
+    from pqrm_jax import hssh
+    from pqrm_jax.hssh.motion import ACTION_MODELS
+
+    true, scans = _tiny_log()
+    kw = dict(lpm_params=hssh.LPMParams(size=24, resolution=0.1),
+              loc_params=hssh.LocalizeParams(blocks=1, block=8))
+
+    def tracker():  # a fresh object each time, from equal arguments
+        return hssh.lpm_tracker(np.array(ACTION_MODELS["small"]), **kw)
+
+    assert tracker() == tracker() and hash(tracker()) == hash(tracker())
+    with count_compiles() as first:
+        jax.block_until_ready(hssh.track_run(tracker(), jax.random.key(0), true[0], true, scans))
+    assert any("track_run" in m for m in first), first
+    pose1, odoms1 = jax.block_until_ready((true[0] + 0.01, true * 1.001))
+    with count_compiles() as again:
+        jax.block_until_ready(hssh.track_run(tracker(), jax.random.key(1), pose1, odoms1,
+                                             scans))
+    assert again == []
+    other = hssh.lpm_tracker(np.array(ACTION_MODELS["small"]), method="raw", **kw)
+    assert other != tracker()
+
+
+def test_hssh_global_relocalization_compiles_once():
+    from pqrm_jax.hssh_global import relocalize
+
+    rng = np.random.default_rng(0)
+    k, p, n = 2, 16, 12
+
+    def args(shift):
+        pts = rng.uniform(0, 1, (k, p, 2)).astype(np.float32)
+        fields = rng.uniform(0, 1, (k, n, n)).astype(np.float32)
+        return (pts, np.ones((k, p), bool), fields, np.zeros((k, 2), np.float32) + shift,
+                np.zeros((k, 3), np.float32), np.zeros((k, 3), np.float32))
+
+    params = relocalize.RelocParams()
+    jax.block_until_ready(relocalize.match_pairs(*args(0.0), 0.1, 1.0, params))
+    with count_compiles() as again:
+        c, s = relocalize.match_pairs(*args(0.5), 0.12, 1.5, params)
+        jax.block_until_ready(c)
+    assert again == []
+    assert c.shape == (k, 3) and s.shape == (k,)
+
+
+def test_hssh_global_drive_compiles_once():
+    """The simulated exploration's drive (and the local levels it calls) compile only on the
+    first exploration: a second one, other seed and length, compiles nothing."""
+    from pqrm_jax import hssh_global as hg
+    from pqrm_jax.hssh_global import simulation as hs
+
+    sw = hs.sim_world(hg.world_from_lattice({((0, 0), (1, 0)), ((1, 0), (1, 1))}))
+    with count_compiles() as first:
+        hs.explore_sim(sw, 1, seed=1)
+    assert any("_drive" in m for m in first), first
+    with count_compiles() as again:
+        hs.explore_sim(sw, 2, seed=2)
+    assert again == [], again

@@ -248,7 +248,7 @@ def test_pqrm_adapter(sampled):
     pos = jax.random.uniform(jax.random.key(0), (6, 2)) * 100
     for ids in ([0, 1, 2, 3], [2, 3, 4, 5]):
         vis = np.isin(np.arange(6), ids)
-        st = pq.update(st, jax.random.key(ids[0]), pos, vis, 2.0)
+        st, _ = pq.update(st, jax.random.key(ids[0]), pos, vis, 2.0)
     probs, obs = from_pqrm(st, 6, calc.name)
     assert obs.sum() == 2 * 24  # two quartets, 4 triplets × 6 orderings each, none shared
     np.testing.assert_allclose(to_pqrm_rows(probs, 6), np.asarray(st.probs[calc.name]))

@@ -355,11 +355,11 @@ def test_mars_yard_two_processes_equal_one(tmp_path):
 def test_fdc_design_and_compositions_heldout_two_processes_equal_one(tmp_path):
     one, two = _one_vs_two(tmp_path / "fdc", ["study", "fdc-design", "--reduced",
                                               "--no-progress"])
-    assert _same_study_files(one, two) == 4  # design.json, config, marker, results.csv
+    assert _same_study_files(one, two) == 5  # design, searches, config, marker, results.csv
     one, two = _one_vs_two(tmp_path / "ho", [
         "study", "compositions-heldout", "--landmarks", "6", "--runs", "2", "--samples", "32",
         "--fractions", "0.25", "0.5", "--sigmas", "5", "--rounds", "1"])
-    assert _same_study_files(one, two) == 4  # results.json, config, marker, results.csv
+    assert _same_study_files(one, two) == 5  # results, cells, config, marker, results.csv
 
 
 _MCC_DRIVER = """

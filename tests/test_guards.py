@@ -21,7 +21,7 @@ from pqrm_jax.pqrm import metrics
 def small_map():
     pq = pqrm.mapper(("edc",), 5, 128)
     lm = sim.uniform_landmarks(jax.random.key(3), 5)
-    st = pq.update(pq.init(), jax.random.key(0), lm, np.ones(5, bool), 1.0)
+    st, _ = pq.update(pq.init(), jax.random.key(0), lm, np.ones(5, bool), 1.0)
     p, o = prop.from_pqrm(st, 5, "edc")
     o = np.array(o)
     o[0, 1, 4] = o[1, 0, 4] = False
@@ -47,7 +47,7 @@ def test_d10_finite_weight_still_gives_a_distribution(small_map):
 def test_d14_update_observed_with_no_landmark_seen():
     pq = pqrm.mapper(("edc",), 4, 64)
     s0 = pq.init()
-    s1 = pqrm.update_observed(pq, s0, jax.random.key(0), [], np.zeros((0, 2)), 0.5)
+    s1, _ = pqrm.update_observed(pq, s0, jax.random.key(0), [], np.zeros((0, 2)), 0.5)
     assert int(s1.step) == int(s0.step) + 1
     same = jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(a, b)),
                                   s0._replace(step=0), s1._replace(step=0))

@@ -103,13 +103,13 @@ def test_mapper_scale_free():
     pos = np.array([[0, 0], [0, 10], [5, 4], [-3, 2], [4, -6]], np.float32)
     vis = np.ones(5, bool)
     k = jax.random.key(2)
-    ref = pq.update(pq.init(), k, pos, vis, 0.5)
+    ref, _ = pq.update(pq.init(), k, pos, vis, 0.5)
     for s in (2.0**100, 2.0**-100):
-        st = pq.update(pq.init(), k, pos * np.float32(s), vis, 0.5 * s)
+        st, _ = pq.update(pq.init(), k, pos * np.float32(s), vis, 0.5 * s)
         assert int(st.num_rejected.sum()) == 0
         for c in ("edc",):
             assert np.array_equal(np.asarray(st.probs[c]), np.asarray(ref.probs[c]))
-    st = pqrm.update_observed(pq, pq.init(), k, np.arange(5), pos * 1e30, 0.5e30)
+    st, _ = pqrm.update_observed(pq, pq.init(), k, np.arange(5), pos * 1e30, 0.5e30)
     assert int(st.num_rejected.sum()) == 0 and bool(st.mapped.all())
 
 
@@ -319,8 +319,8 @@ def test_sparse_map_rows_equal_dense_rows():
         vis = rng.random(m) < 0.8
         k = jax.random.key(t)
         step = rng.normal(0, 1, (m, 2)).astype(np.float32)
-        sd = dense.update(sd, k, pos + step, vis, 1.0)
-        ss = sparse.update(ss, k, pos + step, vis, 1.0)
+        sd, _ = dense.update(sd, k, pos + step, vis, 1.0)
+        ss, _ = sparse.update(ss, k, pos + step, vis, 1.0)
     for leaf_d, leaf_s in zip(jax.tree_util.tree_leaves(sd), jax.tree_util.tree_leaves(ss),
                               strict=True):
         leaf_d, leaf_s = np.asarray(leaf_d), np.asarray(leaf_s)

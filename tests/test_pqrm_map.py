@@ -59,8 +59,8 @@ def test_bayes_update_matches_eq_2_10(pq):
     k1, k2 = jax.random.key(1), jax.random.key(2)
     vis = jnp.array([True, True, True, False])
     pos2 = POS + 0.7
-    st = pq.update(pq.init(), k1, POS, vis, 3.0)
-    st = pq.update(st, k2, pos2, vis, 3.0)
+    st, _ = pq.update(pq.init(), k1, POS, vis, 3.0)
+    st, _ = pq.update(st, k2, pos2, vis, 3.0)
     tri = pq.triplets
     seen = np.all(np.asarray(vis)[tri], axis=1)
     assert np.array_equal(np.asarray(st.mapped), seen) and seen.sum() == 6  # all orderings
@@ -75,9 +75,9 @@ def test_bayes_update_matches_eq_2_10(pq):
 
 
 def test_unobserved_unchanged_new_initialised(pq):
-    st = pq.update(pq.init(), jax.random.key(1), POS, jnp.array([1, 1, 1, 0], bool), 2.0)
+    st, _ = pq.update(pq.init(), jax.random.key(1), POS, jnp.array([1, 1, 1, 0], bool), 2.0)
     before = {k: np.asarray(v) for k, v in st.probs.items()}
-    st2 = pq.update(st, jax.random.key(2), POS, jnp.array([1, 1, 0, 1], bool), 2.0)
+    st2, _ = pq.update(st, jax.random.key(2), POS, jnp.array([1, 1, 0, 1], bool), 2.0)
     tri = pq.triplets
     s1 = np.all(np.array([1, 1, 1, 0], bool)[tri], 1)
     s2 = np.all(np.array([1, 1, 0, 1], bool)[tri], 1)
@@ -93,8 +93,8 @@ def test_conflict_keeps_prior_and_is_counted(pq):
     vis = jnp.array([True, True, True, False])
     right = POS
     left = POS.at[2, 0].set(-4.0)
-    st = pq.update(pq.init(), jax.random.key(1), right, vis, 0.0)
-    st2 = pq.update(st, jax.random.key(2), left, vis, 0.0)
+    st, _ = pq.update(pq.init(), jax.random.key(1), right, vis, 0.0)
+    st2, _ = pq.update(st, jax.random.key(2), left, vis, 0.0)
     for name in ("edc", "lr"):
         p = np.asarray(st2.probs[name])
         assert np.isfinite(p).all()
@@ -104,10 +104,10 @@ def test_conflict_keeps_prior_and_is_counted(pq):
 
 def test_rejected_and_dropped_measurements_never_nan(pq):
     on_line = POS.at[2].set(jnp.array([0.0, 5.0]))  # C on AB, σ = 0: no defined sample
-    st = pq.update(pq.init(), jax.random.key(1), on_line, jnp.array([1, 1, 1, 0], bool), 0.0)
+    st, _ = pq.update(pq.init(), jax.random.key(1), on_line, jnp.array([1, 1, 1, 0], bool), 0.0)
     assert int(st.num_rejected.sum()) == 6 and not bool(st.mapped.any())
     nan_pos = POS.at[3].set(jnp.nan)
-    st = pq.update(pq.init(), jax.random.key(1), nan_pos, ALL, 1.0)
+    st, _ = pq.update(pq.init(), jax.random.key(1), nan_pos, ALL, 1.0)
     assert int(st.num_dropped) == 1 and int(st.mapped.sum()) == 6
     assert all(np.isfinite(np.asarray(v)).all() for v in st.probs.values())
 
@@ -127,9 +127,9 @@ def test_update_validation(pq):
         pqrm.update_observed(pq, st, k, [0, 1, 2], np.asarray(POS[:3]) * np.nan, 1.0)
     with pytest.raises(ValueError, match=r"\[0, 4\)"):
         pqrm.update_observed(pq, st, k, [0, 1, 7], np.asarray(POS[:3]), 1.0)
-    two = pqrm.update_observed(pq, st, k, [0, 1], np.asarray(POS[:2]), 1.0)
+    two, _ = pqrm.update_observed(pq, st, k, [0, 1], np.asarray(POS[:2]), 1.0)
     assert not bool(two.mapped.any()) and int(two.step) == 1
-    three = pqrm.update_observed(pq, st, k, [3, 0, 1], np.asarray(POS)[[3, 0, 1]], 1.0)
+    three, _ = pqrm.update_observed(pq, st, k, [3, 0, 1], np.asarray(POS)[[3, 0, 1]], 1.0)
     assert int(three.mapped.sum()) == 6
 
 
@@ -138,7 +138,7 @@ def test_update_under_vmap_and_scan(pq):
 
     def one(key):
         def step(s, k):
-            return pq.update(s, k, POS, ALL, 1.5), None
+            return pq.update(s, k, POS, ALL, 1.5)[0], None
 
         s, _ = jax.lax.scan(step, pq.init(), jax.random.split(key, 3))
         return s
@@ -204,8 +204,8 @@ def test_update_batch_equals_vmapped_update_bit_for_bit(block):
         keys = jax.random.split(jax.random.key(t), r)
         pos = jnp.asarray(rng.uniform(-20, 20, (r, 5, 2)).astype(np.float32))
         vis = jnp.asarray(rng.uniform(size=(r, 5)) < 0.7)
-        a = dense(a, keys, pos, vis, jnp.float32(sigma))
-        b = pq.update_batch(b, keys, pos, vis, jnp.float32(sigma), groups=1 + t % 2)
+        a, _ = dense(a, keys, pos, vis, jnp.float32(sigma))
+        b, _ = pq.update_batch(b, keys, pos, vis, jnp.float32(sigma), groups=1 + t % 2)
         for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
             x, y = np.asarray(x), np.asarray(y)
             if block == 1024 or x.dtype != np.float32:  # counts, masks: always exact

@@ -65,8 +65,8 @@ def test_serge_calculus_in_state_probabilities_and_mapper():
     vis = jnp.ones(4, bool)
     ref = pqrm.mapper(("lr",), 4, 16)
     got = pqrm.mapper(("lr_learned_t",), 4, 16)
-    s_ref = ref.update(ref.init(), key, pos, vis, 0.0)
-    s_got = got.update(got.init(), key, pos, vis, 0.0)
+    s_ref, _ = ref.update(ref.init(), key, pos, vis, 0.0)
+    s_got, _ = got.update(got.init(), key, pos, vis, 0.0)
     np.testing.assert_array_equal(np.asarray(s_got.probs["lr_learned_t"]),
                                   np.asarray(s_ref.probs["lr"]))
     np.testing.assert_array_equal(np.asarray(s_got.mapped), np.asarray(s_ref.mapped))

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pqrm_jax import qrm, sim
+from pqrm_jax.protocols import run
 
 N_LM, N_POSES, N = 7, 4, 6
 
@@ -21,7 +22,7 @@ def test_scan_over_update_equals_run_sequence_and_eager_updates(world):
     qm = qrm.mapper("edc", N_LM, n=N)  # small B&B: fast to compile
     sensor = sim.SensorParams(max_range=1e6)  # run_sequence's default sensor
     images = jax.vmap(lambda p: sim.camera(p, lm, sensor))(poses)
-    m_scan, reports = jax.lax.scan(qm.update, qm.init(), images)
+    m_scan, reports = run(qm, jax.random.key(0), qm.init(), images)
     m_ref, met = qrm.run_sequence(lm, poses, n=N)
     np.testing.assert_array_equal(np.asarray(m_scan.rel), np.asarray(m_ref.rel))
     np.testing.assert_array_equal(np.asarray(m_scan.known), np.asarray(m_ref.known))
@@ -29,7 +30,7 @@ def test_scan_over_update_equals_run_sequence_and_eager_updates(world):
     # image by image, eagerly (one compiled update, called per image)
     m_a = qm.init()
     for t in range(N_POSES):
-        m_a, _ = qm.update(m_a, sim.camera(poses[t], lm, sensor))
+        m_a, _ = qm.update(m_a, jax.random.key(t), sim.camera(poses[t], lm, sensor))
     np.testing.assert_array_equal(np.asarray(m_a.rel), np.asarray(m_ref.rel))
     np.testing.assert_array_equal(np.asarray(m_a.known), np.asarray(m_ref.known))
     got = qm.metrics(m_scan, lm)

@@ -6,6 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pqrm_jax import calculi, compositions, pqrm, qrm, triplets
 from pqrm_jax.compositions import simulation
@@ -63,7 +65,7 @@ def test_pqrm_composition_converters_agree():
     m = 4
     pq = pqrm.mapper(("edc", "lr"), m, 32)
     pos = jnp.array([[0.3, 0.1], [0.2, 9.7], [5.1, 4.3], [-4.7, 2.2]])
-    st = pq.update(pq.init(), jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
+    st, _ = pq.update(pq.init(), jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
     probs, observed = compositions.from_pqrm(st, m, "lr")
     t = triplets.ordered_triplets(m)
     np.testing.assert_array_equal(probs[t[:, 0], t[:, 1], t[:, 2]], np.asarray(st.probs["lr"]))
@@ -100,3 +102,75 @@ def test_masks_round_trip():
     sets = triplets.masks_to_sets(masks, 4)
     assert sets.shape == (2, 2, 4)
     assert sets[0, 1].tolist() == [False, False, False, True] and bool(sets[1, 0].all())
+
+
+def test_orderings_and_their_unary_maps():
+    """Issue 28: one copy of the six orderings and of the INVERSE / LEFT / RIGHT index maps."""
+    o = triplets.ORDERINGS
+    assert o.tolist() == [list(p) for p in itertools.permutations(range(3))]
+    np.testing.assert_array_equal(o, triplets.ordered_triplets(3))
+    rows = [tuple(r) for r in o.tolist()]
+    for k, (a, b, c) in enumerate(rows):
+        assert rows[triplets.INVERSE_OF[k]] == (b, a, c)
+        assert rows[triplets.LEFT_OF[k]] == (b, c, a)
+        assert rows[triplets.RIGHT_OF[k]] == (c, a, b)
+        assert triplets.ORDERING_INDEX[a, b] == k
+    inv, left, right = triplets.INVERSE_OF, triplets.LEFT_OF, triplets.RIGHT_OF
+    ident = np.arange(6)
+    np.testing.assert_array_equal(inv[inv], ident)               # INVERSE is an involution
+    np.testing.assert_array_equal(left[left[left]], ident)       # LEFT has order 3
+    np.testing.assert_array_equal(left[right], ident)            # RIGHT undoes LEFT
+    # bsp.compose.orderings reaches each ordering by the same operators
+    from pqrm_jax.bsp import compose as bc
+
+    q = 3
+    u = np.stack([np.roll(np.eye(q), s, 1) for s in (1, 2, 0)])  # any three distinct maps
+    got = bc.orderings(np.eye(q)[0], u)
+    assert set(got) == set(rows)
+    np.testing.assert_array_equal(got[rows[triplets.LEFT_OF[0]]], np.eye(q)[0] @ u[bc.LEFT])
+    np.testing.assert_array_equal(got[rows[triplets.RIGHT_OF[0]]], np.eye(q)[0] @ u[bc.RIGHT])
+    np.testing.assert_array_equal(got[rows[triplets.INVERSE_OF[0]]],
+                                  np.eye(q)[0] @ u[bc.INVERSE])
+    assert not o.flags.writeable and not triplets.INVERSE_OF.flags.writeable
+
+
+@settings(max_examples=20, deadline=None)
+@given(m=st.integers(3, 9), e=st.integers(1, 12), seed=st.integers(0, 2**16),
+       beta=st.integers(1, 3))
+def test_one_link_graph_adjacency(m, e, seed, beta):
+    """triplets.link_adjacency is Q-Link's Link Graph and, at beta = 2, bsp's Link-Graph."""
+    import networkx as nx
+
+    from pqrm_jax import bsp, qlink
+
+    rng = np.random.default_rng(seed)
+    ids = np.sort(np.stack([rng.choice(m, 3, replace=False) for _ in range(e)]), 1)
+    ids = np.unique(ids, axis=0)
+    adj = triplets.link_adjacency(ids, beta)
+    el = qlink.MapElements(jnp.asarray(ids), jnp.zeros((len(ids), 6, 2)), m)
+    np.testing.assert_array_equal(adj, qlink.link_graph(el, beta).adjacency)
+    np.testing.assert_array_equal(triplets.shared_landmarks(ids), qlink.linkgraph.shared_counts(el))
+    if beta == 2:
+        g = bsp.triplet_link_graph([tuple(r) for r in ids.tolist()])
+        want = nx.Graph()
+        want.add_nodes_from(frozenset(r) for r in ids.tolist())
+        want.add_edges_from((frozenset(ids[i].tolist()), frozenset(ids[j].tolist()))
+                            for i, j in zip(*np.nonzero(adj), strict=True))
+        assert nx.utils.graphs_equal(g, want)
+    with pytest.raises(ValueError, match="beta"):
+        triplets.link_adjacency(ids, 0)
+
+
+def test_elements_layout_to_dense():
+    rng = np.random.default_rng(1)
+    ids = np.array([[0, 2, 3], [1, 2, 4]])
+    probs = rng.uniform(size=(2, 6, 5))
+    d = triplets.elements_to_dense(ids, probs, 5, fill=-1.0)
+    for e in range(2):
+        for k, (a, b, c) in enumerate(triplets.ORDERINGS):
+            np.testing.assert_allclose(d[ids[e, a], ids[e, b], ids[e, c]], probs[e, k])
+    assert (d == -1).all(-1).sum() == 125 - 12
+    with pytest.raises(ValueError, match="ids must be in"):
+        triplets.elements_to_dense(ids, probs, 4)
+    with pytest.raises(ValueError, match=r"\[E, 6, Q\]"):
+        triplets.elements_to_dense(ids, probs[:, :5], 5)

@@ -18,7 +18,7 @@
 """
 
 from .belief import QBelief, check_distribution, non_detection, scale_posteriors, update
-from .compose import augment, link_graph
+from .compose import augment, triplet_link_graph
 from .env import Environment, check_environment, generate, initial_belief
 from .execute import ExecParams, Outcome, run_lane, run_lanes
 from .graph import FrameGraph, frame_graph, plan_exists
@@ -27,7 +27,7 @@ from .planner import Plan, PlannerParams, plan
 
 __all__ = [
     "QBelief", "check_distribution", "non_detection", "scale_posteriors", "update", "augment",
-    "link_graph", "Environment", "check_environment", "generate", "initial_belief",
+    "triplet_link_graph", "Environment", "check_environment", "generate", "initial_belief",
     "ExecParams", "Outcome", "run_lane", "run_lanes", "FrameGraph", "frame_graph",
     "plan_exists", "ModelParams", "Models", "build_models", "load_models", "sample_tables",
     "stderr", "Plan", "PlannerParams", "plan",

@@ -10,11 +10,12 @@ from shared sources are treated as independent (the thesis's product of marginal
 docs/bsp.md §Z-25).
 
 The Link-Graph (Z Def. 2.3.1) — triplets as nodes, an edge when two share exactly two
-landmarks — is :func:`link_graph`; Thm 4.1 says a connected Link-Graph is composable, but not
-conversely (Fig. 4.3: ``{ABC, BCD, ADE}``).
+landmarks — is :func:`triplet_link_graph` (its edges are
+:func:`pqrm_jax.triplets.link_adjacency` with β = 2, Q-Link's Link Graph rule); Thm 4.1 says a
+connected Link-Graph is composable, but not conversely (Fig. 4.3: ``{ABC, BCD, ADE}``).
 
 >>> import networkx as nx
->>> nx.is_connected(link_graph(["ABC", "BCD", "ADE"]))
+>>> nx.is_connected(triplet_link_graph(["ABC", "BCD", "ADE"]))
 False
 """
 
@@ -27,18 +28,26 @@ import networkx as nx
 import numpy as np
 
 from ..compositions import as_triplet_set, optimal_composition_graph
+from ..triplets import link_adjacency
 
 LEFT, RIGHT, INVERSE = 0, 1, 2
 
 
-def link_graph(triplets: Iterable[Iterable]) -> nx.Graph:
-    """The Link-Graph of Z Def. 2.3.1 (nodes: triplets as frozensets)."""
+def triplet_link_graph(triplets: Iterable[Iterable]) -> nx.Graph:
+    """The Link-Graph of Z Def. 2.3.1 as a networkx graph (nodes: triplets as frozensets).
+
+    Two triplets are linked when they share two landmarks
+    (:func:`pqrm_jax.triplets.link_adjacency` with β = 2).
+    """
     T = sorted(as_triplet_set(triplets), key=lambda t: sorted(map(str, t)))
     g = nx.Graph()
     g.add_nodes_from(T)
-    for a, b in combinations(T, 2):
-        if len(a & b) == 2:
-            g.add_edge(a, b)
+    if not T:
+        return g
+    labels = {x: i for i, x in enumerate(sorted({x for t in T for x in t}, key=str))}
+    ids = np.array([sorted(labels[x] for x in t) for t in T], np.int32)
+    i, j = np.nonzero(np.triu(link_adjacency(ids, 2, len(labels))))
+    g.add_edges_from((T[a], T[b]) for a, b in zip(i.tolist(), j.tolist(), strict=True))
     return g
 
 

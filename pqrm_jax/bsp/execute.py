@@ -32,6 +32,7 @@ import jax.numpy as jnp
 
 from .. import calculi, sim
 from ..pqrm import state_probabilities
+from ..triplets import ORDERINGS
 from .belief import QBelief, discretise, non_detection, predict, scale_posteriors, update
 from .graph import frame_graph, plan_exists
 from .models import Models
@@ -86,7 +87,7 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     sensor = sim.SensorParams(max_range=1.0, sigma=ep.sigma_z)
-    perms = jnp.asarray([(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)])
+    perms = jnp.asarray(ORDERINGS)
 
     def step(carry, t):
         x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = carry

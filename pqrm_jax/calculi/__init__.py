@@ -39,20 +39,42 @@ PADGETT_REPRESENTATIONS = ("edc", "edc_lune", "triple_cross", "double_cross", "s
 
 
 def names() -> tuple[str, ...]:
-    """Names of the built-in and registered calculi."""
+    """Names of the built-in and registered calculi.
+
+    Returns:
+        The names, built-in first (P Fig. 2.2 order), then registered ones.
+    """
     return tuple(dict.fromkeys([*_BUILDERS, *_CACHE]))
 
 
 def is_builtin(name: str) -> bool:
-    """Whether ``name`` is one of the calculi shipped with the package (tables in package data)."""
+    """Whether ``name`` is one of the calculi shipped with the package (tables in package data).
+
+    Args:
+        name: a calculus name.
+
+    Returns:
+        True for the built-in calculi (P Fig. 2.2, MT App. C), False for registered ones.
+    """
     return name in _BUILDERS
 
 
 def get(name: str | TernaryCalculus) -> Calculus | TernaryCalculus:
-    """The calculus called ``name``; an unknown name raises ``KeyError`` listing known names.
+    """The calculus called ``name`` (the registry of docs/decisions.md §2).
 
-    A calculus object (anything that is not a string) is checked against
-    :class:`TernaryCalculus` and returned as it is.
+    Args:
+        name: a registered name, or a calculus object, which is checked against
+            :class:`TernaryCalculus` and returned as it is.
+
+    Returns:
+        The (frozen, shared) calculus.
+
+    Raises:
+        KeyError: for an unknown name (the message lists the known names).
+        TypeError: for an object that is not a :class:`TernaryCalculus`.
+
+    >>> get("lr").states
+    ('l', 'r')
     """
     if not isinstance(name, str):
         return check_calculus(name)
@@ -66,8 +88,16 @@ def get(name: str | TernaryCalculus) -> Calculus | TernaryCalculus:
 def register(calc: TernaryCalculus, *, overwrite: bool = False) -> TernaryCalculus:
     """Make a user-defined calculus available through :func:`get`.
 
-    ``calc`` must implement :class:`TernaryCalculus` (``name``, ``states``, ``num_states``,
-    ``classify``); a missing member raises ``TypeError`` naming it.
+    Args:
+        calc: a :class:`TernaryCalculus` (``name``, ``states``, ``num_states``, ``classify``).
+        overwrite: replace a registered calculus of the same name.
+
+    Returns:
+        ``calc``.
+
+    Raises:
+        TypeError: naming a missing member of the protocol.
+        ValueError: for a name already taken (and ``overwrite`` False).
     """
     check_calculus(calc)
     if not overwrite and (calc.name in _BUILDERS or calc.name in _CACHE):

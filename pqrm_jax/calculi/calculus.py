@@ -63,6 +63,9 @@ def _fill_open_boundaries(full: dict[tuple[int, ...], int], k: int) -> np.ndarra
 class Calculus:
     """A ternary qualitative calculus; see docs/calculi.md §calculus.
 
+    Frozen once built (setting or deleting an attribute raises ``AttributeError``; its
+    ``sign_table`` and ``parent_map`` are read-only arrays).
+
     >>> from pqrm_jax import calculi
     >>> edc = calculi.get("edc")
     >>> int(edc.classify([0., 0.], [0., 1.], [-0.3, 0.9]))   # left, inside both circles
@@ -124,6 +127,21 @@ class Calculus:
         self._signs_c_eq_a = np.array([_sign(c.evaluate([0, 0, 0])) for c in self.constraints],
                                       np.int32)
         self._jit_classify = jax.jit(self._classify)
+        self.sign_table.setflags(write=False)
+        if self.parent_map is not None:
+            self.parent_map.setflags(write=False)
+        object.__setattr__(self, "_frozen", True)
+
+    def __setattr__(self, name: str, value) -> None:
+        """A calculus is frozen once built: it is a registry singleton and a static jit
+        argument, so changing it in place would change every user's calculus silently."""
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"calculus {self.name!r} is frozen: cannot set {name!r} "
+                                 "(build a new Calculus, or merge this one, instead)")
+        object.__setattr__(self, name, value)
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"calculus {self.name!r} is frozen: cannot delete {name!r}")
 
     # construction -------------------------------------------------------------------------
     @classmethod

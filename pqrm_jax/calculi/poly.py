@@ -248,12 +248,30 @@ def as_constraint(p: Poly | Number) -> Poly:
 
 
 def line(a: Number, b: Number, c: Number) -> Poly:
-    """The constraint ``a·α + b·β + c``."""
+    """The linear constraint ``a·α + b·β + c`` in the canonical frame (docs/calculi.md).
+
+    Args:
+        a, b, c: rational (or int/float) coefficients.
+
+    Returns:
+        A :class:`Poly` in ``(α, β, ρ)``; its sign says on which side of the line C lies.
+
+    >>> str(line(1, 0, -1))
+    'a - 1'
+    """
     return a * alpha + b * beta + c
 
 
 def circle(cx: Number, cy: Number, r: Number) -> Poly:
-    """``r² − |C − (cx, cy)|²``: negative outside the circle, positive inside."""
+    """The circle constraint ``r² − |C − (cx, cy)|²`` in the canonical frame (docs/calculi.md).
+
+    Args:
+        cx, cy: the centre (canonical coordinates: A at the origin, B at (0, 1)).
+        r: the radius.
+
+    Returns:
+        A :class:`Poly` in ``(α, β, ρ)``: negative outside the circle, positive inside.
+    """
     return -(rho - 2 * cx * alpha - 2 * cy * beta) - (cx * cx + cy * cy) + r * r
 
 

@@ -66,7 +66,15 @@ class TernaryCalculus(Protocol):
 def check_calculus(calc: object) -> TernaryCalculus:
     """Return ``calc`` if it has the :class:`TernaryCalculus` members, else raise ``TypeError``.
 
-    The error names every missing member (and a ``classify`` that is not callable).
+    Args:
+        calc: any object.
+
+    Returns:
+        ``calc``, unchanged.
+
+    Raises:
+        TypeError: naming every missing member, a ``classify`` that is not callable, an empty
+            name, or a ``num_states`` that does not match ``states``.
     """
     missing = [m for m in MEMBERS if not hasattr(calc, m)]
     if missing:

@@ -36,7 +36,16 @@ __all__ = [
 
 # --------------------------------------------------------------------------------- triplets
 def as_triplet(t: Iterable[Landmark]) -> Triplet:
-    """Normalise ``t`` to an unordered triplet; ``ValueError`` unless it has 3 distinct items.
+    """Normalise ``t`` to an unordered triplet (Z §3.1).
+
+    Args:
+        t: three distinct hashable landmarks (a string of three letters works).
+
+    Returns:
+        The triplet as a ``frozenset``.
+
+    Raises:
+        ValueError: unless ``t`` has exactly 3 distinct items.
 
     >>> sorted(as_triplet("CAB"))
     ['A', 'B', 'C']
@@ -53,7 +62,17 @@ def as_triplet(t: Iterable[Landmark]) -> Triplet:
 
 
 def as_triplet_set(triplets: Iterable[Iterable[Landmark]]) -> frozenset[Triplet]:
-    """Normalise a source set; duplicates and re-orderings collapse; empty → ``ValueError``."""
+    """Normalise a source set of triplets (Z Def. 3.2.4); duplicates and re-orderings collapse.
+
+    Args:
+        triplets: a collection of triplets (not one string).
+
+    Returns:
+        ``frozenset`` of :func:`as_triplet` triplets.
+
+    Raises:
+        ValueError: for an empty set, a single string, or a malformed triplet.
+    """
     if isinstance(triplets, str):
         raise ValueError("pass a collection of triplets, e.g. ['ABC', 'BCD'], not one string")
     out = frozenset(as_triplet(t) for t in triplets)
@@ -63,12 +82,35 @@ def as_triplet_set(triplets: Iterable[Iterable[Landmark]]) -> frozenset[Triplet]
 
 
 def landmark_space(triplets: Iterable[Iterable[Landmark]]) -> frozenset:
-    """``L(T)``: the union of the triplets (Z Def. 3.2.1, eq. 3.1)."""
+    """``L(T)``: the union of the triplets (Z Def. 3.2.1, eq. 3.1).
+
+    Args:
+        triplets: the source triplets.
+
+    Returns:
+        ``frozenset`` of landmarks.
+
+    Raises:
+        ValueError: as :func:`as_triplet_set`.
+
+    >>> sorted(landmark_space(["ABC", "BCD"]))
+    ['A', 'B', 'C', 'D']
+    """
     return frozenset().union(*as_triplet_set(triplets))
 
 
 def fmt(t: Iterable[Landmark]) -> str:
-    """Canonical text of a triplet (sorted landmarks), e.g. ``'ABC'`` or ``'0-1-2'``."""
+    """Canonical text of a triplet (sorted landmarks).
+
+    Args:
+        t: the triplet's landmarks.
+
+    Returns:
+        ``'ABC'`` for one-letter names, else the names joined by ``-`` (``'0-1-2'``).
+
+    >>> fmt("CAB"), fmt((2, 0, 1))
+    ('ABC', '0-1-2')
+    """
     items = sorted(t, key=lambda x: (str(type(x)), x))
     if all(isinstance(x, str) and len(x) == 1 for x in items):
         return "".join(items)
@@ -153,8 +195,17 @@ def _merge_clusters(T: frozenset[Triplet]) -> list[CutTree]:
 def clusters(triplets: Iterable[Iterable[Landmark]]) -> list[CutTree]:
     """Maximal composable groups of ``triplets`` (each with its cut tree), largest first.
 
-    ``T`` is composable iff there is one group. Distinct groups share at most one landmark,
-    which certifies that no 2-common cut joins them.
+    ``T`` is composable iff there is one group (Z Def. 3.2.4). Distinct groups share at most
+    one landmark, which certifies that no 2-common cut joins them.
+
+    Args:
+        triplets: the source triplets.
+
+    Returns:
+        ``list`` of :class:`CutTree`, one per cluster, largest first.
+
+    Raises:
+        ValueError: as :func:`as_triplet_set`.
     """
     out = _merge_clusters(as_triplet_set(triplets))
     return sorted(out, key=lambda c: (-len(c.triplets), sorted(map(fmt, c.triplets))))
@@ -194,7 +245,18 @@ def cut_tree(triplets: Iterable[Iterable[Landmark]],
 
 def is_composable(triplets: Iterable[Iterable[Landmark]],
                   landmarks: Iterable[Landmark] | None = None) -> bool:
-    """``True`` iff ``triplets`` is composable under ``landmarks`` (default ``L(T)``)."""
+    """Whether ``triplets`` is composable under ``landmarks`` (Z Def. 3.2.4, Thm 3.2.1).
+
+    Args:
+        triplets: the source triplets.
+        landmarks: the landmark space (default ``L(T)``).
+
+    Returns:
+        True iff a cut tree exists.
+
+    >>> is_composable(["ABC", "BCD"]), is_composable(["ABC", "CDE"])
+    (True, False)
+    """
     return cut_tree(triplets, landmarks) is not None
 
 
@@ -202,7 +264,13 @@ def composable_triplets(triplets: Iterable[Iterable[Landmark]]) -> set[Triplet]:
     """Every triplet that some sequence of compositions from ``triplets`` can produce.
 
     Exactly the triplets inside one cluster's landmark space; see
-    docs/compositions.md §composable.
+    docs/compositions.md §composable (Z §3.2).
+
+    Args:
+        triplets: the source triplets.
+
+    Returns:
+        ``set`` of triplets (the sources included).
     """
     from itertools import combinations
 
@@ -213,7 +281,15 @@ def composable_triplets(triplets: Iterable[Iterable[Landmark]]) -> set[Triplet]:
 
 
 def verify_cut_tree(tree: CutTree, triplets: Iterable[Iterable[Landmark]] | None = None) -> None:
-    """Check a certificate independently; ``ValueError`` naming the first violation."""
+    """Check a composability certificate independently (Z Def. 3.2.2–3.2.4).
+
+    Args:
+        tree: the cut tree.
+        triplets: when given, the tree must cover exactly these.
+
+    Raises:
+        ValueError: naming the first violation.
+    """
     T = None if triplets is None else as_triplet_set(triplets)
     if T is not None and tree.triplets != T:
         raise ValueError("cut tree does not cover exactly the given triplets")

@@ -391,6 +391,18 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
     Rows of ``state.probs[representation]`` follow ``pqrm.ordered_triplets(num_landmarks)``;
     ``observed`` is ``state.mapped``. Mapped rows are renormalised by :func:`propagate`'s
     checks only if you pass ``renormalize=True``.
+
+    Args:
+        state: a dense PQRM map state.
+        num_landmarks: ``L``.
+        representation: the calculus name of the rows to take.
+
+    Returns:
+        ``(probs [L, L, L, Q] float32, observed [L, L, L] bool)`` (the dense layout of
+        :mod:`pqrm_jax.triplets`).
+
+    Raises:
+        ValueError: for a missing representation or a row count that is not ``L(L−1)(L−2)``.
     """
     trip = ordered_triplets(num_landmarks)
     if representation not in state.probs:
@@ -406,5 +418,16 @@ def from_pqrm(state, num_landmarks: int, representation: str = "edc"):
 
 
 def to_pqrm_rows(probs, num_landmarks: int) -> np.ndarray:
-    """``[T, Q]`` rows in ``pqrm.ordered_triplets`` order from an ``[L, L, L, Q]`` array."""
+    """Dense ``[L, L, L, Q]`` → PQRM rows ``[T, Q]`` in ``pqrm.ordered_triplets`` order.
+
+    Args:
+        probs: ``[L, L, L, Q]``.
+        num_landmarks: ``L``.
+
+    Returns:
+        ``[L(L−1)(L−2), Q]`` NumPy rows.
+
+    Raises:
+        ValueError: when the leading shape is not ``(L, L, L)``.
+    """
     return dense_to_rows(np.asarray(probs), num_landmarks)

@@ -28,6 +28,7 @@ from itertools import combinations
 
 import numpy as np
 
+from ..triplets import ORDERINGS
 from .composable import CompositionTree, Triplet, as_triplet, as_triplet_set, fmt
 
 __all__ = ["CompositionGraph", "optimal_composition_graph", "optimal_composition_tree",
@@ -37,7 +38,15 @@ CompCost = Callable[[Triplet, Triplet, Triplet], float]
 
 
 def unit_cost(left: Triplet, right: Triplet, head: Triplet) -> float:
-    """One unit per composition (the running example of Z §3.2.4)."""
+    """One unit per composition (the running example of Z §3.2.4).
+
+    Args:
+        left, right: the operands of the composition.
+        head: the composed triplet.
+
+    Returns:
+        ``1.0``.
+    """
     return 1.0
 
 
@@ -70,7 +79,7 @@ class CompositionGraph:
         self._trip = trip
         idx = np.full((n, n, n), -1, dtype=np.int32)
         ids = np.arange(len(trip), dtype=np.int32)
-        for p in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
+        for p in ORDERINGS:
             idx[trip[:, p[0]], trip[:, p[1]], trip[:, p[2]]] = ids
         self._idx = idx
         self.d = np.full(len(trip), np.inf)           # cumulative cost d(v_τ)
@@ -253,7 +262,20 @@ def optimal_composition_graph(sources: Iterable[Iterable[Hashable]] | Mapping,
                               source_cost: Callable[[Triplet], float] | float = 0.0,
                               comp_cost: CompCost | float = 1.0,
                               landmarks: Iterable[Hashable] | None = None) -> CompositionGraph:
-    """Alg. 1 lines 1–5: build the composition graph over ``L(T)`` and add every source."""
+    """Z Alg. 1 lines 1–5: build the composition graph over ``L(T)`` and add every source.
+
+    Args:
+        sources: the source triplets, or a mapping from source triplet to its cost.
+        source_cost: ``C_source`` of each source, a callable or a constant (finite, ≥ 0).
+        comp_cost: ``C_comp(τ_L, τ_R, τ)``, a callable or a constant (finite, ≥ 0).
+        landmarks: the landmark space (default ``L(T)``; must contain it).
+
+    Returns:
+        :class:`CompositionGraph` with every composable triplet's optimal cost.
+
+    Raises:
+        ValueError: for sources outside ``landmarks`` or bad costs.
+    """
     S = as_triplet_set(sources.keys() if isinstance(sources, Mapping) else sources)
     space = frozenset().union(*S)
     if landmarks is None:

@@ -23,13 +23,14 @@
 
 from __future__ import annotations
 
-from itertools import combinations, permutations
+from itertools import combinations
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import triplets as layouts
+from ..triplets import ORDERINGS
 from .propagation import DEFAULT_EPS, DEFAULT_PATH_WEIGHT, propagate
 
 __all__ = ["sample_compose_tensor", "random_world", "true_states", "measure_map", "score",
@@ -113,7 +114,7 @@ def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 
     true = pos[trip]                                               # (N, 3, 2)
     z = true + sigma * jax.random.normal(k1, true.shape)           # one measurement each
     xs = z[:, None] + sigma * jax.random.normal(k2, (len(trip), samples, 3, 2))
-    perms = list(permutations(range(3)))
+    perms = ORDERINGS
     for p in perms:
         s = calc.classify(xs[:, :, p[0]], xs[:, :, p[1]], xs[:, :, p[2]])   # (N, S)
         onehot = jax.nn.one_hot(s, q) * (s >= 0)[..., None]

@@ -222,6 +222,13 @@ def squared_distance_transform(occupied: jax.Array, cap: int | None = None) -> j
     uncapped, ``>= (cap + 2)**2`` capped). Cells outside the grid are not obstacles (as in
     ``scipy.ndimage.distance_transform_edt`` of the free mask).
 
+    Args:
+        occupied: ``[B, H, W]`` bool obstacle masks.
+        cap: distances above ``cap`` cells need not be exact (``None``: all exact).
+
+    Returns:
+        ``[B, H, W]`` int32 squared distances in cells (B §6.1.1's distance transform).
+
     >>> occ = jnp.zeros((1, 3, 4), bool).at[0, 0, 0].set(True)
     >>> squared_distance_transform(occ)[0].tolist()
     [[0, 1, 4, 9], [1, 2, 5, 10], [4, 5, 8, 13]]
@@ -294,6 +301,14 @@ def zhang_suen_thin(fg: jax.Array, protect: jax.Array | None = None,
     Both sub-iterations are parallel: each reads the image left by the previous one (Zhang &
     Suen 1984, the rules of :func:`zhang_suen_lut`). ``protect`` (bool ``[B, H, W]``) marks
     cells never deleted; ``pad`` is the value assumed beyond the border.
+
+    Args:
+        fg: ``[B, H, W]`` bool foreground.
+        protect: ``[B, H, W]`` bool cells never deleted (``None``: none).
+        pad: the value assumed beyond the border.
+
+    Returns:
+        ``[B, H, W]`` bool skeletons (B §6.1.1).
 
     >>> img = jnp.zeros((1, 5, 9), bool).at[0, 1:4, 1:8].set(True)
     >>> zhang_suen_thin(img)[0].astype(int).tolist()[2]

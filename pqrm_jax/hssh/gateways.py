@@ -168,6 +168,12 @@ def search_spaces(tree: nx.Graph, closest: tuple[int, int], cr: Core,
                   dist2: np.ndarray) -> list[Branch]:
     """Branches leaving the core and their search spaces ``S_e`` (B Alg. 6.2).
 
+    Args:
+        tree: the pruned skeleton tree (:func:`~pqrm_jax.hssh.skeleton.prune_skeleton`).
+        closest: ``(row, col)`` skeleton cell closest to the robot.
+        cr: the core (:class:`Core`).
+        dist2: ``[H, W]`` squared distance transform.
+
     Returns:
         one :class:`Branch` per tree edge ``(e, o)`` with ``e`` in the core, ``o`` outside.
     """

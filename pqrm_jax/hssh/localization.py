@@ -90,6 +90,10 @@ def scan_likelihood(poses: jax.Array, scan: LidarScan, dist2: jax.Array, origin:
         resolution: cell size.
         sigma: likelihood-field standard deviation (world units).
 
+    Returns:
+        ``[P]`` float in ``[0, 1]``: the mean over the beams that hit of the likelihood field
+        ``exp(−d²/2σ²)`` at the beam end (0 outside the map; B §4.3.2).
+
     >>> d2 = jnp.zeros((4, 4), jnp.int32)
     >>> z = LidarScan(jnp.array([0.0]), jnp.array([1.0]), jnp.array([True]))
     >>> float(scan_likelihood(jnp.array([[1.0, 1.0, 0.0]]), z, d2, jnp.zeros(2), 1.0, 0.5)[0])
@@ -112,6 +116,14 @@ def scan_likelihood(poses: jax.Array, scan: LidarScan, dist2: jax.Array, origin:
 def kld_bound(k: jax.Array, epsilon: float, confidence: float) -> jax.Array:
     """Fox's (2003) sample count ``n_chi(k)`` for ``k`` occupied bins (0 for ``k <= 1``).
 
+    Args:
+        k: occupied bins (any shape).
+        epsilon: the bound on the KL divergence.
+        confidence: ``1 − δ``.
+
+    Returns:
+        float32 ``n_chi(k)``, the shape of ``k`` (B §4.3.2).
+
     >>> [round(float(kld_bound(jnp.array(k), 0.5, 0.95)), 1) for k in (1, 2, 10, 100)]
     [0.0, 3.7, 16.9, 123.2]
     """
@@ -130,6 +142,10 @@ def kld_mask(poses: jax.Array, params: KLDParams | None = None) -> tuple[jax.Arr
     ``n`` is the first count with ``n >= max(n_min, n_chi(k_n))``, ``k_n`` the number of
     distinct pose bins among the first ``n`` particles (``N`` if the bound is never met).
     Distinct-bin counts of all prefixes come from one sort (first occurrence of each bin).
+
+    Args:
+        poses: ``[N, 3]`` drawn particles.
+        params: :class:`KLDParams` (default ``KLDParams()``).
 
     Returns:
         ``(mask [N] bool, n)``.
@@ -187,6 +203,12 @@ def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.A
         c: ``[21]`` action model.
         method: one of :data:`METHODS`.
         params: static :class:`LocalizeParams`.
+
+    Returns:
+        ``(pose [3], likelihood)``: the best-scoring particle and its scan likelihood.
+
+    Raises:
+        ValueError: for an unknown ``method``.
     """
     pose, lik, _ = localize_with_count(key, prior, prev_odom, odom, scan, dist2, origin,
                                        resolution, c, method=method, params=params)
@@ -208,6 +230,14 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
     the particles the method would score, the first in draw order (proposal blocks first,
     then refit draws): methods compared at an equal particle budget (issue 26). A refit
     (shrink, shrink-and-grow) fits its Gaussian to the budgeted particles only.
+
+    Args:
+        key, prior, prev_odom, odom, scan, dist2, origin, resolution, c, method, params: as
+            :func:`localize`.
+        budget: optional int scalar, the most particles scored (see above).
+
+    Returns:
+        ``(pose [3], likelihood, particles)``.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")

@@ -95,6 +95,14 @@ def lpm_init(pose: jax.Array, params: LPMParams = DEFAULT) -> LPMState:
     A float64 ``pose`` (NumPy) keeps its full precision in ``origin + origin_lo`` (see
     :class:`LPMState`); a non-finite pose raises ``ValueError``.
 
+    Args:
+        pose: ``[3]`` the robot's pose (the LPM's frame, B §4.1).
+        params: the LPM parameters (``size`` cells of ``resolution``).
+
+    Returns:
+        :class:`LPMState` with ``logodds [N, N]`` zeros and ``origin [2]``
+        (and ``origin_lo [2]``).
+
     >>> s = lpm_init(jnp.array([1.0, 2.0, 0.0]), LPMParams(size=5, resolution=1.0))
     >>> s.origin.tolist(), float(s.logodds.sum())
     ([-1.0, 0.0], 0.0)
@@ -192,6 +200,13 @@ def _lpm_update(state: LPMState, pose: jax.Array, pose_lo: jax.Array, scan: Lida
 def lpm_classify(state: LPMState,
                  params: LPMParams = DEFAULT) -> tuple[jax.Array, jax.Array]:
     """``(occupied, unknown)`` bool ``[N, N]`` masks of an LPM (the rest is free).
+
+    Args:
+        state: the LPM.
+        params: its thresholds (B §4.1).
+
+    Returns:
+        ``(occupied [N, N], unknown [N, N])`` bool.
 
     >>> s = LPMState(jnp.array([[1.0, 0.0, -1.0]]), jnp.zeros(2))
     >>> [m.astype(int).tolist() for m in lpm_classify(s)]

@@ -51,6 +51,13 @@ def decompose(prev: jax.Array, pose: jax.Array) -> jax.Array:
     on the host for concrete float64 poses (so a 0.1 m step at UTM-sized coordinates reads
     0.1 m), in the input precision when traced. Concrete non-finite poses raise ``ValueError``.
 
+    Args:
+        prev: ``[3]`` the odometry pose before the step.
+        pose: ``[3]`` the odometry pose after it.
+
+    Returns:
+        ``[3]`` ``(alpha, rho, beta)``: first turn, travel, second turn.
+
     >>> [round(float(v), 4) for v in decompose(jnp.zeros(3), jnp.array([0.0, 1.0, 0.0]))]
     [1.5708, 1.0, -1.5708]
     >>> [round(float(v), 4) + 0.0 for v in decompose(jnp.zeros(3), jnp.array([-1.0, 0.0, 0.0]))]

@@ -44,6 +44,12 @@ class PrunedSkeleton(NamedTuple):
 def skeleton_graph(skeleton: np.ndarray) -> nx.Graph:
     """8-neighbour graph of a bool skeleton image ``[H, W]`` (nodes ``(row, col)``).
 
+    Args:
+        skeleton: ``[H, W]`` bool.
+
+    Returns:
+        ``networkx.Graph`` with edge ``weight`` 1 (4-neighbours) or √2 (diagonals) (B §6.1.1).
+
     >>> g = skeleton_graph(np.eye(3, dtype=bool))
     >>> sorted(g.edges(data="weight"))[0][2] == math.sqrt(2)
     True

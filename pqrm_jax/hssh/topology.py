@@ -81,6 +81,13 @@ class LocalTopology(NamedTuple):
 def place_kind(num_gateways: int, num_paths: int) -> str:
     """B §5.3.2 place-detection rule.
 
+    Args:
+        num_gateways: gateways of the local topology.
+        num_paths: paths through it.
+
+    Returns:
+        ``"path"``, ``"place"``, ``"dead_end"`` or ``"enclosed"``.
+
     >>> place_kind(2, 1), place_kind(4, 2), place_kind(1, 1), place_kind(0, 0)
     ('path', 'place', 'dead_end', 'enclosed')
     """
@@ -99,6 +106,14 @@ def resolution_bound(max_path_width: float, robot_width: float,
 
     The largest cell size ``x`` with ``max_path_width / x - ceil(robot_width / x) >= 13``, and
     the side ``ceil((max_path_width + robot_width) / x)``. Units cancel (scale-free).
+
+    Args:
+        max_path_width: the widest path to be recognised.
+        robot_width: the robot's width (same units).
+        min_path_cells: the least cells across a path (B's 13).
+
+    Returns:
+        ``(cell size, LPM side in cells)``.
 
     >>> resolution_bound(300.0, 30.0)      # B's worked example: 30 cm robot, 3 m path
     (20.0, 17)
@@ -121,6 +136,12 @@ def resolution_bound(max_path_width: float, robot_width: float,
 
 def occupancy_from_grid(grid) -> np.ndarray:
     """Occupied mask of a uint8 grey image (free iff >= 128) or a bool occupancy array.
+
+    Args:
+        grid: ``[H, W]`` uint8 grey image or bool occupancy.
+
+    Returns:
+        ``[H, W]`` bool, True where occupied.
 
     >>> occupancy_from_grid(np.array([[0, 127, 128, 255]], np.uint8)).tolist()
     [[True, True, False, False]]
@@ -158,8 +179,20 @@ def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np
                        side_cone: float = SIDE_CONE) -> LocalTopology:
     """Host graph stages for one grid's :class:`~pqrm_jax.hssh.cellular.CellularMaps` slice.
 
-    Raises ``ValueError`` when the robot is not in free space after island removal or when no
-    obstacle is left (featureless open space, B §3.3).
+    Args:
+        occupied, unknown, free_space: ``[H, W]`` bool masks of the grid.
+        dist2: ``[H, W]`` squared distance transform (cells).
+        skeleton: ``[H, W]`` bool thinned free space.
+        robot_cell: ``(row, col)`` of the robot.
+        method: ``"anchor"`` (B §6.3.2) or ``"constriction"`` (B §6.2).
+        side_slack: slack of the gateway side test.
+
+    Returns:
+        :class:`LocalTopology` (B §5.3, ch. 6).
+
+    Raises:
+        ValueError: when the robot is not in free space after island removal or no obstacle is
+            left (featureless open space, B §3.3).
     """
     occupied = np.asarray(occupied, bool)
     if not free_space[robot_cell]:

@@ -13,10 +13,6 @@
 
 from .layout import (
     LayoutProblem,
-    compose,
-    compose_host,
-    inverse,
-    inverse_host,
     layout_supported,
     pack,
     relax,
@@ -24,6 +20,10 @@ from .layout import (
     relax_many,
     scale_trajectory,
     score_hypotheses,
+    se2_compose,
+    se2_compose_host,
+    se2_inverse,
+    se2_inverse_host,
     true_layout,
 )
 from .navigation import (
@@ -84,7 +84,8 @@ __all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
            "MapHypothesis", "TreeLog", "TreeTooLarge", "build_basic_tree", "build_tree",
            "canonical_places", "extend",
            "is_planar", "is_true_map", "minimal_models", "preference_order", "root", "view_symbol",
-           "LayoutProblem", "compose", "compose_host", "inverse", "inverse_host", "pack",
+           "LayoutProblem", "se2_compose", "se2_compose_host", "se2_inverse", "se2_inverse_host",
+           "pack",
            "relax", "relax_loop", "relax_many", "layout_supported",
            "scale_trajectory",
            "score_hypotheses", "true_layout",

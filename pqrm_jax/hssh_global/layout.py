@@ -16,7 +16,7 @@ the layout score
 
 >>> import numpy as np
 >>> a = np.array([1.0, 2.0, 0.5])
->>> np.allclose(compose(inverse(a), a), 0, atol=1e-6)
+>>> np.allclose(se2_compose(se2_inverse(a), a), 0, atol=1e-6)
 True
 """
 
@@ -37,8 +37,8 @@ def _wrap(xp, t):
 
 
 def _compose(xp, a, b):
-    """``a ⊕ b`` in array module ``xp`` (one formula for :func:`compose` and
-    :func:`compose_host`)."""
+    """``a ⊕ b`` in array module ``xp`` (one formula for :func:`se2_compose` and
+    :func:`se2_compose_host`)."""
     c, s = xp.cos(a[..., 2]), xp.sin(a[..., 2])
     return xp.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
                      a[..., 1] + s * b[..., 0] + c * b[..., 1],
@@ -56,32 +56,39 @@ def wrap(t):
     return _wrap(jnp, jnp.asarray(t))
 
 
-def compose(a, b):
+def se2_compose(a, b):
     """``a ⊕ b`` for SE(2) poses ``[..., 3]`` (Smith, Self & Cheeseman; B §9.1)."""
     return _compose(jnp, jnp.asarray(a), jnp.asarray(b))
 
 
-def inverse(a):
+def se2_inverse(a):
     """``⊖a`` for SE(2) poses ``[..., 3]``."""
     return _inverse(jnp, jnp.asarray(a))
 
 
-def compose_host(a, b) -> np.ndarray:
-    """:func:`compose` in NumPy (float64) for host-side bookkeeping (the same formula).
+def se2_compose_host(a, b) -> np.ndarray:
+    """:func:`se2_compose` in NumPy (float64) for host-side bookkeeping (the same formula).
 
     Eager JAX ops compile once per input shape and dispatch one small program per operation,
     so point clouds of varying size (LPM snapshots) and per-travel loops cost a compile or a
-    dispatch each through :func:`compose`, in float32; this one runs in NumPy, in float64.
+    dispatch each through :func:`se2_compose`, in float32; this one runs in NumPy, in float64.
 
-    >>> compose_host([1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]).round(6).tolist()
+    >>> se2_compose_host([1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]).round(6).tolist()
     [1.0, 1.0, 1.570796]
     """
     return _compose(np, np.asarray(a, float), np.asarray(b, float))
 
 
-def inverse_host(a) -> np.ndarray:
-    """:func:`inverse` in NumPy (float64), see :func:`compose_host`."""
+def se2_inverse_host(a) -> np.ndarray:
+    """:func:`se2_inverse` in NumPy (float64), see :func:`se2_compose_host`."""
     return _inverse(np, np.asarray(a, float))
+
+
+# The names before issue 28 (the face exports only the se2_* names; ``compose`` there is
+# eq. 4.28 of the compositions). Kept for hssh_global/simulation.py, which issue 26 rewrites;
+# remove once it imports the se2_* names.
+compose, inverse = se2_compose, se2_inverse
+compose_host, inverse_host = se2_compose_host, se2_inverse_host
 
 
 class LayoutProblem(NamedTuple):
@@ -161,10 +168,10 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
         for i in range(n):
             (p0, _), (p1, _) = h.visits[i], h.visits[i + 1]
             src[k, i], dst[k, i], ds[k, i], dd[k, i] = p0, p1, delta[i], delta[i + 1]
-            pose = compose_host(pose, odo_k[i])
+            pose = se2_compose_host(pose, odo_k[i])
             if p1 not in seen:
                 seen.add(p1)
-                init[k, p1] = compose_host(pose, np.array([0.0, 0.0, -delta[i + 1]]))
+                init[k, p1] = se2_compose_host(pose, np.array([0.0, 0.0, -delta[i + 1]]))
     return LayoutProblem(*(jnp.asarray(x) for x in (init, src, dst, ds, dd)),
                          jnp.asarray(np.broadcast_to(per_h if n else np.zeros((1, 1, 3)),
                                                      (h_n, max(n, 1), 3)).copy()),
@@ -174,9 +181,9 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
 
 def _residuals(chi, src, dst, d_src, d_dst, odo, sigma, mask):
     zeros = jnp.zeros_like(d_src)
-    xa = compose(chi[src], jnp.stack([zeros, zeros, d_src], -1))
-    xb = compose(chi[dst], jnp.stack([zeros, zeros, d_dst], -1))
-    pred = compose(inverse(xa), xb)
+    xa = se2_compose(chi[src], jnp.stack([zeros, zeros, d_src], -1))
+    xb = se2_compose(chi[dst], jnp.stack([zeros, zeros, d_dst], -1))
+    pred = se2_compose(se2_inverse(xa), xb)
     r = pred - odo
     r = r.at[..., 2].set(wrap(r[..., 2]))
     r = (r / sigma) * mask[:, None]
@@ -206,9 +213,9 @@ def _relax_one_dense(init, src, dst, d_src, d_dst, odo, sigma, mask, iters: int,
 def _spring(xa, xb, da, db, odo, sigma, m):
     """Whitened residual ``[3]`` of one spring between place poses ``xa`` and ``xb``."""
     zero = jnp.zeros_like(da)
-    pa = compose(xa, jnp.stack([zero, zero, da]))
-    pb = compose(xb, jnp.stack([zero, zero, db]))
-    r = compose(inverse(pa), pb) - odo
+    pa = se2_compose(xa, jnp.stack([zero, zero, da]))
+    pb = se2_compose(xb, jnp.stack([zero, zero, db]))
+    r = se2_compose(se2_inverse(pa), pb) - odo
     r = r.at[2].set(wrap(r[2]))
     return (r / sigma) * m
 
@@ -406,7 +413,7 @@ def true_layout(world, experience) -> np.ndarray:
             heading = world.bearings[int(p)][int(experience.true_arrivals[i])]
             first[c] = np.array([*world.positions[int(p)], heading])
     x0 = first[0]
-    return np.stack([np.asarray(compose(inverse(x0), first[c])) for c in range(len(first))])
+    return np.stack([np.asarray(se2_compose(se2_inverse(x0), first[c])) for c in range(len(first))])
 
 
 def scale_trajectory(x_start, x_end, increments) -> jax.Array:

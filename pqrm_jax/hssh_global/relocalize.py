@@ -53,7 +53,7 @@ import numpy as np
 
 from pqrm_jax import hssh
 
-from .layout import compose, compose_host, inverse_host
+from .layout import se2_compose, se2_compose_host, se2_inverse_host
 
 __all__ = ["RelocParams", "Relocalization", "occupied_points", "field", "match_pairs",
            "visit_offsets"]
@@ -111,7 +111,8 @@ def occupied_points(snapshots, origins, poses, resolution: float,
             rows, cols = rows[keep], cols[keep]
         xy = np.asarray(origins[s], float)[None, :] + (np.stack([cols, rows], 1) + 0.5) \
             * resolution
-        rel = compose_host(inverse_host(poses[s]), np.concatenate([xy, np.zeros((len(xy), 1))], 1))
+        rel = se2_compose_host(se2_inverse_host(poses[s]),
+                               np.concatenate([xy, np.zeros((len(xy), 1))], 1))
         pts[s, :len(rows)] = rel[:, :2].reshape(-1, 2)
         mask[s, :len(rows)] = True
     return pts, mask
@@ -147,8 +148,8 @@ def _bilinear(fld, r, c):
 
 def _score(c, pts, mask, fld, origin, pose, resolution):
     """Mean field value of snapshot-i points moved by ``c`` into snapshot j's grid."""
-    moved = compose(c, jnp.concatenate([pts, jnp.zeros_like(pts[:, :1])], 1))
-    xy = compose(pose, moved)[:, :2]
+    moved = se2_compose(c, jnp.concatenate([pts, jnp.zeros_like(pts[:, :1])], 1))
+    xy = se2_compose(pose, moved)[:, :2]
     cr = (xy - origin) / resolution - 0.5                       # (col, row) fractional
     vals = _bilinear(fld, cr[:, 1], cr[:, 0])
     return jnp.sum(vals * mask) / jnp.maximum(jnp.sum(mask), 1)
@@ -285,11 +286,12 @@ def visit_offsets(sw, se, hypotheses, params: RelocParams | None = None) -> Relo
                            se.snap_poses[sto], c0p, res, width, params)
         c, s = np.asarray(c, float)[:k_n], np.asarray(s, float)[:k_n]
         ok = s >= params.min_score
-        r = compose_host(np.concatenate([np.zeros((len(order), 2)), -c0[:, 2:]], 1), c)
+        r = se2_compose_host(np.concatenate([np.zeros((len(order), 2)), -c0[:, 2:]], 1), c)
         r[~ok] = 0.0
         rev = idx >= 0
         offsets[rev], score[rev], used[rev] = r[idx[rev]], s[idx[rev]], ok[idx[rev]]
     odo = np.asarray(se.experience.odometry, float).reshape(-1, 3)
-    lam = compose_host(compose_host(offsets[:, :-1], np.broadcast_to(odo, offsets[:, 1:].shape)),
-                      inverse_host(offsets[:, 1:]))
+    lam = se2_compose_host(
+        se2_compose_host(offsets[:, :-1], np.broadcast_to(odo, offsets[:, 1:].shape)),
+        se2_inverse_host(offsets[:, 1:]))
     return Relocalization(offsets, lam.reshape(len(hypotheses), -1, 3), score, used)

@@ -3,7 +3,7 @@
 * :mod:`.measurement` — ``p(R^n = q | Z^n)`` by sampling (eq. 2.9), one pass for every
   representation that is a merge of the sampled calculus (the EDC for Padgett's six).
 * :mod:`.map` — the online map over all ordered triplets: ``mapper(...).init/update``
-  (eq. 2.10, Alg. 1).
+  (eq. 2.10, Alg. 1), the step convention of :mod:`pqrm_jax.protocols`.
 * :mod:`.metrics` — mean map entropy (eq. 2.11), ML / top-n error rates, P(ML state),
   neighbour distance, confusion matrix, error locations in the normalised AB frame.
 * :mod:`.reference` — an independent plain NumPy estimator (test oracle, benchmark baseline).
@@ -16,7 +16,7 @@
 """
 
 from . import metrics, reference
-from .map import Mapper, MapState, mapper, ordered_triplets, update_observed
+from .map import MapInfo, Mapper, MapState, mapper, ordered_triplets, update_observed
 from .measurement import (
     aggregation_matrix,
     fine_counts,
@@ -26,7 +26,7 @@ from .measurement import (
 )
 
 __all__ = [
-    "MapState", "Mapper", "aggregation_matrix", "fine_counts", "mapper", "metrics",
+    "MapInfo", "MapState", "Mapper", "aggregation_matrix", "fine_counts", "mapper", "metrics",
     "multi_state_probabilities", "ordered_triplets", "reference", "state_counts",
     "state_probabilities", "update_observed",
 ]

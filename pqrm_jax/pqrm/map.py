@@ -35,7 +35,7 @@ from .measurement import (
     sample_bank,
 )
 
-__all__ = ["MapState", "Mapper", "mapper", "ordered_triplets", "update_observed",
+__all__ = ["MapInfo", "MapState", "Mapper", "mapper", "ordered_triplets", "update_observed",
            "map_bytes_per_triplet", "check_triplets"]
 
 
@@ -97,25 +97,62 @@ class MapState(NamedTuple):
     step: jax.Array
 
 
+class MapInfo(NamedTuple):
+    """What one ``update`` call did (the ``info`` of the step convention,
+    :mod:`pqrm_jax.protocols`); the running totals are in :class:`MapState`.
+
+    Attributes:
+        num_updated: () int32, triplet rows that incorporated this measurement.
+        num_conflicts: representation name → () int32, this call's eq. 2.10 conflicts.
+        num_rejected: () int32, seen rows whose measurement had no defined sample.
+        num_dropped: () int32, visible landmarks dropped for non-finite positions.
+
+    ``update_batch`` gives these with a leading axis ``R``.
+    """
+
+    num_updated: jax.Array
+    num_conflicts: dict[str, jax.Array]
+    num_rejected: jax.Array
+    num_dropped: jax.Array
+
+
+def map_info(old: MapState, new: MapState) -> MapInfo:
+    """The :class:`MapInfo` of the step from ``old`` to ``new`` (differences of the counters,
+    summed over the triplet axis, the last one; leading batch axes are kept)."""
+    def total(a, b):
+        return jnp.sum(b - a, axis=-1, dtype=jnp.int32)
+
+    return MapInfo(
+        num_updated=total(old.num_updates, new.num_updates),
+        num_conflicts={n: total(old.num_conflicts[n], new.num_conflicts[n])
+                       for n in new.num_conflicts},
+        num_rejected=total(old.num_rejected, new.num_rejected),
+        num_dropped=(new.num_dropped - old.num_dropped).astype(jnp.int32),
+    )
+
+
 class Mapper(NamedTuple):
     """A PQRM map's pure functions and static description (like an optax transformation).
 
+    It follows the step convention of :mod:`pqrm_jax.protocols` (an
+    :class:`~pqrm_jax.protocols.Estimator`):
+
     init() -> MapState
-    update(state, key, positions [M, 2], visible [M], sigma) -> MapState (jitted)
-    update_batch(states, keys [R], positions [R, M, 2], visible [R, M], sigma) -> MapState
-        R independent maps at once (leading axis R on every leaf), equal to ``vmap(update)``
-        bit for bit but sampling only the triplets that are seen (jitted; see ``mapper``);
-        it holds one (S, 6) bank per map, so R·(48·S + T·bytes per triplet) must fit
-        ``max_bytes`` (refused up front otherwise).
+    update(state, key, positions [M, 2], visible [M], sigma) -> (MapState, MapInfo) (jitted)
+    update_batch(states, keys [R], positions [R, M, 2], visible [R, M], sigma)
+        -> (MapState, MapInfo): R independent maps at once (leading axis R on every leaf),
+        equal to ``vmap(update)`` bit for bit but sampling only the triplets that are seen
+        (jitted; see ``mapper``); it holds one (S, 6) bank per map, so
+        R·(48·S + T·bytes per triplet) must fit ``max_bytes`` (refused up front otherwise).
     """
 
     init: Callable[[], MapState]
-    update: Callable[..., MapState]
+    update: Callable[..., tuple[MapState, MapInfo]]
     triplets: np.ndarray
     calculi: tuple[Calculus, ...]
     num_landmarks: int
     num_samples: int
-    update_batch: Callable[..., MapState] | None = None
+    update_batch: Callable[..., tuple[MapState, MapInfo]] | None = None
 
 
 def _bayes(prior, meas, mapped, seen):
@@ -179,7 +216,8 @@ def _update_impl(state: MapState, key, positions, visible, sigma, *, triplets, c
     means, sig, seen, dropped = _prepare(positions, visible, sigma, triplets)
     counts = root_counts(key, means, sig, root=root, num_samples=num_samples,
                           chunk_triplets=chunk_triplets)
-    return _apply_counts(state, counts, seen, dropped, cals=cals)
+    new = _apply_counts(state, counts, seen, dropped, cals=cals)
+    return new, map_info(state, new)
 
 
 def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, triplets, cals,
@@ -194,7 +232,8 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     if not is_edc(root):
         counts = jax.vmap(partial(root_counts, root=root, num_samples=num_samples,
                                   chunk_triplets=chunk_triplets))(keys, means, sig)
-        return jax.vmap(partial(_apply_counts, cals=cals))(state, counts, seen, dropped)
+        new = jax.vmap(partial(_apply_counts, cals=cals))(state, counts, seen, dropped)
+        return new, map_info(state, new)
     # sparse path: sample and update only the seen triplets, compacted across the R maps
     t = means.shape[1]
     g = groups
@@ -214,9 +253,10 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
                               grouped(seen), rows)
     probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
         lambda x: x.reshape(r, t, *x.shape[2:]), rows)
-    return MapState(probs=probs, mapped=mapped, num_updates=num_updates,
-                    num_conflicts=num_conflicts, num_rejected=num_rejected,
-                    num_dropped=state.num_dropped + dropped, step=state.step + 1)
+    new = MapState(probs=probs, mapped=mapped, num_updates=num_updates,
+                   num_conflicts=num_conflicts, num_rejected=num_rejected,
+                   num_dropped=state.num_dropped + dropped, step=state.step + 1)
+    return new, map_info(state, new)
 
 
 def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
@@ -295,6 +335,72 @@ def _check_sigma(sigma) -> None:
         raise ValueError(f"sigma must be finite and non-negative, got {s.tolist()}")
 
 
+def _resolve(representations, num_landmarks, num_samples, triplets, max_bytes):
+    """Check the mapper's configuration; returns (calculi, triplets [T, 3] int32)."""
+    cals = tuple(calculi.get(c) for c in representations)
+    if not cals:
+        raise ValueError("mapper needs at least one representation")
+    names = [c.name for c in cals]
+    if len(set(names)) != len(names):
+        raise ValueError(f"duplicate representations: {names}")
+    roots = {root_identity(c) for c in cals}
+    if len(roots) != 1:
+        raise ValueError("all representations of one map must be merges of one root calculus "
+                         "(one sampling pass serves them all)")
+    if not isinstance(num_samples, int | np.integer) or num_samples < 1:
+        raise ValueError(f"num_samples must be a positive integer, got {num_samples!r}")
+    if triplets is None:
+        if isinstance(num_landmarks, int | np.integer) and num_landmarks >= 3:
+            t_dense = int(num_landmarks) * (int(num_landmarks) - 1) * (int(num_landmarks) - 2)
+            _check_map_bytes(t_dense, cals, max_bytes, dense=True)
+        return cals, ordered_triplets(num_landmarks)
+    if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
+        raise ValueError(f"a PQRM map needs at least three landmarks, got "
+                         f"{num_landmarks!r}")
+    triplets = check_triplets(triplets, int(num_landmarks))
+    _check_map_bytes(triplets.shape[0], cals, max_bytes, dense=False)
+    return cals, triplets
+
+
+def _check_update_args(m: int, positions, visible, sigma) -> None:
+    """Host-side checks of one ``update`` call's shapes and ``sigma`` (M landmarks)."""
+    if np.shape(positions) != (m, 2):
+        raise ValueError(f"positions must have shape ({m}, 2), "
+                         f"got {tuple(np.shape(positions))}")
+    if np.shape(visible) != (m,):
+        raise ValueError(f"visible must have shape ({m},), got {tuple(np.shape(visible))}")
+    if np.ndim(sigma) not in (0, 1) or (np.ndim(sigma) == 1 and np.shape(sigma) != (m,)):
+        raise ValueError(f"sigma must be a scalar or ({m},)")
+    _check_real(positions, "positions")
+    _check_sigma(sigma)
+
+
+def _check_batch_args(m: int, t: int, cals, num_samples: int, max_bytes, keys, positions,
+                      visible, sigma) -> None:
+    """Host-side checks of one ``update_batch`` call (shapes, ``sigma``, memory)."""
+    r = np.shape(positions)[0] if np.ndim(positions) == 3 else None
+    if r is None or np.shape(positions) != (r, m, 2):
+        raise ValueError(f"positions must have shape (R, {m}, 2), "
+                         f"got {tuple(np.shape(positions))}")
+    if np.shape(visible) != (r, m):
+        raise ValueError(f"visible must have shape ({r}, {m}), "
+                         f"got {tuple(np.shape(visible))}")
+    if np.shape(sigma) not in ((), (r,), (r, m)):
+        raise ValueError(f"sigma must be a scalar, ({r},) or ({r}, {m})")
+    if np.shape(keys)[:1] != (r,):
+        raise ValueError(f"keys must have leading shape ({r},)")
+    _check_real(positions, "positions")
+    _check_sigma(sigma)
+    # the sparse path holds one (S, 6) bank per map and R·T rows of state
+    need = r * (int(num_samples) * 6 * 8 + t * map_bytes_per_triplet(cals))
+    if max_bytes is not None and need > max_bytes:
+        raise ValueError(
+            f"update_batch of {r} maps needs about {need / 2**30:.2f} GiB (one bank of "
+            f"num_samples = {num_samples} draws and {t} triplet rows per map) > max_bytes = "
+            f"{max_bytes / 2**30:.2f} GiB: update fewer maps per call, lower num_samples, "
+            "pass triplets=..., or raise max_bytes")
+
+
 def mapper(
     representations: Sequence[Calculus | str] = ("edc",),
     num_landmarks: int = 10,
@@ -312,7 +418,9 @@ def mapper(
     T = M(M−1)(M−2) rows of about :func:`map_bytes_per_triplet` bytes, and a map whose
     estimate exceeds ``max_bytes`` (``None``: no check) is refused with ``ValueError``.
 
-    ``update`` samples eq. 2.9 for all T triplets (static shapes) and masks the unseen ones.
+    ``update(state, key, positions, visible, sigma) -> (state, MapInfo)`` (the step convention
+    of :mod:`pqrm_jax.protocols`) samples eq. 2.9 for all T triplets (static shapes) and masks
+    the unseen ones.
     ``update_batch(states, keys, positions, visible, sigma, groups=1)`` updates R maps at once
     (sigma: scalar, [R] or [R, M]): with the EDC as root it gathers the seen triplets of all R
     maps into pieces of ``sparse_block`` rows (sampling and eq. 2.10 per piece) so the sampling
@@ -327,6 +435,9 @@ def mapper(
         num_samples: S, samples per triplet per update.
         chunk_triplets: triplets per sampling block (bounds the working set).
         sparse_block: rows per piece of the batched sparse update.
+        triplets: ``[T, 3]`` int landmark ids of a sparse map (``None``: every ordered triplet).
+        max_bytes: refuse a map (or an ``update_batch`` call) whose estimated memory exceeds
+            this many bytes (``None``: no check).
 
     Returns:
         A :class:`Mapper` of pure functions (``init``, ``update``, ``update_batch``).
@@ -340,38 +451,20 @@ def mapper(
     >>> pq = mapper(("edc", "lr"), num_landmarks=4, num_samples=64)
     >>> st = pq.init()
     >>> pos = jnp.array([[0., 0.], [0., 10.], [5., 5.], [-5., 2.]])
-    >>> st = pq.update(st, jax.random.key(0), pos, jnp.array([True, True, True, False]), 0.5)
+    >>> st, info = pq.update(st, jax.random.key(0), pos, jnp.array([True, True, True, False]),
+    ...                      0.5)
     >>> int(st.mapped.sum()), st.probs["lr"].shape      # the 6 orderings of landmarks 0, 1, 2
     (6, (24, 2))
+    >>> int(info.num_updated), int(info.num_conflicts["lr"])
+    (6, 0)
     >>> sp = mapper(("edc", "lr"), num_landmarks=4, num_samples=64, triplets=[[0, 1, 2]])
     >>> sp.init().probs["lr"].shape
     (1, 2)
     """
-    cals = tuple(calculi.get(c) for c in representations)
-    if not cals:
-        raise ValueError("mapper needs at least one representation")
-    names = [c.name for c in cals]
-    if len(set(names)) != len(names):
-        raise ValueError(f"duplicate representations: {names}")
-    roots = {root_identity(c) for c in cals}
-    if len(roots) != 1:
-        raise ValueError("all representations of one map must be merges of one root calculus "
-                         "(one sampling pass serves them all)")
-    if not isinstance(num_samples, int | np.integer) or num_samples < 1:
-        raise ValueError(f"num_samples must be a positive integer, got {num_samples!r}")
-    if triplets is None:
-        if isinstance(num_landmarks, int | np.integer) and num_landmarks >= 3:
-            t_dense = int(num_landmarks) * (int(num_landmarks) - 1) * (int(num_landmarks) - 2)
-            _check_map_bytes(t_dense, cals, max_bytes, dense=True)
-        triplets = ordered_triplets(num_landmarks)
-    else:
-        if not isinstance(num_landmarks, int | np.integer) or num_landmarks < 3:
-            raise ValueError(f"a PQRM map needs at least three landmarks, got "
-                             f"{num_landmarks!r}")
-        triplets = check_triplets(triplets, int(num_landmarks))
-        _check_map_bytes(triplets.shape[0], cals, max_bytes, dense=False)
+    cals, triplets = _resolve(representations, num_landmarks, num_samples, triplets, max_bytes)
     t = triplets.shape[0]
     root = root_of(cals[0])
+    m = num_landmarks
 
     def init() -> MapState:
         zeros = jnp.zeros(t, jnp.int32)
@@ -386,19 +479,9 @@ def mapper(
                            num_samples=int(num_samples), chunk_triplets=int(chunk_triplets)))
 
     def update(state: MapState, key: jax.Array, positions: jax.Array, visible: jax.Array,
-               sigma) -> MapState:
+               sigma) -> tuple[MapState, MapInfo]:
         """Incorporate one measurement of all landmarks (eq. 2.10); see docs/pqrm.md §map."""
-        if np.shape(positions) != (num_landmarks, 2):
-            raise ValueError(f"positions must have shape ({num_landmarks}, 2), "
-                             f"got {tuple(np.shape(positions))}")
-        if np.shape(visible) != (num_landmarks,):
-            raise ValueError(f"visible must have shape ({num_landmarks},), "
-                             f"got {tuple(np.shape(visible))}")
-        if np.ndim(sigma) not in (0, 1) or (np.ndim(sigma) == 1
-                                            and np.shape(sigma) != (num_landmarks,)):
-            raise ValueError(f"sigma must be a scalar or ({num_landmarks},)")
-        _check_real(positions, "positions")
-        _check_sigma(sigma)
+        _check_update_args(m, positions, visible, sigma)
         return impl(state, key, positions, visible, sigma)
 
     batch_impl = jax.jit(partial(_update_batch_impl, triplets=triplets, cals=cals, root=root,
@@ -407,29 +490,9 @@ def mapper(
                          static_argnames=("groups",))
 
     def update_batch(state: MapState, keys: jax.Array, positions: jax.Array,
-                     visible: jax.Array, sigma, groups: int = 1) -> MapState:
+                     visible: jax.Array, sigma, groups: int = 1) -> tuple[MapState, MapInfo]:
         """``vmap(update)`` over R maps, sampling only the seen triplets (same results)."""
-        r = np.shape(positions)[0] if np.ndim(positions) == 3 else None
-        if r is None or np.shape(positions) != (r, num_landmarks, 2):
-            raise ValueError(f"positions must have shape (R, {num_landmarks}, 2), "
-                             f"got {tuple(np.shape(positions))}")
-        if np.shape(visible) != (r, num_landmarks):
-            raise ValueError(f"visible must have shape ({r}, {num_landmarks}), "
-                             f"got {tuple(np.shape(visible))}")
-        if np.shape(sigma) not in ((), (r,), (r, num_landmarks)):
-            raise ValueError(f"sigma must be a scalar, ({r},) or ({r}, {num_landmarks})")
-        if np.shape(keys)[:1] != (r,):
-            raise ValueError(f"keys must have leading shape ({r},)")
-        _check_real(positions, "positions")
-        _check_sigma(sigma)
-        # the sparse path holds one (S, 6) bank per map and R·T rows of state
-        need = r * (int(num_samples) * 6 * 8 + t * map_bytes_per_triplet(cals))
-        if max_bytes is not None and need > max_bytes:
-            raise ValueError(
-                f"update_batch of {r} maps needs about {need / 2**30:.2f} GiB (one bank of "
-                f"num_samples = {num_samples} draws and {t} triplet rows per map) > max_bytes = "
-                f"{max_bytes / 2**30:.2f} GiB: update fewer maps per call, lower num_samples, "
-                "pass triplets=..., or raise max_bytes")
+        _check_batch_args(m, t, cals, num_samples, max_bytes, keys, positions, visible, sigma)
         return batch_impl(state, keys, positions, visible, sigma, groups=int(groups))
 
     return Mapper(init, update, triplets, cals, int(num_landmarks), int(num_samples),
@@ -437,7 +500,7 @@ def mapper(
 
 
 def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
-                    sigma) -> MapState:
+                    sigma) -> tuple[MapState, MapInfo]:
     """Eager convenience: update with the landmarks ``ids`` [K] seen at ``positions`` [K, 2].
 
     Fewer than three ids observe no triplet: the map is returned unchanged except ``step``.
@@ -451,7 +514,7 @@ def update_observed(pq: Mapper, state: MapState, key: jax.Array, ids, positions,
         sigma: noise std, scalar or [K] (one per id).
 
     Returns:
-        The updated :class:`MapState`.
+        ``(MapState, MapInfo)``, as ``pq.update``.
 
     Raises:
         ValueError: for duplicate or out-of-range ids, NaN/inf positions and bad ``sigma``.

@@ -91,7 +91,17 @@ def key_to_edc_state() -> np.ndarray:
 
 
 def aggregation_matrix(calc: Calculus) -> np.ndarray:
-    """[Q_root, Q] 0/1 matrix mapping counts of ``root_of(calc)`` to counts of ``calc``."""
+    """The 0/1 matrix that merges counts of the root calculus into counts of ``calc`` (P §2.2.1).
+
+    One sampling pass of the root calculus (the EDC for Padgett's six) serves every merge of
+    it: ``counts_calc = counts_root @ aggregation_matrix(calc)``.
+
+    Args:
+        calc: a calculus (a merge chain ends at its root, ``root_of(calc)``).
+
+    Returns:
+        ``[Q_root, Q]`` float32, one 1 per row.
+    """
     fine_to = np.arange(calc.num_states)
     c = calc
     while getattr(c, "parent", None) is not None:
@@ -602,7 +612,26 @@ def counts_to_probabilities(counts: jax.Array) -> jax.Array:
 
 def state_counts(key, calculus, means, sigma, num_samples: int, *, chunk_triplets: int = 4096,
                  max_bytes: int | None = DEFAULT_MAX_BYTES):
-    """Sample counts [N, Q] of ``calculus`` states (aggregated from one EDC pass; exact int32)."""
+    """Sample counts of ``calculus`` states for N triplets (P eq. 2.9, before normalising).
+
+    Aggregated from one pass of the root calculus; exact int32.
+
+    Args:
+        key: PRNG key (one bank of draws shared by the rows).
+        calculus: a :class:`~pqrm_jax.calculi.Calculus` or a registered name.
+        means: ``[N, 3, 2]`` measured positions of A, B, C of each triplet.
+        sigma: noise std, scalar, ``[N]`` or ``[N, 3]``.
+        num_samples: S, samples per triplet.
+        chunk_triplets: triplets per sampling block.
+        max_bytes: refuse a working set above this many bytes (``None``: no check).
+
+    Returns:
+        ``[N, Q]`` int32 counts (rows sum to S minus the undefined samples).
+
+    Raises:
+        ValueError: for an estimated working set above ``max_bytes`` and the input checks of
+            :func:`fine_counts`.
+    """
     calc = calculi.get(calculus)
     fine = fine_counts(key, calc, means, sigma, num_samples, chunk_triplets=chunk_triplets,
                        max_bytes=max_bytes)

@@ -28,7 +28,7 @@ from .costs import edge_costs, edge_success, path_success
 from .elements import MapElements, exact_elements, from_mapping_run, incidence
 from .linkgraph import (
     LinkGraph,
-    Plan,
+    LinkPlan,
     goal_distances,
     link_graph,
     neighbour_table,
@@ -50,7 +50,7 @@ from .pomdp import SearchPOMDP, open_loop_plan, search_model, solve_exact
 __all__ = [
     "costs", "elements", "guarantees", "hybrid", "linkgraph", "navigate", "pomdp", "trajectory",
     "MapElements", "from_mapping_run", "exact_elements", "incidence",
-    "LinkGraph", "Plan", "link_graph", "plan_pairs", "plan_from", "goal_distances",
+    "LinkGraph", "LinkPlan", "link_graph", "plan_pairs", "plan_from", "goal_distances",
     "neighbour_table", "to_networkx", "edge_costs", "edge_success", "path_success",
     "SearchPOMDP", "search_model", "solve_exact", "open_loop_plan",
     "NavParams", "NavResult", "PairResult", "navigate_pairs", "start_tables", "drive",

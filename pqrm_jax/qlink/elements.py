@@ -27,18 +27,14 @@ import numpy as np
 
 from .. import calculi, pqrm
 from .. import sim as _sim
+from ..triplets import ORDERING_INDEX, ORDERINGS
 
 __all__ = ["ORDERINGS", "MapElements", "co_observed_triplets", "from_mapping_run",
            "exact_elements", "ordering_index", "incidence", "check_elements", "fuse"]
 
-ORDERINGS = np.array([(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)],
-                     np.int32)
-"""The six orderings (positions of A, B, C within the sorted ``ids`` row)."""
-
-# _ORDER_OF[pa, pb] = index of the ordering with A at position pa and B at position pb
-_ORDER_OF = np.full((3, 3), -1, np.int32)
-for _k, (_a, _b, _c) in enumerate(ORDERINGS):
-    _ORDER_OF[_a, _b] = _k
+# the six orderings (positions of A, B, C within the sorted ``ids`` row) and their index by
+# the positions of A and B: the triplet vocabulary (pqrm_jax.triplets)
+_ORDER_OF = ORDERING_INDEX
 
 
 class MapElements(NamedTuple):

@@ -28,9 +28,10 @@ import jax.numpy as jnp
 import networkx as nx
 import numpy as np
 
+from ..triplets import shared_landmarks
 from .elements import MapElements, check_elements, incidence
 
-__all__ = ["LinkGraph", "Plan", "link_graph", "shared_counts", "bfs_distances",
+__all__ = ["LinkGraph", "LinkPlan", "link_graph", "shared_counts", "bfs_distances",
            "shortest_costs", "plan_pairs", "to_networkx", "path_cost", "goal_distances",
            "plan_from", "neighbour_table"]
 
@@ -53,7 +54,7 @@ class LinkGraph(NamedTuple):
         return np.isfinite(self.cost)
 
 
-class Plan(NamedTuple):
+class LinkPlan(NamedTuple):
     """Planned paths for B start/goal landmark pairs.
 
     reachable: ``[B]`` bool, a path exists.
@@ -84,10 +85,7 @@ def shared_counts(elements: MapElements) -> np.ndarray:
     [[0, 2, 0], [2, 0, 1], [0, 1, 0]]
     """
     check_elements(elements)
-    inc = incidence(elements).astype(np.float32)
-    s = np.rint(inc.T @ inc).astype(np.int16)
-    np.fill_diagonal(s, 0)
-    return s
+    return shared_landmarks(np.asarray(elements.ids), elements.num_landmarks).astype(np.int16)
 
 
 def link_graph(elements: MapElements, beta: int, cost: np.ndarray | None = None) -> LinkGraph:
@@ -228,8 +226,8 @@ def _extract(dist_rows, cost, inc_start, inc_goal, *, max_len):
     return jax.vmap(one)(dist_rows, inc_start, inc_goal)
 
 
-def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> Plan:
-    """Plan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
+def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> LinkPlan:
+    """LinkPlan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
 
     Sources are all elements containing the start landmark, targets all elements containing
     the goal landmark. Unit-cost graphs use :func:`bfs_distances`, others
@@ -272,7 +270,7 @@ def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> Plan:
     if not unit:  # trim padding to the longest path found
         width = max(1, int(np.max(np.asarray(n))))
         path = path[:, :width]
-    return Plan(ok, jnp.where(ok, n, 0), path, best)
+    return LinkPlan(ok, jnp.where(ok, n, 0), path, best)
 
 
 def path_cost(graph: LinkGraph, path: np.ndarray) -> float:
@@ -348,7 +346,7 @@ def _forward(to_go, nbr, ncost, rows, cands, *, max_len):
 
 
 def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int,
-              neighbours: tuple[jax.Array, jax.Array] | None = None) -> Plan:
+              neighbours: tuple[jax.Array, jax.Array] | None = None) -> LinkPlan:
     """Paths from per-trial candidate start elements down a cost-to-go table.
 
     Args:
@@ -371,4 +369,4 @@ def plan_from(graph: LinkGraph, to_go, rows, candidates, max_len: int,
     ok, n, path, best = _forward(jnp.asarray(to_go, jnp.float32), nbr, ncost,
                                  jnp.asarray(rows, jnp.int32), jnp.asarray(candidates, jnp.int32),
                                  max_len=int(max_len))
-    return Plan(ok, jnp.where(ok, n, 0), path, best)
+    return LinkPlan(ok, jnp.where(ok, n, 0), path, best)

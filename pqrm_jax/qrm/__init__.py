@@ -13,7 +13,8 @@ Decisions: docs/decisions.md §4; how it works: docs/qrm.md.
 * :mod:`~pqrm_jax.qrm.rng` — RNG estimate with edge costs (M Alg. 2).
 * :mod:`~pqrm_jax.qrm.navigation` — RNG navigation between Voronoi cells, closed loop (M§VII.B).
 * :mod:`~pqrm_jax.qrm.mapper` — ``mapper(calc, num_landmarks, n)`` → ``Mapper(init, update,
-  metrics)``, pure functions as :func:`pqrm_jax.pqrm.mapper` (a sequence is a ``lax.scan``).
+  metrics)``, pure functions as :func:`pqrm_jax.pqrm.mapper` (the step convention of
+  :mod:`pqrm_jax.protocols`: a sequence is ``protocols.run``).
 * :mod:`~pqrm_jax.qrm.pipeline` — image-by-image mapping in the simulator and the M§VIII.A
   metrics; :mod:`~pqrm_jax.qrm.reference` — one-relation-at-a-time reference update.
 

@@ -25,7 +25,7 @@ from fractions import Fraction
 import numpy as np
 
 from ..calculi.poly import Poly
-from ..tables.certify import SAT, UNSAT, decide
+from ..tables.certify import DEFAULT_RLIMIT, SAT, UNSAT, decide
 from .exact_camera import CYCLIC
 from .spec import QRMSpec, qrm_spec
 
@@ -101,27 +101,29 @@ def exact_signs(spec: QRMSpec, bearings, d) -> np.ndarray:
     return out
 
 
-def decide_state(spec: QRMSpec, F, o: int, atom: int, timeout_ms: int = 20000) -> bool:
+def decide_state(spec: QRMSpec, F, o: int, atom: int, rlimit: int = DEFAULT_RLIMIT) -> bool:
     """Exact feasibility of one atom of relation ``o`` for exact forms ``F``
     (:func:`exact_forms`): z3 over ``0 < d_near < d_mid < d_far = 1``; a SAT witness is
     re-verified in rational arithmetic (``AssertionError`` otherwise), an unknown verdict
-    raises ``RuntimeError``."""
+    (z3's deterministic resource limit ``rlimit`` exhausted, never a wall-clock timeout, so
+    the answer does not depend on the machine's load) raises ``RuntimeError``."""
     x0, x1 = Poly.var(2, 0), Poly.var(2, 1)
     polys = [_slice_poly(F[o][k]) for k in range(spec.k)]
     cons = [(p, int(s)) for p, s in zip(polys, spec.atom_signs[atom], strict=True)]
     cons += [(x0, 1), (x1 - x0, 1), (1 - x1, 1)]
-    verdict, wit = decide(cons, timeout_ms)
+    verdict, wit = decide(cons, rlimit)
     if verdict == UNSAT:
         return False
     if verdict != SAT:
-        raise RuntimeError(f"z3 gave up on relation {o}, atom {atom}")
+        raise RuntimeError(f"z3 gave up on relation {o}, atom {atom} (resource limit "
+                           f"rlimit={rlimit} exhausted)")
     for p, s in cons:
         val = p.evaluate(wit)
         assert (val > 0) - (val < 0) == s, "z3 witness does not verify"
     return True
 
 
-def oracle_sets(bearings, calc: str | QRMSpec = "edc", timeout_ms: int = 20000) -> np.ndarray:
+def oracle_sets(bearings, calc: str | QRMSpec = "edc", rlimit: int = DEFAULT_RLIMIT) -> np.ndarray:
     """(3,) uint32 exact feasible-state masks of ``01:2, 12:0, 20:1`` for one triple
     (every atom decided by :func:`decide_state`).
 
@@ -136,12 +138,12 @@ def oracle_sets(bearings, calc: str | QRMSpec = "edc", timeout_ms: int = 20000) 
     sets = np.zeros(3, np.uint32)
     for o in range(3):
         for atom in range(spec.num_atoms):
-            if decide_state(spec, F, o, atom, timeout_ms):
+            if decide_state(spec, F, o, atom, rlimit):
                 sets[o] |= np.uint32(1 << int(spec.atom_state[atom]))
     return sets
 
 
-def settle_undecided(spec: QRMSpec, bearings, sets, undecided, timeout_ms: int = 20000):
+def settle_undecided(spec: QRMSpec, bearings, sets, undecided, rlimit: int = DEFAULT_RLIMIT):
     """The exact stage: every undecided state of a measurement decided by z3.
 
     ``bearings`` (T, 3), ``sets``/``undecided`` (T, 3) uint32 masks from the kernel. Returns
@@ -159,7 +161,7 @@ def settle_undecided(spec: QRMSpec, bearings, sets, undecided, timeout_ms: int =
             for st in range(spec.num_states):
                 if int(und[t, o]) >> st & 1:
                     n += 1
-                    if not any(decide_state(spec, F, o, int(a), timeout_ms)
+                    if not any(decide_state(spec, F, o, int(a), rlimit)
                                for a in atoms_of[st]):
                         sets[t, o] &= np.uint32(~(1 << st) & 0xFFFFFFFF)
     return sets, n

@@ -1,19 +1,22 @@
 """The QRM map as a pair of pure functions, the shape of :func:`pqrm_jax.pqrm.mapper` (M§VI).
 
 ``qrm.mapper(calc, num_landmarks, n)`` resolves the static configuration once and returns
-``Mapper(init, update, metrics)``: ``init()`` is the empty map, ``update(map, image)`` fuses one
-camera image (a :class:`pqrm_jax.sim.CameraObservation`: measurement of the ``n`` nearest
-visible landmarks, M§IV, then path consistency, M§VI.B) and returns ``(map, UpdateReport)``, so
-that a sequence of images is ``jax.lax.scan(mapper.update, mapper.init(), images)``;
-``metrics(map, landmarks)`` gives the M§VIII.A metrics against the true layout.
+``Mapper(init, update, metrics)``: ``init()`` is the empty map, ``update(map, key, image)`` fuses
+one camera image (a :class:`pqrm_jax.sim.CameraObservation`: measurement of the ``n`` nearest
+visible landmarks, M§IV, then path consistency, M§VI.B) and returns ``(map, UpdateReport)``.
+The map is deterministic: ``key`` is accepted for the step convention of
+:mod:`pqrm_jax.protocols` and unused, so a sequence of images is
+``protocols.run(mapper, key, mapper.init(), images)``; ``metrics(map, landmarks)`` gives the
+M§VIII.A metrics against the true layout.
 
 >>> import jax
 >>> from pqrm_jax import qrm, sim
 >>> lm = sim.uniform_landmarks(jax.random.key(0), 6)
 >>> poses = sim.random_imaging_points(jax.random.key(1), 3)
 >>> images = jax.vmap(lambda p: sim.camera(p, lm, sim.SensorParams(max_range=1e6)))(poses)
+>>> from pqrm_jax.protocols import run
 >>> qm = qrm.mapper("edc", 6, n=6)
->>> m, reports = jax.lax.scan(qm.update, qm.init(), images)
+>>> m, reports = run(qm, jax.random.key(2), qm.init(), images)
 >>> reports.inconsistent.shape, bool(qm.metrics(m, lm)["truth_kept"])
 ((3,), True)
 """
@@ -38,21 +41,22 @@ __all__ = ["Mapper", "mapper"]
 class Mapper(NamedTuple):
     """A QRM mapper: pure functions over a :class:`~pqrm_jax.qrm.QRMMap` plus its setup.
 
-    ``init() -> QRMMap``; ``update(map, image) -> (QRMMap, UpdateReport)`` (jitted, scan-shaped:
-    ``image`` is a :class:`~pqrm_jax.sim.CameraObservation` with ``[N]`` fields);
+    ``init() -> QRMMap``; ``update(map, key, image) -> (QRMMap, UpdateReport)`` (jitted; the
+    ``key`` is unused, the step convention of :mod:`pqrm_jax.protocols`; ``image`` is a
+    :class:`~pqrm_jax.sim.CameraObservation` with ``[N]`` fields);
     ``metrics(map, landmarks [N, 2]) -> dict`` (M§VIII.A, host side).
     """
 
     init: Callable[[], QRMMap]
-    update: Callable[[QRMMap, object], tuple[QRMMap, UpdateReport]]
+    update: Callable[[QRMMap, jax.Array, object], tuple[QRMMap, UpdateReport]]
     metrics: Callable[[QRMMap, jax.Array], dict]
     spec: QRMSpec
     num_landmarks: int
     n: int
 
 
-def _update(spec: QRMSpec, m: QRMMap, image, *, n: int,
-            max_sweeps: int):
+def _update(spec: QRMSpec, m: QRMMap, key, image, *, n: int, max_sweeps: int):
+    del key  # deterministic (accepted for the step convention)
     meas = measure_image_kernel(spec, image.bearings, image.range_rank, image.visible, m.rel,
                                 n=n)
     return apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid,

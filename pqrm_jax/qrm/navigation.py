@@ -24,10 +24,10 @@ from pqrm_jax.sim.rover import RoverParams, RoverState, step_kernel
 
 from .rng import RNGEstimate
 
-__all__ = ["NavResult", "plan_next_hop", "navigate", "navigate_many"]
+__all__ = ["RNGNavResult", "plan_next_hop", "navigate", "navigate_many"]
 
 
-class NavResult(NamedTuple):
+class RNGNavResult(NamedTuple):
     """Outcome of one navigation run.
 
     ``success`` (goal cell reached and END within ``tol``), ``reached_cell``, ``length``
@@ -114,7 +114,7 @@ def _navigate(landmarks, nxt, start, goal, params, sensor, *, n_steps, k_turn, t
     (final, _, length), (poses, cell, done) = jax.lax.scan(
         body, (st0, jnp.zeros((), jnp.int32), jnp.zeros((), start.dtype)), None, length=n_steps)
     straight = jnp.sqrt(jnp.sum((goal - start[:2]) ** 2))
-    return NavResult(done.any(), cell.any(), length, straight,
+    return RNGNavResult(done.any(), cell.any(), length, straight,
                      jnp.concatenate([start[None], poses]), path, hops)
 
 
@@ -130,7 +130,7 @@ def navigate(
     lam: float = 1.0,
     k_turn: float = 2.0,
     tol: float = 0.5,
-) -> NavResult:
+) -> RNGNavResult:
     """Drive the simulated rover from ``start`` (x, y, θ) to ``goal`` (x, y) (M§VII.B).
 
     The strategy is described in docs/qrm.md §navigation.
@@ -149,7 +149,7 @@ def navigate(
         tol: distance to ``goal`` that counts as arrived.
 
     Returns:
-        The :class:`NavResult` of the run.
+        The :class:`RNGNavResult` of the run.
 
     Raises:
         ValueError: for inputs of the wrong shape or with NaN/inf.
@@ -176,7 +176,7 @@ def navigate(
 
 
 def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, sensor=None, *,
-                  n_steps: int = 3000, lam: float = 1.0) -> NavResult:
+                  n_steps: int = 3000, lam: float = 1.0) -> RNGNavResult:
     """:func:`navigate` ``vmap``-ed over start/goal pairs [S, 3] / [S, 2]."""
     params = RoverParams() if params is None else params
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
@@ -207,7 +207,7 @@ def check_nav_inputs(landmarks, start, goal, batched: bool = False) -> None:
             raise ValueError(f"{nm} contains NaN or inf")
 
 
-def summarize(res: NavResult) -> dict:
+def summarize(res: RNGNavResult) -> dict:
     """Success rate and path length / straight-line ratio over a batch of runs."""
     ok = np.asarray(res.success)
     ratio = np.asarray(res.length) / np.maximum(np.asarray(res.straight), 1e-9)

@@ -189,8 +189,17 @@ def _region_adjacency(grid: Grid, cell_region: np.ndarray, r0: int) -> np.ndarra
 def problem_from_partition(cell_mass, grid: Grid, cell_region, belief_region) -> Problem:
     """A problem from an explicit contiguous partition of the grid (e.g. a calculus's regions).
 
-    ``cell_region`` [N] holds region ids 0..R0−1 and ``belief_region`` [K] the region of each
-    belief."""
+    The start of a search from given regions instead of one region per cell (P §3.3.2).
+
+    Args:
+        cell_mass: ``[K, N]`` belief mass of each of the N grid cells.
+        grid: the grid.
+        cell_region: ``[N]`` region ids ``0..R0−1`` (each region contiguous).
+        belief_region: ``[K]`` the region of each belief.
+
+    Returns:
+        :class:`Problem`.
+    """
     cell_region = np.asarray(cell_region, dtype=np.int64)
     r0 = int(cell_region.max()) + 1
     onehot = np.zeros((grid.n_cells, r0))

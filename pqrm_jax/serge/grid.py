@@ -116,9 +116,14 @@ class Grid:
 
 
 def connected_components(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """4-connected components of a flat label array (negative labels are background).
+    """4-connected components of a flat label array (negative labels are background; P §3.2).
 
-    Returns a flat array of component ids (−1 for background), ids 0..n−1.
+    Args:
+        labels: ``[H·W]`` int labels.
+        shape: ``(H, W)``.
+
+    Returns:
+        ``[H·W]`` component ids ``0..n−1`` (−1 for background).
 
     >>> lab = np.array([0, 1, 0, 0, 1, 0, 0, 0, 0])    # 3x3, label 1 splits nothing
     >>> int(connected_components(lab, (3, 3)).max()) + 1
@@ -148,7 +153,18 @@ def connected_components(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarr
 
 
 def components_per_label(labels: np.ndarray, shape: tuple[int, int]) -> dict[int, int]:
-    """Ω of eq. (3.6): number of 4-connected components of every label present."""
+    """Ω of P eq. (3.6): the number of 4-connected components of every label present.
+
+    Args:
+        labels: ``[H·W]`` int labels (negative: background).
+        shape: ``(H, W)``.
+
+    Returns:
+        ``label -> number of components``.
+
+    >>> components_per_label(np.array([0, 1, 0, 1, 0, 1, 0, 1, 0]), (3, 3))
+    {0: 5, 1: 4}
+    """
     lab = np.asarray(labels).ravel()
     comp = connected_components(lab, shape)
     out: dict[int, int] = {}

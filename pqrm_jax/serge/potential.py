@@ -26,7 +26,17 @@ SIGMA_MIN = 1e-3
 
 
 def check_params(mu, sigma, k_max: int, n_cells: int | None = None) -> None:
-    """``ValueError`` unless 1 ≤ μ ≤ min(K, N) (integer) and σ ≥ 0 (P§3.2.2)."""
+    """Check the SERGE prior parameters (P §3.2.2).
+
+    Args:
+        mu: μ, the preferred number of regions.
+        sigma: σ, the width of the prior over the number of regions.
+        k_max: K, the number of beliefs.
+        n_cells: N, the number of grid cells (when known).
+
+    Raises:
+        ValueError: unless μ is an integer in ``1..min(K, N)`` and σ is finite and ≥ 0.
+    """
     upper = k_max if n_cells is None else min(k_max, n_cells)
     if not float(mu).is_integer() or not 1 <= int(mu) <= upper:
         raise ValueError(f"SERGE: mu must be an integer in 1..min(K, N) = 1..{upper}, got {mu}")
@@ -35,7 +45,18 @@ def check_params(mu, sigma, k_max: int, n_cells: int | None = None) -> None:
 
 
 def log_psi1(n_regions, mu, sigma, k_max, k_static: int) -> jax.Array:
-    """log ψ1(|R|; μ, σ) normalised over |R| ∈ 1..k_max (k_max ≤ k_static may be traced)."""
+    """log ψ1(|R|; μ, σ), the prior on the number of regions (P eq. 3.5), normalised.
+
+    Args:
+        n_regions: ``|R|`` (scalar or array).
+        mu: μ.
+        sigma: σ (floored at ``SIGMA_MIN``).
+        k_max: the largest ``|R|`` of the normaliser (may be traced, ``≤ k_static``).
+        k_static: a static bound on ``k_max``.
+
+    Returns:
+        float32 of the shape of ``n_regions``.
+    """
     s = jnp.maximum(jnp.asarray(sigma, jnp.float32), SIGMA_MIN)
     ks = jnp.arange(1, k_static + 1, dtype=jnp.float32)
     terms = jnp.where(ks <= k_max, -((ks - mu) ** 2) / (2 * s**2), -jnp.inf)

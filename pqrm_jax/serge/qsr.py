@@ -78,6 +78,18 @@ class SergeCalculus:
         self._labels = jnp.asarray(self.cell_labels)
         self._jit_classify = jax.jit(self._classify)
         self._compose_counts: np.ndarray | None = None
+        self.cell_labels.setflags(write=False)
+        object.__setattr__(self, "_frozen", True)
+
+    #: memo attributes that may still be set on a frozen calculus (derived, not definition)
+    CACHES = frozenset({"_compose_counts", "_compose_stride"})
+
+    def __setattr__(self, name: str, value) -> None:
+        """Frozen once built, like :class:`~pqrm_jax.calculi.Calculus` (only the memo of
+        :meth:`compose_counts` may be set)."""
+        if getattr(self, "_frozen", False) and name not in self.CACHES:
+            raise AttributeError(f"calculus {self.name!r} is frozen: cannot set {name!r}")
+        object.__setattr__(self, name, value)
 
     @classmethod
     def from_result(cls, result, name: str = "serge") -> SergeCalculus:

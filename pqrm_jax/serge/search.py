@@ -429,7 +429,15 @@ def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.
     ``branch`` applies each merge under ``lax.cond`` (skips the merge work on rejected
     steps); the default is the branch-free step that the batched program vmaps. On one core
     of a 2-core CPU the two take 13–28 µs per step (noisy; the cond form is the faster),
-    against ≈ 1.5 µs per trial-step batched; same results either way."""
+    against ≈ 1.5 µs per trial-step batched; same results either way.
+
+    Args:
+        problem, mu, sigma, key, trials, active, start: as :func:`serge`.
+        branch: apply each merge under ``lax.cond``.
+
+    Returns:
+        :class:`SergeResult`, equal to :func:`serge`'s.
+    """
     args = prepare_inputs(problem, mu, sigma, active, start)
     keys = jax.random.split(key, trials)
     mass, adj, belief_region, lab0, active, mu_, sigma_ = args

@@ -12,6 +12,9 @@ boundary, ``vmap``-able over runs:
 * :mod:`sim.lidar` -- lidar ray casting into an occupancy grid.
 * :mod:`sim.trajectories` -- perimeter loop, random imaging points, traverses, waypoint
   controller.
+* :mod:`sim.coverage` -- the lawnmower mapping sweep (P §4.4.1).
+* :mod:`sim.occlusion` -- partial disc occlusion and wall segments (P §4.4.1).
+* :mod:`sim.corridors` -- corridor-network occupancy worlds (B ch. 6).
 
 Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
 
@@ -24,8 +27,33 @@ Example (Padgett's PQRM Monte Carlo setup, P §2.3.1)::
                                                     sim.SensorParams(max_range=60.0, sigma=1.0))
 """
 
-from pqrm_jax.sim import lidar, rover, sensors, trajectories, world
+from pqrm_jax.sim import (
+    corridors,
+    coverage,
+    lidar,
+    occlusion,
+    rover,
+    sensors,
+    trajectories,
+    world,
+)
+from pqrm_jax.sim.corridors import (
+    INTERSECTIONS,
+    intersection_rectangles,
+    plus_image,
+    render_free_rectangles,
+    room_doorway_rectangles,
+)
+from pqrm_jax.sim.coverage import lawnmower
 from pqrm_jax.sim.lidar import LidarParams, LidarScan, lidar_scan, rasterize_discs
+from pqrm_jax.sim.occlusion import (
+    disc_visibility,
+    local_target_visibility,
+    occluder_table,
+    segment_distance,
+    segment_visibility,
+    target_visibility,
+)
 from pqrm_jax.sim.rover import (
     RoverParams,
     RoverState,
@@ -61,41 +89,23 @@ from pqrm_jax.sim.world import (
 )
 
 __all__ = [
-    "world", "rover", "sensors", "trajectories", "lidar",
+    # modules
+    "world", "rover", "sensors", "trajectories", "lidar", "coverage", "occlusion", "corridors",
+    # worlds
     "uniform_landmarks", "clustered_landmarks", "hallway_landmarks", "corridor_grid_landmarks",
+    # the rover
     "RoverParams", "RoverState", "reset", "step", "rollout", "clip_control", "wrap_angle",
+    # sensors
     "SensorParams", "Observation", "CameraObservation", "observe", "camera",
     "relative_positions", "visibility",
     "LidarParams", "LidarScan", "lidar_scan", "rasterize_discs",
-    "perimeter_loop", "random_imaging_points", "traverse",
+    # trajectories and control
+    "perimeter_loop", "random_imaging_points", "traverse", "lawnmower",
     "ControllerGains", "FollowResult", "waypoint_controller", "follow_waypoints",
+    # occlusion (P §4.4.1)
+    "disc_visibility", "target_visibility", "occluder_table", "local_target_visibility",
+    "segment_distance", "segment_visibility",
+    # corridor worlds (B ch. 6)
+    "INTERSECTIONS", "intersection_rectangles", "plus_image", "render_free_rectangles",
+    "room_doorway_rectangles",
 ]
-
-# Q-Link additions (P §4.4.1): lawnmower mapping sweep, partial disc occlusion, wall segments.
-from pqrm_jax.sim import coverage, occlusion  # noqa: E402
-from pqrm_jax.sim.coverage import lawnmower  # noqa: E402
-from pqrm_jax.sim.occlusion import (  # noqa: E402
-    disc_visibility,
-    local_target_visibility,
-    occluder_table,
-    segment_distance,
-    segment_visibility,
-    target_visibility,
-)
-
-__all__ += ["coverage", "occlusion", "lawnmower", "disc_visibility", "target_visibility",
-            "occluder_table", "local_target_visibility", "segment_distance",
-            "segment_visibility"]
-
-# HSSH additions (B ch. 6): corridor-network occupancy worlds.
-from pqrm_jax.sim import corridors  # noqa: E402
-from pqrm_jax.sim.corridors import (  # noqa: E402
-    INTERSECTIONS,
-    intersection_rectangles,
-    plus_image,
-    render_free_rectangles,
-    room_doorway_rectangles,
-)
-
-__all__ += ["corridors", "INTERSECTIONS", "intersection_rectangles", "plus_image",
-            "render_free_rectangles", "room_doorway_rectangles"]

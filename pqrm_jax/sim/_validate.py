@@ -75,5 +75,12 @@ def check_count(name: str, n: Any, minimum: int = 0) -> int:
 
 
 def wrap_angle(a: jax.Array) -> jax.Array:
-    """Wrap angles to ``[-pi, pi)``."""
+    """Wrap angles to ``[-pi, pi)``.
+
+    Args:
+        a: angles (radians), any shape.
+
+    Returns:
+        The wrapped angles, same shape.
+    """
     return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi

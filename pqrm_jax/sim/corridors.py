@@ -138,6 +138,15 @@ def room_doorway_rectangles(width: float = 0.2, room: float = 0.6,
     mid height. A room wholly inside the grid would have no frontier exit, and B's pruning
     (§6.1.1) rightly drops its branch.
 
+    Args:
+        width: corridor width (fraction of the image side).
+        room: room height.
+        door: doorway width.
+
+    Returns:
+        ``list`` of free rectangles ``(cx, cy, length, width, angle_rad)`` in unit-square
+        coordinates (:func:`render_free_rectangles`).
+
     >>> len(room_doorway_rectangles())
     3
     """
@@ -155,6 +164,14 @@ def plus_image(side: int, rotation_deg: float = 0.0, supersample: int = 4) -> ja
 
     Four arms of width ``1/3`` of the side meet at the centre; the drawing is the same for
     every size (only the resolution changes) and is rotated about the image centre.
+
+    Args:
+        side: image size in pixels.
+        rotation_deg: rotation about the centre.
+        supersample: samples per pixel side (anti-aliasing).
+
+    Returns:
+        ``[side, side]`` uint8.
 
     >>> img = plus_image(9)
     >>> (img >= 128).astype(int)[4].tolist(), (img >= 128).astype(int)[0].tolist()

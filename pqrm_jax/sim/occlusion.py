@@ -73,6 +73,14 @@ def occluder_table(landmarks, max_range: float, radius: float | None = None) -> 
     :func:`target_visibility` over all landmarks. Built on the host (``O(N²)``); ``M`` is
     padded to a multiple of 8 so that nearby settings share one compiled width.
 
+    Args:
+        landmarks: ``[N, 2]``.
+        max_range: the sensing range.
+        radius: the disc radius (``None``: the looser ``2·max_range`` bound).
+
+    Returns:
+        ``[N, M]`` int32 occluder ids, ``-1`` padded.
+
     >>> lm = np.array([[0., 0.], [3., 0.], [10., 0.]])
     >>> tab = occluder_table(lm, 2.0)
     >>> tab.shape, tab[:, :2].tolist()
@@ -138,6 +146,18 @@ def local_target_visibility(pos: jax.Array, landmarks: jax.Array, targets: jax.A
 def disc_visibility(pos: jax.Array, landmarks: jax.Array, max_range, radius) -> jax.Array:
     """Visibility ``[N]`` of every landmark from ``pos`` under the partial-disc rule.
 
+    Landmarks are discs of ``radius``; one is hidden when nearer discs cover its whole
+    angular extent (P §4.4.1).
+
+    Args:
+        pos: ``[2]`` the observer.
+        landmarks: ``[N, 2]``.
+        max_range: the sensing range.
+        radius: the landmark disc radius.
+
+    Returns:
+        ``[N]`` bool.
+
     >>> lm = jnp.array([[10., 0.], [5., 0.2], [0., 30.]])
     >>> disc_visibility(jnp.zeros(2), lm, 20.0, 0.3).tolist()
     [False, True, False]
@@ -147,6 +167,13 @@ def disc_visibility(pos: jax.Array, landmarks: jax.Array, max_range, radius) -> 
 
 def segment_distance(pos: jax.Array, segments: jax.Array) -> jax.Array:
     """Euclidean distance ``[S]`` from ``pos`` to each wall segment ``segments [S, 2, 2]``.
+
+    Args:
+        pos: ``[2]``.
+        segments: ``[S, 2, 2]`` end points.
+
+    Returns:
+        ``[S]``.
 
     >>> segment_distance(jnp.array([1., 2.]), jnp.array([[[0., 0.], [4., 0.]]])).tolist()
     [2.0]
@@ -159,6 +186,16 @@ def segment_distance(pos: jax.Array, segments: jax.Array) -> jax.Array:
 
 def segment_visibility(pos: jax.Array, segments: jax.Array, max_range) -> jax.Array:
     """An extended (wall) landmark ``[S, 2, 2]`` is seen when any of its points is in range.
+
+    Walls of P §4.4.1 are never occluded.
+
+    Args:
+        pos: ``[2]``.
+        segments: ``[S, 2, 2]`` end points.
+        max_range: the sensing range.
+
+    Returns:
+        ``[S]`` bool.
 
     >>> segment_visibility(jnp.array([1., 2.]), jnp.array([[[0., 0.], [4., 0.]]]), 1.5).tolist()
     [False]

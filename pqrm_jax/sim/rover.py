@@ -72,7 +72,15 @@ def _sinc(u):
 
 
 def clip_control(control: jax.Array, params: RoverParams) -> jax.Array:
-    """Clip ``(v, omega)`` to ``[-max_speed, max_speed] x [-max_turn_rate, max_turn_rate]``."""
+    """Clip ``(v, omega)`` to ``[-max_speed, max_speed] x [-max_turn_rate, max_turn_rate]``.
+
+    Args:
+        control: ``[2]`` ``(v, omega)`` (or ``[..., 2]``).
+        params: the rover's limits.
+
+    Returns:
+        The clipped control, same shape.
+    """
     control = as_float(control)
     lim = jnp.stack([jnp.asarray(params.max_speed, control.dtype),
                      jnp.asarray(params.max_turn_rate, control.dtype)])

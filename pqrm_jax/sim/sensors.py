@@ -181,6 +181,13 @@ def _prepare(pose, landmarks, params):
 def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
     """Landmark positions ``[N, 2]`` in the robot frame (x forward, y left), noise-free.
 
+    Args:
+        pose: ``[3]`` ``(x, y, theta)``.
+        landmarks: ``[N, 2]`` world positions.
+
+    Returns:
+        ``[N, 2]``.
+
     >>> relative_positions(jnp.array([1.0, 0.0, jnp.pi / 2]), jnp.array([[1.0, 2.0]])).round(4)
     Array([[ 2., -0.]], dtype=float32)
     """
@@ -189,7 +196,18 @@ def relative_positions(pose: jax.Array, landmarks: jax.Array) -> jax.Array:
 
 
 def visibility(pose: jax.Array, landmarks: jax.Array, params: SensorParams) -> jax.Array:
-    """Boolean ``[N]`` visibility mask: range & field of view & occlusion."""
+    """Boolean ``[N]`` visibility mask: range & field of view & occlusion.
+
+    Range, field of view and occlusion of P §2.3.1 (docs/sim.md).
+
+    Args:
+        pose: ``[3]`` ``(x, y, theta)``.
+        landmarks: ``[N, 2]`` world positions.
+        params: the sensor.
+
+    Returns:
+        ``[N]`` bool.
+    """
     pose, landmarks, params = _prepare(pose, landmarks, params)
     return _visibility_jit(pose, landmarks, params)
 

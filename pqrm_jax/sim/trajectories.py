@@ -285,6 +285,15 @@ def waypoint_controller(
     ``[-pi, pi)``), ``v = k_v * distance * max(cos e, 0)`` (turn on the spot when the waypoint
     is behind), both clipped to the rover's limits. Converges for ``k_v * dt < 1``.
 
+    Args:
+        pose: ``[3]`` ``(x, y, theta)``.
+        waypoint: ``[2]``.
+        gains: controller gains (default ``ControllerGains()``).
+        params: the rover (its limits; default ``RoverParams()``).
+
+    Returns:
+        ``[2]`` control ``(v, omega)``.
+
     >>> waypoint_controller(jnp.zeros(3), jnp.array([1.0, 0.0])).tolist()
     [1.0, 0.0]
     """
@@ -333,6 +342,18 @@ def follow_waypoints(
 
     A waypoint counts as reached when the rover is within ``tol`` of it; the controller then
     moves on to the next one, and the rover stops (zero control) after the last.
+
+    Args:
+        state: the rover's start.
+        waypoints: ``[W, 2]``.
+        params: the rover (default ``RoverParams()``).
+        n_steps: simulation steps (static).
+        tol: reach distance.
+        gains: controller gains.
+
+    Returns:
+        :class:`FollowResult` (poses ``[n_steps + 1, 3]``, targets ``[n_steps]``, waypoints
+        reached).
 
     >>> from pqrm_jax.sim.rover import reset
     >>> s = reset(jax.random.key(0), pose=jnp.zeros(3))

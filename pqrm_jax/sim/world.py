@@ -142,6 +142,16 @@ def hallway_landmarks(
     on the right wall, at x positions uniform along the hallway, each displaced by isotropic
     Gaussian noise of std ``jitter``.
 
+    Args:
+        key: PRNG key.
+        n: number of landmarks.
+        length, width: the hallway's size (world units).
+        jitter: std of the isotropic displacement.
+        origin: ``(x, y)`` of the hallway's start.
+
+    Returns:
+        ``[n, 2]`` float32 positions.
+
     >>> lm = hallway_landmarks(jax.random.key(0), 200, length=20.0, width=2.0, jitter=0.0)
     >>> sorted(set(lm[:, 1].tolist()))
     [-1.0, 1.0]
@@ -188,6 +198,17 @@ def corridor_grid_landmarks(
     gets ``per_side`` evenly spaced landmarks on each of its two walls, displaced by Gaussian
     noise of std ``jitter``. The number of landmarks is
     ``2 * per_side * (n_x * (n_y + 1) + n_y * (n_x + 1))``.
+
+    Args:
+        key: PRNG key.
+        n_x, n_y: corridors along y and along x (``n_x + 1`` and ``n_y + 1`` lines).
+        spacing: distance between parallel corridors.
+        width: corridor width.
+        per_side: landmarks per wall of each segment.
+        jitter: std of the isotropic displacement.
+
+    Returns:
+        ``[2·per_side·(n_x(n_y + 1) + n_y(n_x + 1)), 2]`` float32 positions.
 
     >>> corridor_grid_landmarks(jax.random.key(0), n_x=2, n_y=1, per_side=2).shape
     (28, 2)

@@ -64,7 +64,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 __all__ = ["Cluster", "DistributedError", "add_arguments", "agree", "broadcast", "current",
-           "decide", "gather", "initialize", "initialize_from", "map_units", "share"]
+           "decide", "finish", "gather", "initialize", "initialize_from", "map_units",
+           "share"]
 
 _ADDRESS = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):(\d{1,5})$")
 
@@ -253,12 +254,34 @@ def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
                         c.sendall(b"E")
                     raise DistributedError(f"refused a process on {coordinator}: {problem}")
                 peers[their_id] = conn
+            # a second port for the watch channels (the coordinator's port goes to JAX)
+            watch_srv = socket.create_server(("", 0))
+            watch_port = watch_srv.getsockname()[1]
             for c in peers.values():
-                c.sendall(b"K")
+                c.sendall(b"K" + struct.pack("!i", watch_port))
         finally:
             for c in peers.values():
                 c.close()
             srv.close()
+        try:
+            chans: dict[int, socket.socket] = {}
+            while len(chans) < n - 1:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise DistributedError(f"processes {sorted(set(range(1, n)) - set(chans))} "
+                                           "did not open their watch channel to process 0")
+                watch_srv.settimeout(left)
+                try:
+                    conn, _ = watch_srv.accept()
+                    conn.settimeout(max(deadline - time.monotonic(), 0.1))
+                    (their_id,) = struct.unpack("!i", conn.recv(4, socket.MSG_WAITALL))
+                except (OSError, struct.error):
+                    continue
+                conn.settimeout(None)
+                chans[their_id] = conn
+        finally:
+            watch_srv.close()
+        _WATCH.start(0, n, chans)
         return
     while True:
         try:
@@ -275,7 +298,9 @@ def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
         conn.settimeout(max(deadline - time.monotonic(), 1.0))
         conn.sendall(struct.pack("!ii", pid, n))
         answer = conn.recv(1)
-    except OSError as exc:
+        if answer == b"K":
+            (watch_port,) = struct.unpack("!i", conn.recv(4, socket.MSG_WAITALL))
+    except (OSError, struct.error) as exc:
         raise DistributedError(f"process {pid}: the coordinator {coordinator} did not confirm "
                                f"within {timeout_s:g} s ({exc})") from exc
     finally:
@@ -284,6 +309,122 @@ def _rendezvous(coordinator: str, n: int, pid: int, timeout_s: float) -> None:
         raise DistributedError(f"process {pid} was refused by the coordinator {coordinator} "
                                "(another process has this id, or the process counts differ; "
                                "see process 0's error)")
+    try:
+        chan = socket.create_connection((host, watch_port),
+                                        timeout=max(deadline - time.monotonic(), 1.0))
+        chan.sendall(struct.pack("!i", pid))
+        chan.settimeout(None)
+    except OSError as exc:
+        raise DistributedError(f"process {pid} could not open its watch channel to process 0 "
+                               f"on {host}:{watch_port} ({exc})") from exc
+    _WATCH.start(pid, n, {0: chan})
+
+
+class _Watch:
+    """Every process of a run watches its peers, so that one dying ends the others quickly.
+
+    Process 0 holds a TCP channel to every other process (opened at the rendezvous, on a
+    port of its own); each side reads its channels in daemon threads. A channel closing
+    without a goodbye (the process was killed, crashed) or with an error goodbye ends this
+    process at once with exit code 2 and one line naming the process that died, instead of
+    waiting in a collective (gloo) for a peer that never comes; process 0 first tells the
+    other processes which one died. :func:`finish` says goodbye (the CLI calls it; an
+    ``atexit`` hook does it for scripts: clean unless an exception went uncaught).
+    """
+
+    BYE, FAILED, DIED, FAILED_FWD = b"B", b"X", b"D", b"Y"
+
+    def __init__(self) -> None:
+        import threading
+
+        self.lock = threading.Lock()
+        self.chans: dict = {}
+        self.pid, self.n, self.done = 0, 1, False
+        self.failed = False
+
+    def start(self, pid: int, n: int, chans: dict) -> None:
+        import atexit
+        import sys
+        import threading
+
+        self.pid, self.n, self.chans, self.done = pid, n, dict(chans), False
+        prev = sys.excepthook
+
+        def hook(*exc):  # an uncaught exception: the goodbye says "failed"
+            self.failed = True
+            prev(*exc)
+
+        sys.excepthook = hook
+        atexit.register(lambda: self.finish(not self.failed))
+        for q, conn in chans.items():
+            threading.Thread(target=self._read, args=(q, conn), daemon=True,
+                             name=f"pqrm-watch-{q}").start()
+
+    def _read(self, q: int, conn) -> None:
+        import socket
+        import struct
+
+        try:
+            msg = conn.recv(1)
+            if msg in (self.DIED, self.FAILED_FWD):
+                (dead,) = struct.unpack("!i", conn.recv(4, socket.MSG_WAITALL))
+                return self._end(dead, msg == self.DIED)
+        except (OSError, struct.error):
+            msg = b""
+        if msg == self.BYE:
+            return None
+        return self._end(q, msg != self.FAILED)
+
+    def _end(self, q: int, died: bool) -> None:
+        import struct
+        import sys
+        import time
+
+        if not died:  # it failed with its own message: let this process end on its own first
+            for _ in range(100):
+                if self.done:
+                    return
+                time.sleep(0.1)
+        how = "died" if died else "ended with an error"
+        with self.lock:
+            if self.done:
+                return
+            self.done = True
+            if self.pid == 0:  # tell the others which process it was
+                for r, c in self.chans.items():
+                    if r != q:
+                        try:
+                            c.sendall((self.DIED if died else self.FAILED_FWD)
+                                      + struct.pack("!i", q))
+                        except OSError:
+                            pass
+        sys.stderr.write(f"pqrm-jax: error: process {q} of {self.n} {how}; process "
+                         f"{self.pid} ends too (restart every process to resume)\n")
+        sys.stderr.flush()
+        from os import _exit  # documented stdlib API: the one way to end a process from a thread
+
+        _exit(2)
+
+    def finish(self, ok: bool = True) -> None:
+        with self.lock:
+            if self.done or not self.chans:
+                return
+            self.done = True
+            for c in self.chans.values():
+                try:
+                    c.sendall(self.BYE if ok else self.FAILED)
+                except OSError:
+                    pass
+
+
+_WATCH = _Watch()
+
+
+def finish(ok: bool = True) -> None:
+    """Say goodbye to the other processes of a multi-process run (see :class:`_Watch`):
+    ``ok=False`` makes them end with exit code 2 naming this process. Idempotent; a no-op
+    in a one-process run."""
+    _WATCH.finish(ok)
 
 
 def initialize_from(args, env: Mapping[str, str] | None = None) -> Cluster:

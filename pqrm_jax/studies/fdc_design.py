@@ -16,11 +16,16 @@ are split over the processes and process 0 writes them.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import sys
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from . import protocol
 
 NAME = "fdc-design"
 HELP = "FDC mapper 4-landmark / 7-image design (MT ch. 1): fully constrained at the end"
@@ -68,80 +73,156 @@ def search(calc: str = "double_cross", images: int = 7, candidates: int = 256,
     return np.stack(chosen), rows, open_states, m
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="out/fdc-design")
-    p.add_argument("--calc", default="double_cross")
-    p.add_argument("--runs", type=int, default=8, help="independent searches (seeds)")
-    p.add_argument("--reduced", action="store_true", help="2 searches")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Every setting of the design search (each knob's reason in :data:`REASONS`)."""
 
-    distributed.add_arguments(p)
+    calc: str = "double_cross"
+    runs: int = 8
+    images: int = 7
+    candidates: int = 256
+    min_free: int = 3
+    seed: int = 0
+
+    def to_json(self) -> dict:
+        """The JSON form stored in ``config.json``."""
+        return protocol.config_json(self)
+
+
+REASONS = {
+    "calc": "the open 6-state FDC of MT ch. 1 (dcc: the boundary-inclusive version)",
+    "runs": "independent greedy searches, seeds seed..seed+runs-1 (only selects units)",
+    "images": "MT's 7 imaging points",
+    "candidates": "random candidate poses per image, each scored by one vmap-ed map update",
+    "min_free": "MT: no edge fully constrained before the fourth image (images 1-3 free)",
+    "seed": "the first search's seed",
+}
+
+PRESETS: dict[str, dict] = {"tiny": {"runs": 1, "candidates": 64},
+                            "reduced": {"runs": 2}, "full": {}}
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
+    p.add_argument("--calc", default=None, help="calculus (default double_cross)")
+    p.add_argument("--runs", type=protocol.positive_int, default=None,
+                   help="independent searches (seeds; default 8, reduced 2)")
+    p.add_argument("--candidates", type=protocol.positive_int, default=None,
+                   help="candidate poses per image (default 256)")
     a = p.parse_args(argv)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a,
+                                {"calc": "calc", "runs": "runs", "candidates": "candidates"},
+                                overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    if cfg.images < 1 or not 0 <= cfg.min_free < cfg.images:
+        p.error(f"images must be ≥ 1 and 0 ≤ min_free < images, got {cfg.images}, "
+                f"{cfg.min_free}")
+    return cfg, a
 
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every search not yet stored (``searches.jsonl``, one record per seed, appended as it
+    arrives), split over the processes; then ``design.json`` and ``results.csv``."""
     from . import distributed
     from .store import Store, tidy_rows
 
-    runs = 2 if a.reduced else a.runs
-    if runs < 1:
-        p.error(f"--runs must be ≥ 1, got {runs}")
-    out = Path(a.out)
-    cluster = distributed.initialize_from(a)  # before any JAX computation
-    distributed.agree(cluster, {"calc": a.calc, "runs": runs}, f"{NAME} config")
-    st = None
+    cluster = cluster or distributed.current()
+    distributed.agree(cluster, cfg.to_json(), f"{NAME} config")
+    seeds = list(range(cfg.seed, cfg.seed + cfg.runs))
+    st = log = None
 
-    def open_store():
-        nonlocal st
-        st = Store.open(out, NAME, {"calc": a.calc}, legacy=(
-            "design.json", "report.md", "fdc_design.png", "config.json", "study.json",
-            "results.csv"))
-        return []
+    def left():  # process 0: open the store, the seeds not stored yet
+        nonlocal st, log
+        st = Store.open(out, NAME, dict(cfg.to_json(), reasons=REASONS), fresh=fresh,
+                        selection=("runs",), legacy=(
+                            "design.json", "report.md", "fdc_design.png", "config.json",
+                            "study.json", "results.csv"))
+        log = st.records("searches.jsonl", key=lambda r: r["seed"],
+                         required=("seed", "rows", "fully_constrained_end"))
+        return [s not in log for s in seeds]
 
     try:
-        distributed.decide(cluster, 0, open_store)  # process 0 opens the store (or all fail)
-        results = _searches(a.calc, runs, a.no_progress, st, cluster)
-        if st is None:  # other processes: the same verdict as process 0's
-            return 0 if any(r["fully_constrained_end"] and r["none_before_fourth"]
-                            for r in results) else 1
-        code = _write(out, a.calc, runs, results, st)
+        todo = [s for s, m in zip(seeds, distributed.decide(cluster, len(seeds), left),
+                                  strict=True) if m]
+        from tqdm.auto import tqdm
+
+        done = distributed.map_units(lambda s: _search_record(cfg, s), todo, cluster,
+                                     codec="json")
+        for _, r in tqdm(done, total=len(todo), desc=NAME,
+                         disable=quiet or not cluster.is_main):
+            if log is not None:
+                log.add(r)
+        if st is None:
+            return
+        results = [log.get(s) for s in seeds]
+        st.write_json("design.json", results)
         st.write_results_csv(tidy_rows(results, unit=lambda r: f"seed_{r['seed']}",
                                        skip=("seed", "poses")))
     finally:
         if st is not None:
             st.close()
-    return code
 
 
-def _search_record(calc: str, s: int) -> dict:
+def _search_record(cfg: Config, s: int) -> dict:
     """The stored record of the greedy search with seed ``s``."""
-    poses, rows, open_states, _ = search(calc, seed=s)
+    poses, rows, open_states, _ = search(cfg.calc, cfg.images, cfg.candidates, seed=s,
+                                         min_free=cfg.min_free)
     c = [r["constrained_pct"] for r in rows]
     return {"seed": s, "poses": poses.tolist(), "rows": rows,
             "open_pct_of_all_states": [float(x) for x in open_states],
             "fully_constrained_end": c[-1] >= 100.0,
-            "none_before_fourth": all(x == 0 for x in c[:3]),
+            "none_before_fourth": all(x == 0 for x in c[:cfg.min_free]),
             "first_constrained_image": next((i + 1 for i, x in enumerate(c) if x > 0), None)}
 
 
-def _searches(calc: str, runs: int, no_progress: bool, st, cluster=None) -> list[dict]:
-    """Every search's record (split over the processes of ``cluster``); process 0 stores."""
-    from tqdm.auto import tqdm
+def _design(out: Path) -> list[dict]:
+    from .store import StudyError
 
-    from . import distributed
-
-    cluster = cluster or distributed.current()
-    done = distributed.map_units(lambda s: _search_record(calc, s), list(range(runs)),
-                                 cluster, codec="json")
-    results = [r for _, r in tqdm(done, total=runs, desc=NAME,
-                                  disable=no_progress or not cluster.is_main)]
-    if st is not None:
-        st.write_json("design.json", results)
-    return results
+    path = Path(out) / "design.json"
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        raise StudyError(f"{out} holds no finished {NAME} results (design.json); run the "
+                         "study first") from None
 
 
-def _write(out: Path, calc: str, runs: int, results: list[dict], st) -> int:
-    """Figure and ``report.md`` of the searches; 0 when one design has both MT properties."""
+def claims(out: Path) -> list[protocol.Claim]:
+    """MT ch. 1: the 7-image design fully constrains the map, and no edge is fully
+    constrained before the fourth image."""
+    results = _design(out)
+    n = len(results)
+    both = sum(r["fully_constrained_end"] and r["none_before_fourth"] for r in results)
+    end = sum(r["fully_constrained_end"] for r in results)
+    return [
+        protocol.Claim("a design with both MT properties exists",
+                       "fully constrained after image 7, none before image 4 (MT Fig. 1.6a)",
+                       both, (1, n), protocol.verdict_in(both, 1, n)),
+        protocol.Claim("searches ending fully constrained", "the 7-image map is fully "
+                       "constrained", end, (1, n), protocol.verdict_in(end, 1, n)),
+    ]
+
+
+def report(out: Path) -> Path:
+    """``fdc_design.png`` and ``report.md`` from ``design.json``."""
+    results = _design(out)
+    _write(Path(out), results, claims(out))
+    return Path(out) / "report.md"
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])
+main = protocol.main_for(sys.modules[__name__])
+
+
+def _write(out: Path, results: list[dict], cs: list) -> None:
+    """Figure and ``report.md`` of the searches (and the claims table)."""
+    from .store import atomic_savefig, atomic_write_text
+
+    cfg = json.loads((out / "config.json").read_text())
+    calc, runs = cfg["calc"], len(results)
     ok = [r for r in results if r["fully_constrained_end"] and r["none_before_fourth"]]
     best = ok[0] if ok else results[0]
     import matplotlib
@@ -166,18 +247,17 @@ def _write(out: Path, calc: str, runs: int, results: list[dict], st) -> int:
     ax[1].legend()
     ax[1].set_title("MT Fig. 1.6a analogue")
     fig.tight_layout()
-    fig.savefig(st.path("fdc_design.png"), dpi=110)
+    atomic_savefig(fig, out / "fdc_design.png", dpi=110)
     plt.close(fig)
     lines = [f"# {NAME}: FDC 4-landmark / 7-image design (MT ch. 1)", "",
              f"Calculus `{calc}`; {runs} greedy searches, {len(ok)} satisfy both MT "
              "properties (fully constrained after image 7; no edge fully constrained before "
-             "image 4).", "", "![design](fdc_design.png)", "",
+             "image 4).", "", "## Claims", "", *protocol.claims_table(cs), "",
+             "![design](fdc_design.png)", "",
              "| seed | constrained % per image | open % per image | ok |", "|---|---|---|---|"]
     for r in results:
         cons = ", ".join(f"{x['constrained_pct']:.0f}" for x in r["rows"])
         opn = ", ".join(f"{x:.0f}" for x in r["open_pct_of_all_states"])
         good = r["fully_constrained_end"] and r["none_before_fourth"]
         lines.append(f"| {r['seed']} | {cons} | {opn} | {good} |")
-    st.write_text("report.md", "\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if ok else 1
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")

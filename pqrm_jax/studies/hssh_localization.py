@@ -43,9 +43,11 @@ ROUTE = [(0.1, 0.65), (0.35, 0.65), (0.35, 0.25), (0.75, 0.25), (0.75, 0.65), (0
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pqrm-jax study hssh-localization", description=HELP)
-    p.add_argument("--out", default="results/hssh-localization")
+    p.add_argument("--out", default="out/hssh-localization")
     p.add_argument("--reduced", action="store_true", help="40 steps per run (default 400)")
-    p.add_argument("--steps", type=int, default=None, help="steps per run")
+    from .protocol import positive_int
+
+    p.add_argument("--steps", type=positive_int, default=None, help="steps per run")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kld", action="store_true",
                    help="also run the five algorithms with KLD-sampling (extra rows; the "
@@ -54,7 +56,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="also run the KLD filters at an equal particle budget (implies --kld): "
                         "at each step every method scores at most the fewest particles any "
                         "of PF, shrink, grow, shrink-and-grow scored there with KLD")
-    from . import distributed
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bar (--quiet: deprecated alias)")
 
     distributed.add_arguments(p)
     return p
@@ -179,6 +185,11 @@ def main(argv: list[str] | None = None) -> int:
     from . import distributed
 
     cluster = distributed.initialize_from(args)  # before any JAX computation
+
+    from . import protocol
+
+
+    protocol.fresh_start(args, out, NAME, cluster, legacy=())
     distributed.agree(cluster, cfg, f"{NAME} config")
     # the five published algorithms as B ran them (full blocks), then the same with KLD
     args.kld = args.kld or args.equal_budget
@@ -216,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
 
         for i, rec in tqdm(distributed.map_units(one, todo, cluster, codec="json"),
                            total=len(todo), desc="hssh-localization", unit="unit",
-                           disable=not cluster.is_main):
+                           disable=args.no_progress or not cluster.is_main):
             if st is not None:
                 st.write_json(_unit_name(*todo[i]), rec)  # atomic
         if st is None:

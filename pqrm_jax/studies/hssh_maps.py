@@ -565,11 +565,16 @@ def main(argv: list[str]) -> int:
     from .store import Store, tidy_rows
 
     ap = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--out", default="out/hssh-maps", type=Path,
+                    help="the study directory (default out/hssh-maps)")
     ap.add_argument("--reduced", action="store_true", help="4 small worlds (CI, < 1 min)")
     ap.add_argument("--seed", type=int, default=18)
     ap.add_argument("--worlds", type=int, help="run/report only the first N worlds (resumable)")
-    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--no-progress", "--quiet", action="store_true",
+                    help="no progress bars (--quiet: deprecated alias)")
+    from . import protocol
+
+    protocol.add_fresh(ap)
     distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
@@ -579,6 +584,7 @@ def main(argv: list[str]) -> int:
         cfg["worlds"] = a.worlds
     n_worlds = cfg["worlds"]
     cluster = distributed.initialize_from(a)  # before any JAX computation
+    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
     distributed.agree(cluster, cfg, f"{NAME} config")
     # simulator world 0 first: item 0 of the units left always falls to process 0, which
     # draws its map figure

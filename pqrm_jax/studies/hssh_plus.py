@@ -63,7 +63,7 @@ PUBLISHED = {
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pqrm-jax study hssh-plus", description=HELP)
-    p.add_argument("--out", default="results/hssh-plus", help="output directory")
+    p.add_argument("--out", default="out/hssh-plus", help="output directory")
     p.add_argument("--reduced", action="store_true",
                    help="small corpus (2 rotations x 2 sizes x 2 noise levels)")
     p.add_argument("--sizes", default=None,
@@ -87,8 +87,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--memory-bytes", type=int, default=None,
                    help="device memory the chunk is sized for and checked against (default: "
                         "what the device reports)")
-    from . import distributed
+    from . import distributed, protocol
 
+    protocol.add_fresh(p)
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bar (--quiet: deprecated alias)")
     distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
 
@@ -284,37 +287,22 @@ def _shared_todo(todo: list | None, cluster) -> list:
     return [(int(s), r / 1000.0) for s, r in arr.tolist()]
 
 
-def _compute(todo: list, cfg: dict, cluster, st) -> None:
-    """Run the units; with ``K`` processes process ``p`` computes units ``i = p mod K`` and
-    process 0 alone writes them (records gathered as JSON bytes, one round of ``K`` units at a
-    time). Units are deterministic, so the stored records equal a one-process run's (except
-    the measured ``seconds``)."""
-    import json
-
+def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
+    """Run the units; with ``K`` processes :func:`distributed.map_units` splits them (unit
+    ``i`` on process ``i mod K``, rounds of ``K``, errors exchanged: a unit that fails on one
+    process ends every process with its message) and process 0 alone writes them. Units are
+    deterministic, so the stored records equal a one-process run's (except the measured
+    ``seconds``)."""
     from tqdm import tqdm
 
     from . import distributed
 
-    if not cluster.distributed:
-        for side, rot in tqdm(todo, desc="hssh-plus", unit="unit"):
-            # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(side, rot), {"records": run_unit(side, rot, cfg)})
-        return
-    k, p = cluster.num_processes, cluster.process_id
-    rounds = range(-(-len(todo) // k))
-    for rnd in tqdm(rounds, desc=f"hssh-plus x{k}", unit="round", disable=not cluster.is_main):
-        i = rnd * k + p
-        mine = json.dumps(run_unit(*todo[i], cfg)).encode() if i < len(todo) else b""
-        lens = distributed.gather(np.array([len(mine)], np.int32), cluster)[:, 0]
-        buf = np.zeros(max(int(lens.max()), 1), np.uint8)
-        buf[:len(mine)] = np.frombuffer(mine, np.uint8)
-        every = distributed.gather(buf, cluster)
+    done = distributed.map_units(lambda u: run_unit(*u, cfg), todo, cluster, codec="json")
+    for j, recs in tqdm(done, total=len(todo), desc=f"hssh-plus x{cluster.num_processes}",
+                        unit="unit", disable=quiet or not cluster.is_main):
         if cluster.is_main:
-            for q in range(k):
-                j = rnd * k + q
-                if j < len(todo):
-                    recs = json.loads(every[q, :int(lens[q])].tobytes().decode())
-                    st.write_json(_unit_name(*todo[j]), {"records": recs})
+            # atomic (temp file + os.replace): a killed run leaves no half unit
+            st.write_json(_unit_name(*todo[j]), {"records": recs})
 
 
 SHAPE_SIZES = [s for s in SIZES if 39 <= s <= 299]
@@ -450,6 +438,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.chunk_cells is not None and args.chunk_cells < 1:
         raise SystemExit("--chunk-cells must be positive")
     cluster = distributed.initialize_from(args)  # before any JAX computation
+    from . import protocol
+
+    protocol.fresh_start(args, out, NAME, cluster, legacy=())
     distributed.agree(cluster, cfg_all, "hssh-plus configuration")
     cells = chunk_cells(args.chunk_cells, out, sizes, cfg, cluster, args.memory_bytes)
     cfg["layout"] = cfg_all["layout"] = {"chunk_cells": cells}
@@ -466,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
                 if st.read_json(_unit_name(s, r), ("records",), check) is None]
         todo = _shared_todo(todo, cluster)
         t_start = time.perf_counter()
-        _compute(todo, cfg, cluster, st)
+        _compute(todo, cfg, cluster, st, quiet=args.no_progress)
         wall = time.perf_counter() - t_start
         rows = []
         for path in sorted((out / "units").glob("s*_r*.json")):

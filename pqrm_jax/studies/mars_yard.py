@@ -167,20 +167,28 @@ def _plots(out: Path, cfg: Config, tr: dict, nav: dict):
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
     p.add_argument("--out", default="out/mars-yard")
-    p.add_argument("--runs", type=int, help="number of traverses (default 5)")
-    p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+    from .protocol import positive_int
 
+    p.add_argument("--runs", type=positive_int, help="number of traverses (default 5)")
+    p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bars (--quiet: deprecated alias)")
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
+    p.add_argument("--seed", type=protocol.nonneg_int, help="root seed (default 0)")
     distributed.add_arguments(p)
     a = p.parse_args(argv)
 
     cfg = Config(**REDUCED) if a.reduced else Config()
+    if a.seed is not None:
+        cfg.seed = a.seed
     if a.runs is not None:
         if a.runs < 1:
             p.error(f"--runs must be ≥ 1, got {a.runs}")
         cfg.traverses = a.runs
     cluster = distributed.initialize_from(a)  # before any JAX computation
+    protocol.fresh_start(a, a.out, NAME, cluster, legacy=LEGACY)
     run_study(cfg, Path(a.out), no_progress=a.no_progress, cluster=cluster)
     return 0
 

@@ -321,19 +321,26 @@ def report(out: Path, cfg: Config) -> dict:
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
     p.add_argument("--out", default="out/mcclelland-mc")
-    p.add_argument("--runs", type=int)
-    p.add_argument("--images", type=int)
-    p.add_argument("--ns", type=int, nargs="+")
-    p.add_argument("--exact-sample", type=int, dest="exact_sample",
+    from .protocol import nonneg_int, positive_int
+
+    p.add_argument("--runs", type=positive_int)
+    p.add_argument("--images", type=positive_int)
+    p.add_argument("--ns", type=positive_int, nargs="+")
+    p.add_argument("--exact-sample", type=nonneg_int, dest="exact_sample",
                    help="first-image triples per n decided exactly (z3) for the report")
     p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
     p.add_argument("--report-only", action="store_true")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bars (--quiet: deprecated alias)")
+    from . import distributed, protocol
 
+    protocol.add_fresh(p)
+    p.add_argument("--seed", type=nonneg_int, help="root seed (default 0)")
     distributed.add_arguments(p)
     a = p.parse_args(argv)
     cfg = Config(**REDUCED) if a.reduced else Config()
+    if a.seed is not None:
+        cfg.seed = a.seed
     for k in ("runs", "images", "exact_sample"):
         if getattr(a, k) is not None:
             setattr(cfg, k, getattr(a, k))
@@ -350,6 +357,7 @@ def main(argv: list[str]) -> int:
             summary = report(out, cfg)
     else:
         cluster = distributed.initialize_from(a)  # before any JAX computation
+        protocol.fresh_start(a, out, NAME, cluster, legacy=LEGACY)
         run_study(cfg, out, progress=not a.no_progress, cluster=cluster)
         if not cluster.is_main:
             return 0

@@ -203,7 +203,7 @@ def _make_dense_run_fn(cfg: Config, dists: dict):
         def step(state, inp):
             pose, k = inp
             rel, vis, k_map = _observe_step(k, pose, lm, params)
-            return pq.update(state, k_map, rel, vis, sigma_r), None
+            return pq.update(state, k_map, rel, vis, sigma_r)[0], None
 
         state, _ = jax.lax.scan(step, pq.init(), (poses, keys))
         return run_metrics(lm, state)
@@ -233,7 +233,7 @@ def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
             pose, k = inp  # (3,), (R,)
             rel, vis, k_map = jax.vmap(_observe_step, in_axes=(0, None, 0, 0))(
                 k, pose, lm, params)
-            return pq.update_batch(states, k_map, rel, vis, sigma_r, groups=groups), None
+            return pq.update_batch(states, k_map, rel, vis, sigma_r, groups=groups)[0], None
 
         states, _ = jax.lax.scan(step, state0, (poses, jnp.swapaxes(keys, 0, 1)))
         return jax.vmap(run_metrics)(lm, states)
@@ -592,7 +592,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fresh", action="store_true", help="discard results already in --out")
     p.add_argument("--report-only", action="store_true",
                    help="only rewrite report.md and figures from the stored results")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", "--no-progress", action="store_true", help="no progress bar")
     from . import distributed
 
     distributed.add_arguments(p)

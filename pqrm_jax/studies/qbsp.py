@@ -821,7 +821,8 @@ def _dependencies(cfg: dict, models_dir: Path | None):
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--out", default="out/qbsp", type=Path,
+                    help="the study directory (default out/qbsp)")
     g = ap.add_mutually_exclusive_group()
     g.add_argument("--reduced", action="store_true", help="300 environments (2 CPU cores)")
     g.add_argument("--tiny", action="store_true", help="test-size run (8 environments)")
@@ -843,7 +844,11 @@ def main(argv: list[str]) -> int:
                          "in the planner instead of renormalised candidate weights "
                          "(docs/bsp.md §nothing-seen)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
-    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--no-progress", "--quiet", action="store_true",
+                    help="no progress bars (--quiet: deprecated alias)")
+    from . import protocol
+
+    protocol.add_fresh(ap)
     distributed.add_arguments(ap)
     a = ap.parse_args(argv)
     cfg = config_for(a)
@@ -858,6 +863,7 @@ def main(argv: list[str]) -> int:
 
     t_start = time.perf_counter()
     cluster = distributed.initialize_from(a)  # before any JAX computation
+    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
     chunk = cfg.pop("chunk")
     cfg["models_key"] = M.ModelParams(**cfg["models"]).key()
     # the calibrated threshold is a result (calibration.json), not a setting

@@ -287,16 +287,21 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
     p.add_argument("--out", default="out/qlink")
     p.add_argument("--reduced", action="store_true", help="small world, a few settings (<1 min)")
-    p.add_argument("--worlds", type=int, nargs="+", help="world seeds (default 0 1 2)")
-    p.add_argument("--max-pairs", type=int, help="pairs per world (0 = all ordered pairs)")
+    from .protocol import nonneg_int
+
+    p.add_argument("--worlds", type=nonneg_int, nargs="+", help="world seeds (default 0 1 2)")
+    p.add_argument("--max-pairs", type=nonneg_int, help="pairs per world (0 = all ordered pairs)")
     p.add_argument("--chunk", type=lambda v: 0 if v == "auto" else int(v),
                    help="pool lanes per compiled batch, or 'auto' (the default, --reduced: 32): "
                    "sized per world from the device memory, at most 128 on CPU; results do "
                    "not depend on it")
     p.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
                    "sized for (default: what the device reports)")
-    p.add_argument("--no-progress", action="store_true")
-    from . import distributed
+    p.add_argument("--no-progress", "--quiet", action="store_true",
+                   help="no progress bars (--quiet: deprecated alias)")
+    from . import distributed, protocol
+
+    protocol.add_fresh(p)
 
     distributed.add_arguments(p)
     a = p.parse_args(argv)
@@ -312,6 +317,7 @@ def main(argv: list[str]) -> int:
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
     cluster = distributed.initialize_from(a)  # before any JAX computation
+    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
     distributed.agree(cluster, stored, f"{NAME} config")
     st = None
     plan: list[int] = []

@@ -387,12 +387,18 @@ def _figure(cfg, world, rows, out):
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
     p.add_argument("--out", default="out/qlink-invivo")
+    from . import protocol
+
+    protocol.add_fresh(p)
     p.add_argument("--reduced", action="store_true", help="small world, 6 trials (seconds)")
+    p.add_argument("--seed", type=protocol.nonneg_int, help="root seed (default 0)")
     a = p.parse_args(argv)
     cfg = Config(**REDUCED) if a.reduced else Config()
+    if a.seed is not None:
+        cfg = dataclasses.replace(cfg, seed=a.seed)
     stored = dataclasses.asdict(cfg)
     stored["reasons"] = REASONS
-    with Store.open(a.out, NAME, json.loads(json.dumps(stored))) as st:
+    with Store.open(a.out, NAME, json.loads(json.dumps(stored)), fresh=a.fresh) as st:
         log = st.records("settings.jsonl", key=lambda r: r["p_miss"],
                          required=("p_miss", "rows"))
         world = build(cfg)

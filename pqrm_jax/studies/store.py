@@ -332,6 +332,22 @@ def atomic_savefig(fig: Any, path: Path, **kwargs: Any) -> Path:
 # ------------------------------------------------------------------------------------------
 
 
+#: Top-level record fields that hold measured times (``fnmatch`` patterns): they depend on the
+#: machine and its load, so :class:`Records` keeps them in a sidecar ``NAME.times.jsonl`` and
+#: :func:`tidy_rows` leaves them out of ``results.csv``: two identical runs give byte-identical
+#: results files.
+MEASURED = ("*_s", "seconds", "wall", "elapsed")
+
+
+def is_measured(name: str, measured: Iterable[str] = MEASURED) -> bool:
+    """True when the field ``name`` holds a measured time (matches a ``measured`` pattern).
+
+    >>> [is_measured(k) for k in ("explore_s", "seconds", "sigmas", "steps", "wall")]
+    [True, True, False, False, True]
+    """
+    return any(fnmatch.fnmatchcase(name, g) for g in measured)
+
+
 def flatten_metrics(obj: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
     """``(metric, value)`` pairs of the numbers in a nested dict/list (names joined by ``/``).
 
@@ -353,14 +369,20 @@ def flatten_metrics(obj: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
 
 
 def tidy_rows(records: Iterable[dict], unit: Callable[[dict], Any],
-              skip: Iterable[str] = ()) -> list[tuple[str, str, float]]:
-    """``(unit, metric, value)`` rows of records, one per number (``skip``: top-level keys)."""
+              skip: Iterable[str] = (), measured: Iterable[str] = MEASURED
+              ) -> list[tuple[str, str, float]]:
+    """``(unit, metric, value)`` rows of records, one per number (``skip``: top-level keys).
+
+    Top-level fields matching ``measured`` (:data:`MEASURED`, wall times) are left out, so
+    ``results.csv`` does not depend on the machine's speed; pass ``measured=()`` to keep them.
+    """
     skip = set(skip)
+    measured = tuple(measured)
     rows = []
     for rec in records:
         u = str(unit(rec))
-        rows += [(u, m, v) for m, v in flatten_metrics({k: x for k, x in rec.items()
-                                                         if k not in skip})]
+        rows += [(u, m, v) for m, v in flatten_metrics(
+            {k: x for k, x in rec.items() if k not in skip and not is_measured(k, measured)})]
     return rows
 
 
@@ -370,19 +392,39 @@ def tidy_rows(records: Iterable[dict], unit: Callable[[dict], Any],
 
 
 class Records:
-    """The valid records of one JSONL file of a store, by key; :meth:`add` persists atomically.
+    """The valid records of one JSONL file of a store, by key; :meth:`add` appends one line.
 
-    The file is rewritten whole (sorted by key where possible) through a temp file on every
-    :meth:`add`, so it never holds a torn line written by this code.
+    :meth:`add` appends one line (one ``write`` on an ``O_APPEND`` descriptor: O(1) per
+    record, no whole-file rewrite); a kill mid-line leaves a torn last line that the next
+    open names, drops and repairs (the file is rewritten atomically once then). Replacing a
+    record of an existing key, :meth:`discard` and that repair rewrite the file through a temp
+    file. Fields matching ``measured`` (default :data:`MEASURED`: wall times) go to the
+    sidecar ``NAME.times.jsonl`` instead, so the results file holds only results; they are
+    merged back into the records this object returns.
     """
 
     def __init__(self, path: Path, key: Callable[[dict], Any], required: Iterable[str],
-                 check: Callable[[dict], bool] | None):
-        self.path, self.key = path, key
-        self.done, problems = read_jsonl(path, key, required, check)
+                 check: Callable[[dict], bool] | None, measured: Iterable[str] = MEASURED):
+        self.path, self.key = Path(path), key
+        self.measured = tuple(measured)
+        self.times_path = self.path.with_name(self.path.stem + ".times.jsonl")
+        times, _ = read_jsonl(self.times_path, key=lambda r: r["key"], required=("key",))
+        raw, problems = read_jsonl(self.path, key)
+        self.done: dict = {}
+        for k, rec in raw.items():
+            merged = dict(rec, **{f: v for f, v in times.get(repr(k), {}).items()
+                                  if f != "key"})
+            why = _check_record(merged, required, check)
+            if why is not None:
+                problems.append(f"{self.path}: record {k!r}: {why}")
+                continue
+            self.done[k] = merged
+        self._file_keys = list(raw)  # the keys in file order (appends go to the end)
         for p in problems:
             warnings.warn(f"{p}; that unit is recomputed", CorruptRecordWarning, stacklevel=3)
-        if problems:
+        torn = self.path.exists() and self.path.stat().st_size > 0 \
+            and not self.path.read_bytes().endswith(b"\n")
+        if problems or torn or any(self._split(r)[1] for r in raw.values()):
             self._save()
 
     def __contains__(self, k: Any) -> bool:
@@ -407,14 +449,109 @@ class Records:
         except TypeError:
             return list(self.done.values())
 
+    def _split(self, rec: dict) -> tuple[dict, dict]:
+        res = {f: v for f, v in rec.items() if not is_measured(f, self.measured)}
+        return res, {f: v for f, v in rec.items() if is_measured(f, self.measured)}
+
     def add(self, rec: dict) -> dict:
-        """Store ``rec`` (replacing one with the same key) and rewrite the file atomically."""
-        self.done[self.key(rec)] = json.loads(json.dumps(rec))
-        self._save()
+        """Store ``rec``: append its line (a record with the same key is replaced)."""
+        copy = json.loads(json.dumps(rec))
+        k = self.key(copy)
+        replace = k in self.done
+        self.done[k] = copy
+        if replace:
+            self._save()
+            return rec
+        res, times = self._split(copy)
+        if times:
+            _append_line(self.times_path, json.dumps({"key": repr(k), **times}))
+        _append_line(self.path, json.dumps(res))
+        self._file_keys.append(k)
         return rec
 
+    def tidy(self) -> None:
+        """Rewrite the file in key order if appends left it in another order (once, at the
+        store's close), so a resumed run's file equals an uninterrupted run's byte for byte."""
+        order = [self.key(r) for r in self.values()]
+        if self._file_keys != order:
+            self._save()
+
     def _save(self) -> None:
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.values()))
+        recs = self.values()
+        self._file_keys = [self.key(r) for r in recs]
+        parts = [self._split(r) for r in recs]
+        atomic_write_text(self.path, "".join(json.dumps(a) + "\n" for a, _ in parts))
+        lines = [json.dumps({"key": repr(self.key(r)), **t}) + "\n"
+                 for r, (_, t) in zip(recs, parts, strict=True) if t]
+        if lines or self.times_path.exists():
+            atomic_write_text(self.times_path, "".join(lines))
+
+
+def _append_line(path: Path, line: str) -> None:
+    """Append ``line`` and a newline to ``path`` with one ``write`` (``O_APPEND``)."""
+    data = (line + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        while data:
+            data = data[os.write(fd, data):]
+    finally:
+        os.close(fd)
+
+
+#: Config fields that hold explanatory prose (each knob's reason), not settings: stored in
+#: ``config.json`` for the reader but never compared by the config guard, so rewording a
+#: reason in a new version does not refuse existing directories.
+PROSE = ("reasons",)
+
+
+def canonical(value: Any) -> Any:
+    """``value`` in a form where equal settings compare equal: NaN equals NaN, ``1 == 1.0``,
+    tuples are lists, dict keys are strings (as in JSON).
+
+    >>> nan = float("nan")
+    >>> canonical({"a": nan, "b": (1, 2.0)}) == canonical({"b": [1.0, 2], "a": nan})
+    True
+    """
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        v = float(value)
+        if math.isnan(v):
+            return "NaN"
+        return v
+    if isinstance(value, dict):
+        return {str(k): canonical(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [canonical(v) for v in value]
+    return repr(value)
+
+
+def config_diff(have: dict, want: dict, ignore: Iterable[str] = ()) -> list[str]:
+    """The sorted top-level keys whose values differ canonically (:func:`canonical`).
+
+    >>> config_diff({"x": float("nan"), "y": 1, "reasons": "a"}, {"x": float("nan"), "y": 2,
+    ...             "reasons": "b"}, ignore=("reasons",))
+    ['y']
+    """
+    ignore = set(ignore)
+    return sorted(k for k in set(have) | set(want)
+                  if k not in ignore and canonical(have.get(k)) != canonical(want.get(k)))
+
+
+def _short(value: Any, width: int = 24) -> str:
+    text = "(absent)" if value is _ABSENT else repr(value)
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
+_ABSENT = object()
+
+
+def _describe_diff(have: dict, want: dict, keys: list[str], most: int = 4) -> str:
+    """A short text of differing keys, ``key: V there, W asked`` (values cut), ``most`` shown."""
+    parts = [f"{k}: {_short(have.get(k, _ABSENT))} there, {_short(want.get(k, _ABSENT))} "
+             "asked" for k in keys[:most]]
+    more = f"; and {len(keys) - most} more: {', '.join(keys[most:])}" if len(keys) > most else ""
+    return "; ".join(parts) + more
 
 
 class Store:
@@ -422,6 +559,7 @@ class Store:
 
     def __init__(self, out: Path, study: str, config: dict, fds: list[int]):
         self.out, self.study, self.config, self._fds = out, study, config, fds
+        self._records: list[Records] = []
 
     # -- opening -------------------------------------------------------------------------
 
@@ -487,13 +625,35 @@ class Store:
                         and (out / legacy_config).exists():
                     shutil.copyfile(out / legacy_config, out / CONFIG)
                 assume = ("precision", *legacy_assume) if legacy_dir else ()
-                cfg = cls._guard(out, cfg, selection, assume, advice)
+                cfg = cls._guard(out, cfg, selection, assume, advice)  # checks, writes nothing
+                # the marker first: a kill between the two files leaves a marked directory
+                # (resumable, --fresh wipes it), never an unmarked one holding a config.json
                 atomic_write_json(out / MARKER, {"study": study,
                                                  "store_version": STORE_VERSION})
+                atomic_write_json(out / CONFIG, cfg)
         except BaseException:
             cls._unlock(fds)
             raise
         return cls(out, study, cfg, fds)
+
+    @classmethod
+    def wipe(cls, out: str | Path, study: str, *, legacy: tuple[str, ...] = (),
+             advice: str = "use another --out") -> None:
+        """``--fresh`` for a study that opens its store later: lock ``out``, check that it
+        holds ``study`` (or is empty / an adoptable older directory), delete its contents.
+
+        Raises:
+            StoreError: locked by another process, or a directory of another study.
+        """
+        out = Path(out)
+        if not out.is_dir():
+            return
+        fds = cls._lock(out)
+        try:
+            cls._check_marker(out, study, legacy, advice)
+            cls._wipe(out)
+        finally:
+            cls._unlock(fds)
 
     @staticmethod
     def _lock(out: Path) -> list[int]:
@@ -533,6 +693,8 @@ class Store:
                 raise StoreError(f"{out} holds a {have!r} study, not {study!r}; {advice}")
             return False
         entries = [p.name for p in out.iterdir() if not p.name.startswith(".")]
+        if entries == [CONFIG]:  # an older version killed between config.json and the marker
+            return False
         unknown = [n for n in entries if not any(fnmatch.fnmatch(n, g) for g in legacy)]
         if unknown:
             raise StoreError(f"{out} is not empty and holds files that are not from a {study} "
@@ -579,13 +741,10 @@ class Store:
                     warnings.warn(f"{path} was written before studies recorded {k!r}; "
                                   f"assuming {cfg[k]!r}", stacklevel=4)
                     have[k] = cfg[k]
-            diff = sorted(k for k in set(have) | set(cfg)
-                          if k not in selection and have.get(k) != cfg.get(k))
+            diff = config_diff(have, cfg, ignore=(*selection, *PROSE))
             if diff:
-                what = ", ".join(f"{k}: {have.get(k)!r} there, {cfg.get(k)!r} asked"
-                                 for k in diff)
-                raise StoreError(f"{out} holds a study with a different config ({what}); "
-                                 f"{advice}")
+                raise StoreError(f"{out} holds a study with a different config "
+                                 f"({_describe_diff(have, cfg, diff)}); {advice}")
             for k in selection:
                 a, b = have.get(k), cfg.get(k)
                 if isinstance(a, list) and isinstance(b, list):
@@ -594,7 +753,6 @@ class Store:
                     merged[k] = sorted(union) if numeric else union
                 elif isinstance(a, (int, float)) and isinstance(b, (int, float)):
                     merged[k] = max(a, b)
-        atomic_write_json(path, merged)
         return merged
 
     # -- use -----------------------------------------------------------------------------
@@ -606,8 +764,15 @@ class Store:
         self.close()
 
     def close(self) -> None:
-        """Release the lock (also released when the process dies)."""
-        self._unlock(self._fds)
+        """Put the record files in key order (:meth:`Records.tidy`) and release the lock
+        (also released when the process dies)."""
+        try:
+            if self._fds:
+                for rec in self._records:
+                    rec.tidy()
+        finally:
+            self._records.clear()
+            self._unlock(self._fds)
 
     def path(self, name: str) -> Path:
         """``out/name`` (parent folders created)."""
@@ -652,7 +817,9 @@ class Store:
     def records(self, name: str, key: Callable[[dict], Any], required: Iterable[str] = (),
                 check: Callable[[dict], bool] | None = None) -> Records:
         """The JSONL records of ``out/name`` (bad lines warned and dropped), to extend."""
-        return Records(self.path(name), key, required, check)
+        rec = Records(self.path(name), key, required, check)
+        self._records.append(rec)
+        return rec
 
     def write_results_csv(self, rows: Iterable[tuple[Any, str, float]],
                           name: str = "results.csv") -> Path:
@@ -678,4 +845,5 @@ __all__ = ["Store", "Records", "StudyError", "StoreError", "CorruptRecordWarning
            "precision", "atomic_write_bytes", "atomic_write_text", "atomic_write_json",
            "atomic_write_npz", "atomic_savefig", "read_npz", "read_json", "read_jsonl",
            "read_csv", "csv_text", "flatten_metrics",
-           "tidy_rows", "write_results_csv"]
+           "tidy_rows", "write_results_csv", "MEASURED", "PROSE", "is_measured", "canonical",
+           "config_diff"]

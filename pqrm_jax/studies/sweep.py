@@ -236,7 +236,8 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     specs, rest = split_argv(argv)
     axes = parse_axes(specs, module.Config)
     base, args = module.configure(rest)
-    plain = module.Config()
+    presets = getattr(module, "PRESETS", {})
+    plain = module.Config(**presets.get(getattr(args, "preset", "full"), {}))
     for a in axes:
         if getattr(base, a.key) != getattr(plain, a.key):
             raise SweepError(f"--sweep {a.key}=...: {a.key} is also set by another flag (to "
@@ -249,7 +250,7 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     fields = {f.name for f in dataclasses.fields(module.Config)}
     guard = {"study": module.NAME,
              "axes": {a.key: [_jsonable(v) for v in a.values] for a in axes},
-             "base": {k: v for k, v in base.to_json().items()
+             "base": {k: v for k, v in _to_json(base).items()
                       if k in fields and k not in swept}}
     if getattr(args, "report_only", False):
         with Store.open(out, sweep_study, None) as st:
@@ -268,7 +269,7 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
         log = _records(st)
         return [cell_name(c) not in log for c in cells]
 
-    quiet = getattr(args, "quiet", False)
+    quiet = getattr(args, "quiet", False) or getattr(args, "no_progress", False)
     try:
         left = distributed.decide(cluster, len(cells), prepare)
         todo = [i for i in range(len(cells)) if left[i]]
@@ -291,6 +292,14 @@ def run(module: ModuleType, argv: list[str]) -> Path | None:
     finally:
         if st is not None:
             st.close()
+
+
+def _to_json(cfg) -> dict:
+    if hasattr(cfg, "to_json"):
+        return cfg.to_json()
+    from .protocol import config_json
+
+    return config_json(cfg)
 
 
 def _configure_cell(module: ModuleType, rest: list[str], cell: dict):

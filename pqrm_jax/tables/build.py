@@ -125,7 +125,8 @@ class _Decider:
                     if verdict == certify.UNSAT:
                         self.stats["z3_confirmed_infeasible"] += 1
                         continue
-                    self.stats["z3_overturned"] += 1
+                    if verdict == certify.SAT:  # an UNKNOWN is counted as "open" below
+                        self.stats["z3_overturned"] += 1
                 rec = {"problem": name, "tag": _tag(pr.tag),
                        "bnb": "infeasible-in-box" if i in bnb_infeasible else "undecided",
                        "resolved": f"z3-{verdict}"}
@@ -247,58 +248,29 @@ def _verified(calc, atoms, cfg, pairs) -> bool:
     return True
 
 
-def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed: int = 0,
-               n_samples: int = 1 << 20, pool: int = 32, max_iters: int = 120,
-               adjacency_radius: float = 1e-2, certify_all: bool = False,
-               solver=solve) -> dict:
-    """Exact tables of a calculus defined by constraints (not a merge).
+_REL_NAMES = {"left": ("B", "C", "A"), "right": ("C", "A", "B"), "inverse": ("B", "A", "C")}
 
-    The four-stage pipeline is described in docs/tables.md §build.
 
-    Args:
-        calc: the constraint-defined calculus.
-        box: the branch-and-bound domain |x| ≤ ``box``, with pairwise distances at least
-            |AB|/``box``.
-        progress: show progress bars.
-        seed: seed of the witness pre-pass and the probe points.
-        n_samples: random configurations of the witness pre-pass (open calculi).
-        pool: the most boxes one problem may hold.
-        max_iters: the most branch-and-bound rounds per problem.
-        adjacency_radius: radius of the probe disks of the adjacency test.
-        certify_all: confirm every refutation with z3 on the whole plane (as for the shipped
-            tables), not only the undecided problems.
-        solver: decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
-            benchmark passes a recording wrapper to time the build's own batches).
-
-    Returns:
-        A dict with the ``left``, ``right``, ``inverse``, ``compose`` and ``adjacency`` tables,
-        the witnesses of every present entry, the ``undecided`` problems with their verdicts,
-        build statistics and the settings used.
-    """
-    t_start = time.perf_counter()
-    atoms, astate = pb.atoms(calc)
-    na, Q = len(atoms), calc.num_states
-    dec = _Decider(box, progress, pool, max_iters, certify_all, solver)
-    pre_unary, pre_comp = _prepass(calc, atoms, seed, n_samples)
-
-    # atoms that exist at all
+def _live_atoms(calc, atoms, pre_unary, dec) -> list[int]:
+    """The atoms that exist at all (stage 1; pre-pass witnesses are known answers)."""
     single = [pb.Problem(pb.simplify(pb.relation(calc, a, *(pb.frame(a)[x] for x in "ABC"))),
                          ("atom", a)) for a in atoms]
     seen = {k[1] for k in pre_unary}
     known = {}
-    for i in range(na):
+    for i in range(len(atoms)):
         if i in seen:
             cfg = next(v for k, v in pre_unary.items() if k[1] == i)
             known[i] = [list(map(float, p)) for p in cfg[:3]]
     exists, _ = dec.run("atoms", single, known)
-    live = [i for i in range(na) if exists[i]]
+    return [i for i in range(len(atoms)) if exists[i]]
 
-    sigma = symmetry.mirror_atoms(calc, atoms)
-    unary = {op: np.zeros((Q, Q), bool) for op in UNARY}
-    unary_atoms = {op: np.zeros((na, na), bool) for op in UNARY}
-    unary_wit: dict[str, list] = {}
-    rel_names = {"left": ("B", "C", "A"), "right": ("C", "A", "B"), "inverse": ("B", "A", "C")}
-    jobs = {}  # name → (keys, make(n), tag(n), known, unordered): problems to decide
+
+def _build_jobs(calc, atoms, astate, live, pre_unary, pre_comp, box, adjacency_radius) -> dict:
+    """Every problem family of the build: ``name → (keys, make(n), tag(n), known, unordered)``.
+
+    ``known`` holds the pre-pass configurations that re-verify exactly (answers without B&B).
+    """
+    jobs = {}
     for op in UNARY:
         keys, known = [], {}
         for i in live:
@@ -306,7 +278,7 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
                 keys.append((i, j))
                 cfg = pre_unary.get((op, i, j))
                 if cfg is not None and _verified(calc, atoms, cfg,
-                                                 [(("A", "B", "C"), i), (rel_names[op], j)]):
+                                                 [(("A", "B", "C"), i), (_REL_NAMES[op], j)]):
                     known[len(keys) - 1] = [list(map(float, p)) for p in cfg[:3]]
         jobs[op] = (
             keys,
@@ -331,6 +303,71 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
         jobs["adjacency"] = (keys, lambda n, keys=keys: pb.adjacency_problem(
             calc, *(atoms[x] for x in keys[n]), adjacency_radius),
             lambda n, keys=keys: ("adjacent", *(atoms[x] for x in keys[n])), {}, True)
+    return jobs
+
+
+def _compose_refiner(calc, atoms, keys, unary_atoms):
+    """The path-consistency refutation of compose candidates (None where it does not apply:
+    boundary-inclusive calculi and calculi with degenerate atoms)."""
+    if calc.boundary_inclusive or not all(isinstance(a, tuple) for a in atoms):
+        return None
+    na = len(atoms)
+    K = np.asarray(keys, np.int64).reshape(-1, 3)
+
+    def refine(feas_full, und_full):
+        """Path-consistency refutation, repeated while it removes candidate entries."""
+        T = np.zeros((na, na, na), bool)
+        T[tuple(K[feas_full | und_full].T)] = True
+        refuted = np.zeros(len(K), bool)
+        while True:
+            idx = np.flatnonzero(und_full & ~refuted)
+            r = symmetry.path_consistency_refutes(
+                unary_atoms["left"], unary_atoms["right"], unary_atoms["inverse"], T, K[idx])
+            if not r.any():
+                return refuted
+            refuted[idx[r]] = True
+            T[tuple(K[idx[r]].T)] = False
+
+    return refine
+
+
+def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed: int = 0,
+               n_samples: int = 1 << 20, pool: int = 32, max_iters: int = 120,
+               adjacency_radius: float = 1e-2, certify_all: bool = False,
+               solver=solve) -> dict:
+    """Exact tables of a calculus defined by constraints (not a merge).
+
+    The four-stage pipeline is described in docs/tables.md §build.
+
+    Args:
+        calc: the constraint-defined calculus.
+        box: the branch-and-bound domain |x| ≤ ``box``, with pairwise distances at least
+            |AB|/``box``.
+        progress: show progress bars.
+        seed: seed of the witness pre-pass and the probe points.
+        n_samples: random configurations of the witness pre-pass (open calculi).
+        pool: the most boxes one problem may hold.
+        max_iters: the most branch-and-bound rounds per problem.
+        adjacency_radius: radius of the probe disks of the adjacency test.
+        certify_all: confirm every refutation with z3 on the whole plane (as for the shipped
+            tables), not only the undecided problems.
+        solver: decides the branch-and-bound batches (default :func:`.feasibility.solve`; the
+            benchmark passes a recording wrapper to time the build's own batches).
+
+    Returns:
+        A dict with the ``left``, ``right``, ``inverse`` (``[Q, Q]`` bool), ``compose``
+        (``[Q, Q, Q]`` bool) and ``adjacency`` (``[Q, Q]`` bool) tables, the witnesses of every
+        present entry, the ``undecided`` problems with their verdicts, build statistics and the
+        settings used.
+    """
+    t_start = time.perf_counter()
+    atoms, astate = pb.atoms(calc)
+    na, Q = len(atoms), calc.num_states
+    dec = _Decider(box, progress, pool, max_iters, certify_all, solver)
+    pre_unary, pre_comp = _prepass(calc, atoms, seed, n_samples)
+    live = _live_atoms(calc, atoms, pre_unary, dec)
+    sigma = symmetry.mirror_atoms(calc, atoms)
+    jobs = _build_jobs(calc, atoms, astate, live, pre_unary, pre_comp, box, adjacency_radius)
     # every B&B problem of the build in one batch (the verdicts do not depend on the batching)
     made: dict[tuple, pb.Problem] = {}
     for name, (keys, make, _, known, unordered) in jobs.items():
@@ -343,10 +380,12 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
         return _run_mirrored(dec, name, keys, lambda n: made.get((name, n)) or make(n), tag,
                              known, sigma, unordered=unordered, refine=refine)
 
+    unary = {op: np.zeros((Q, Q), bool) for op in UNARY}
+    unary_atoms = {op: np.zeros((na, na), bool) for op in UNARY}
+    unary_wit: dict[str, list] = {}
     for op in UNARY:
-        keys = jobs[op][0]
         feas, wit = decide(op)
-        for n, (i, j) in enumerate(keys):
+        for n, (i, j) in enumerate(jobs[op][0]):
             if feas[n]:
                 unary_atoms[op][i, j] = True
                 si, sj = astate[i], astate[j]
@@ -356,25 +395,7 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
     compose = np.zeros((Q, Q, Q), bool)
     comp_wit: dict[str, list] = {}
     keys = jobs["compose"][0]
-    refine = None
-    if not calc.boundary_inclusive and all(isinstance(a, tuple) for a in atoms):
-        K = np.asarray(keys, np.int64).reshape(-1, 3)
-
-        def refine(feas_full, und_full):
-            """Path-consistency refutation, repeated while it removes candidate entries."""
-            T = np.zeros((na, na, na), bool)
-            T[tuple(K[feas_full | und_full].T)] = True
-            refuted = np.zeros(len(K), bool)
-            while True:
-                idx = np.flatnonzero(und_full & ~refuted)
-                r = symmetry.path_consistency_refutes(
-                    unary_atoms["left"], unary_atoms["right"], unary_atoms["inverse"], T, K[idx])
-                if not r.any():
-                    return refuted
-                refuted[idx[r]] = True
-                T[tuple(K[idx[r]].T)] = False
-
-    feas, wit = decide("compose", refine)
+    feas, wit = decide("compose", _compose_refiner(calc, atoms, keys, unary_atoms))
     for n, (i, j, k) in enumerate(keys):
         if feas[n]:
             s = (astate[i], astate[j], astate[k])
@@ -383,11 +404,11 @@ def build_base(calc: Calculus, *, box: float = 8.0, progress: bool = False, seed
 
     adjacency = np.zeros((Q, Q), bool)
     if calc.boundary_inclusive:
+        nondeg = [i for i in live if isinstance(atoms[i], tuple)]
         adjacency |= _face_adjacency(calc, atoms, astate, nondeg)
     else:
-        keys = jobs["adjacency"][0]
         feas, _ = decide("adjacency")
-        for n, (a, b) in enumerate(keys):
+        for n, (a, b) in enumerate(jobs["adjacency"][0]):
             if feas[n]:
                 adjacency[astate[a], astate[b]] = adjacency[astate[b], astate[a]] = True
     if calc.degenerate is not None:

@@ -17,6 +17,14 @@ from ..calculi.poly import Poly
 
 SAT, UNSAT, UNKNOWN = "sat", "unsat", "unknown"
 
+#: z3's deterministic resource limit per decision (``rlimit``, counted in z3's own work
+#: units, not seconds), so a verdict never depends on the machine's load: the same problem
+#: is decided the same way on a busy and on a quiet machine. The hardest of 512 random EDC
+#: compose problems needs about 1.7e5 units (DCC: 3e3); 8e7 units take about 20 s of CPU
+#: here, the wall-clock timeout used before. A problem that exhausts it is ``UNKNOWN`` —
+#: counted by every caller (``tables.build``: "open"; the camera oracle raises).
+DEFAULT_RLIMIT = 80_000_000
+
 
 _OP = {1: ">", -1: "<", 0: "="}
 
@@ -45,8 +53,12 @@ def smtlib(constraints: list[tuple[Poly, int]]) -> str:
     return "\n".join(out)
 
 
-def decide_smtlib(text: str, nv: int, timeout_ms: int = 20000):
+def decide_smtlib(text: str, nv: int, rlimit: int = DEFAULT_RLIMIT):
     """(verdict, witness or None) for the SMT-LIB text of a conjunction over x0 … x{nv−1}.
+
+    ``rlimit`` bounds each solver attempt by z3's deterministic resource counter (never a
+    wall-clock timeout): a verdict is the same under any machine load; ``UNKNOWN`` when the
+    limit is exhausted (deterministically so).
 
     z3's ``qfnra-nlsat`` tactic (preprocessing, then nlsat) first; if it gives up, z3's full
     QF_NRA strategy (further nlsat settings, then its SMT core). On the EDC and DCC builds the
@@ -54,9 +66,11 @@ def decide_smtlib(text: str, nv: int, timeout_ms: int = 20000):
     to two thirds of its time."""
     import z3
 
+    if isinstance(rlimit, bool) or int(rlimit) != rlimit or rlimit < 1:
+        raise ValueError(f"rlimit must be a positive integer, got {rlimit!r}")
     for solver in (lambda: z3.Tactic("qfnra-nlsat").solver(), lambda: z3.SolverFor("QF_NRA")):
         s = solver()
-        s.set("timeout", timeout_ms)
+        s.set("rlimit", int(rlimit))
         s.from_string(text)
         res = s.check()
         if res != z3.unknown:
@@ -76,10 +90,11 @@ def decide_smtlib(text: str, nv: int, timeout_ms: int = 20000):
     return SAT, wit
 
 
-def decide(constraints: list[tuple[Poly, int]], timeout_ms: int = 20000):
-    """(verdict, witness or None) for a conjunction of exact polynomial sign constraints."""
+def decide(constraints: list[tuple[Poly, int]], rlimit: int = DEFAULT_RLIMIT):
+    """(verdict, witness or None) for a conjunction of exact polynomial sign constraints
+    (``rlimit``: see :func:`decide_smtlib`)."""
     nv = constraints[0][0].nvars if constraints else 0
-    return decide_smtlib(smtlib(constraints), nv, timeout_ms)
+    return decide_smtlib(smtlib(constraints), nv, rlimit)
 
 
 def _decide_one(job: tuple[str, int]):
@@ -92,13 +107,15 @@ MIN_POOL_BATCH = 256
 
 
 def decide_many(problems: list, workers: int | None = None, progress: bool = False,
-                desc: str = "z3") -> list:
+                desc: str = "z3", rlimit: int = DEFAULT_RLIMIT) -> list:
     """``decide`` for many constraint lists, on the usable cores.
 
-    The workers are spawned (JAX-safe) and get the SMT-LIB text, not the polynomials.
+    The workers are spawned (JAX-safe) and get the SMT-LIB text, not the polynomials. The
+    verdicts do not depend on the worker count or the load (``rlimit``, deterministic);
+    :func:`count_unknown` counts the ``UNKNOWN`` ones.
     """
     workers = workers or min(usable_cpus(), 8)
-    jobs = [(smtlib(c), c[0][0].nvars if c else 0) for c in problems]
+    jobs = [(smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems]
     if workers <= 1 or len(jobs) < MIN_POOL_BATCH:
         it = jobs
         if progress:
@@ -113,3 +130,8 @@ def decide_many(problems: list, workers: int | None = None, progress: bool = Fal
 
             it = tqdm(it, total=len(jobs), desc=desc, leave=False)
         return list(it)
+
+
+def count_unknown(verdicts: list) -> int:
+    """How many ``(verdict, witness)`` pairs are ``UNKNOWN`` (the resource limit ran out)."""
+    return sum(v == UNKNOWN for v, _ in verdicts)

@@ -54,6 +54,12 @@ def sparq_names(states: tuple[str, ...] | list[str]) -> dict[str, str]:
     reader folds case). Any other label becomes ``r`` + the label with other characters
     replaced by ``_``, made unique with a numeric suffix.
 
+    Args:
+        states: the state labels.
+
+    Returns:
+        ``label -> SparQ symbol``.
+
     >>> sparq_names(("1", "2", "lune"))
     {'1': 'r1', '2': 'r2', 'lune': 'lune'}
     """
@@ -88,6 +94,12 @@ def shortcut_table(tables: OperatorTables) -> tuple[np.ndarray, bool]:
     ``AC:B`` is INVERSE of ``CA:B`` = RIGHT(``AB:C``), so the table is ``RIGHT ; INVERSE``;
     exact when INVERSE is single-valued on every state, otherwise intersected with
     ``INVERSE ; LEFT`` (``AB:C -> BA:C -> AC:B``) and reported as an upper bound.
+
+    Args:
+        tables: the calculus's tables.
+
+    Returns:
+        ``([Q, Q] bool, exact)``.
     """
     via_right = _product(tables.right, tables.inverse)
     exact = bool((tables.inverse.sum(axis=1) == 1).all())
@@ -125,8 +137,15 @@ def _rows(table: np.ndarray, names: list[str]) -> list[str]:
 
 
 def to_sparq(tables: OperatorTables) -> str:
-    """The text of a SparQ ``def-calculus`` file for ``tables`` (header comments state the
-    relation-name mapping and the operation semantics)."""
+    """The text of a SparQ ``def-calculus`` file for ``tables``.
+
+    Args:
+        tables: the calculus's tables.
+
+    Returns:
+        The file text; header comments state the relation-name mapping and the operation
+        semantics.
+    """
     S = list(tables.states)
     mapping = sparq_names(S)
     N = [mapping[s] for s in S]
@@ -180,7 +199,15 @@ def to_sparq(tables: OperatorTables) -> str:
 
 
 def write_sparq(tables: OperatorTables, path: str | Path) -> Path:
-    """Write :func:`to_sparq` of ``tables`` to ``path`` atomically (temp file + rename)."""
+    """Write :func:`to_sparq` of ``tables`` to ``path`` atomically (temp file + rename).
+
+    Args:
+        tables: the calculus's tables.
+        path: the output file.
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+    """
     import os
 
     path = Path(path)

@@ -195,7 +195,14 @@ def is_builtin_calculus(calc: Calculus) -> bool:
 
 
 def cache_dir(calc: Calculus) -> Path:
-    """Directory of the table file of ``calc``: package data (built-in) or ``$PQRM_JAX_CACHE``."""
+    """Directory of the table file of ``calc``: package data (built-in) or ``$PQRM_JAX_CACHE``.
+
+    Args:
+        calc: the calculus.
+
+    Returns:
+        The directory (``~/.cache/pqrm-jax/tables`` when ``$PQRM_JAX_CACHE`` is unset).
+    """
     if is_builtin_calculus(calc):
         return PACKAGE_DIR
     return Path(os.environ.get("PQRM_JAX_CACHE", Path.home() / ".cache" / "pqrm-jax" / "tables"))
@@ -203,6 +210,12 @@ def cache_dir(calc: Calculus) -> Path:
 
 def safe_file_stem(name: str) -> str:
     """``name`` reduced to a file-name stem that stays in its directory (``[A-Za-z0-9_.-]``).
+
+    Args:
+        name: any calculus name.
+
+    Returns:
+        The stem (``"calculus"`` when nothing is left).
 
     >>> safe_file_stem("../escaped"), safe_file_stem("my lr/2")
     ('escaped', 'my_lr_2')
@@ -214,9 +227,13 @@ def safe_file_stem(name: str) -> str:
 def cache_path(calc: Calculus) -> Path:
     """Table file of ``calc``; user calculi are keyed by name *and* definition hash.
 
-    Built-in calculi: ``PACKAGE_DIR / NAME.json``. User calculi:
-    ``$PQRM_JAX_CACHE / SAFE-NAME-HASH.json`` (see :func:`safe_file_stem`), always inside the
-    cache directory whatever the name.
+    Args:
+        calc: the calculus.
+
+    Returns:
+        Built-in calculi: ``PACKAGE_DIR / NAME.json``. User calculi:
+        ``$PQRM_JAX_CACHE / SAFE-NAME-HASH.json`` (see :func:`safe_file_stem`), always inside
+        the cache directory whatever the name.
     """
     if is_builtin_calculus(calc):
         return PACKAGE_DIR / f"{calc.name}.json"
@@ -236,6 +253,12 @@ def _checksum(payload: dict) -> str:
 
 
 def write_cache(tables: OperatorTables, path: Path) -> None:
+    """Write ``tables`` to ``path`` with a checksum, atomically (temp file + rename).
+
+    Args:
+        tables: the tables.
+        path: the table file (its directory is created).
+    """
     payload = tables.to_json()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
@@ -244,6 +267,17 @@ def write_cache(tables: OperatorTables, path: Path) -> None:
 
 
 def read_cache(path: Path) -> OperatorTables:
+    """Read a table file written by :func:`write_cache`, verifying its checksum.
+
+    Args:
+        path: the table file.
+
+    Returns:
+        :class:`OperatorTables`.
+
+    Raises:
+        CacheError: for a corrupt, truncated or edited file (the message says how to repair).
+    """
     try:
         raw = json.loads(path.read_text())
         payload = raw["payload"]
@@ -267,7 +301,19 @@ def clear_memo() -> None:
 
 def build_tables(calc: Calculus, *, progress: bool = False, with_prob: bool = True,
                  **kwargs) -> OperatorTables:
-    """Compute the tables of ``calc`` from geometry (merges: from the parent's tables)."""
+    """Compute the tables of ``calc`` from geometry (merges: from the parent's tables).
+
+    The pipeline of docs/tables.md §build (MT App. C, P §2.2.2).
+
+    Args:
+        calc: the calculus.
+        progress: show progress bars.
+        with_prob: also compute the probabilistic tables (``prob_compose`` etc.).
+        **kwargs: settings of :func:`~pqrm_jax.tables.build.build_base`.
+
+    Returns:
+        :class:`OperatorTables` (not written to the cache; :func:`load_tables` does that).
+    """
     from .build import build_base, merge_tables
 
     if calc.parent is not None:
@@ -292,7 +338,25 @@ def build_tables(calc: Calculus, *, progress: bool = False, with_prob: bool = Tr
 
 def load_tables(calc: Calculus, *, rebuild: bool = False, progress: bool = False,
                 write: bool = True, certify_all: bool = True) -> OperatorTables:
-    """Tables of ``calc`` from the cache, building (and caching) them when missing or stale."""
+    """Tables of ``calc`` from the cache, building (and caching) them when missing or stale.
+
+    Args:
+        calc: the calculus.
+        rebuild: build even when a valid table file exists.
+        progress: show progress bars while building.
+        write: write a built table file to :func:`cache_path`.
+        certify_all: confirm every refutation with z3 when building (as the shipped tables).
+
+    Returns:
+        :class:`OperatorTables` (memoised per name and definition hash).
+
+    Raises:
+        CacheError: for a corrupt table file.
+
+    >>> from pqrm_jax import calculi
+    >>> load_tables(calculi.get("lr")).inverse.astype(int).tolist()
+    [[0, 1], [1, 0]]
+    """
     key = (calc.name, calc.definition_hash)
     if not rebuild and key in _MEMO:
         return _MEMO[key]

@@ -1,0 +1,105 @@
+"""A process of a multi-process run dies: the others end within a bounded time with exit
+code 2 and one line naming the process that died (issue 29 item 3), instead of a gloo stack
+and exit 134 or a wait in a collective."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+_DRIVER = """
+import sys, time
+from pqrm_jax.studies import distributed as d
+pid, n, port = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+c = d.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=300)
+
+def fn(i):
+    time.sleep(0.3)
+    return {"x": i}
+
+for j, r in d.map_units(fn, list(range(10_000)), c):
+    print("unit", j, flush=True)
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("victim", [2, 0])
+def test_a_dead_process_ends_the_others_with_exit_2_naming_it(victim):
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+    port = str(_free_port())
+    procs = {i: subprocess.Popen([sys.executable, "-c", _DRIVER, str(i), "3", port],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 env=env, cwd=ROOT) for i in (1, 2, 0)}
+    try:
+        for line in procs[1].stdout:  # the run is under way (collectives every round)
+            if line.startswith("unit 6"):
+                break
+        procs[victim].send_signal(signal.SIGKILL)
+        t0 = time.monotonic()
+        for i, p in procs.items():
+            if i == victim:
+                p.wait(60)
+                continue
+            _, err = p.communicate(timeout=120)  # bounded: no wait in a collective
+            assert p.returncode == 2, (i, p.returncode, err[-2000:])
+            assert f"pqrm-jax: error: process {victim} of 3 died" in err, err[-2000:]
+            assert "Traceback" not in err
+        assert time.monotonic() - t0 < 120
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+
+
+_HSSH_PLUS = """
+import sys
+from pqrm_jax.studies import distributed as d, hssh_plus as H
+pid, port = int(sys.argv[1]), sys.argv[2]
+c = d.initialize(f"127.0.0.1:{port}", 2, pid, timeout_s=60)
+
+def unit(side, rot, cfg):
+    if side == 3:
+        raise ValueError(f"bad unit {side}")
+    return [{"side": side, "rot": rot}]
+
+H.run_unit = unit
+
+class St:
+    def write_json(self, name, obj):
+        print("wrote", name, flush=True)
+
+try:
+    H._compute([(1, 0.0), (2, 0.0), (3, 0.0), (4, 0.0)], {}, c, St() if c.is_main else None)
+except d.DistributedError as exc:
+    print("refused:", exc, flush=True)
+    d.finish(True)
+"""
+
+
+def test_hssh_plus_split_exchanges_errors():
+    """hssh-plus's multi-process split is ``map_units``: a unit failing on process 0 (unit 3
+    is item 2, process 0's in round 1) ends both processes with its message, none waits."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+    port = str(_free_port())
+    procs = [subprocess.Popen([sys.executable, "-c", _HSSH_PLUS, str(i), port],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=env, cwd=ROOT) for i in (1, 0)]
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (so, se) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, se[-2000:]
+        assert "refused: process 0 failed on item 2: ValueError: bad unit 3" in so, so
+    assert "wrote" in outs[1][0]  # process 0 wrote round 0's units before the failure
