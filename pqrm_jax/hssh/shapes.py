@@ -97,6 +97,13 @@ def _check(case: ShapeCase) -> None:
 def shape_image(case: ShapeCase, supersample: int = 4) -> tuple[np.ndarray, tuple[int, int]]:
     """The occupancy grid ``[side, side]`` (bool, True = occupied) and the robot cell.
 
+    Args:
+        case: the :class:`ShapeCase` (checked: ``ValueError`` names a bad field).
+        supersample: area samples per cell and axis of the drawing.
+
+    Returns:
+        ``(occupied [side, side] bool, (row, col) robot cell)``.
+
     >>> occ, rc = shape_image(ShapeCase("T", 39, 0.0, 0.0))
     >>> occ.shape, rc, bool(occ[rc])
     ((39, 39), (19, 19), False)
@@ -137,6 +144,16 @@ def shape_cases(n: int, seed: int = 0, sizes: tuple[int, int] = (39, 299),
     corridor width and robot offset drawn uniformly from the given ranges (issue 26's family:
     sizes 39--299, rotations 0--45°, noise 0--10 %).
 
+    Args:
+        n: cases per shape.
+        seed: seed of the draw.
+        sizes, rotations, noise, widths: ``(low, high)`` ranges (cells, degrees, probability,
+            fraction of the side).
+        kinds: the shapes to draw (of :data:`SHAPES`).
+
+    Returns:
+        ``n * len(kinds)`` :class:`ShapeCase`, one of each kind in turn.
+
     >>> [c.kind for c in shape_cases(1)]
     ['T', 'L', 'straight', 'dead_end']
     """
@@ -158,6 +175,13 @@ def shape_cases(n: int, seed: int = 0, sizes: tuple[int, int] = (39, 299),
 def shape_check(lt, kind: str) -> str:
     """``""`` when a :class:`~pqrm_jax.hssh.topology.LocalTopology` is the correct one for
     ``kind``, else the reason (gateway count, star or kind).
+
+    Args:
+        lt: the local topology of a :func:`shape_image`.
+        kind: the shape drawn.
+
+    Returns:
+        ``""`` or the reason of the failure.
 
     >>> from pqrm_jax.hssh import local_topology
     >>> occ, rc = shape_image(ShapeCase("L", 63, 0.0, 0.0, width=21 / 63))

@@ -72,7 +72,9 @@ def skeleton_graph(skeleton: np.ndarray) -> nx.Graph:
 def _ways_out(exits: list[tuple[int, int]], open_: np.ndarray, unknown: np.ndarray) -> int:
     """Number of distinct ways out among ``exits``: exits on one run of ``open_`` cells along
     the border ring (the ring is closed through the corners) or next to one 8-connected
-    unknown region count once.
+    unknown region count once. A wide corridor that leaves the grid at a corner meets the
+    border in two exits (on two sides, or in two adjacent cells); counted as two, a dead end's
+    own branch was stripped as a non-terminal leaf and the place read as enclosed (issue 26).
 
     >>> open_ = np.zeros((5, 5), bool); open_[3:, 3:] = True      # an opening at a corner
     >>> _ways_out([(4, 3), (3, 4)], open_, np.zeros((5, 5), bool))
@@ -187,15 +189,9 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     # at most one exit: the dead-end case)
     comp = csgraph.breadth_first_order(mst, ci, directed=False, return_predecessors=False)
     exit_idx = sorted(int(k) for k in comp[is_exit[comp]])
-    # exits are counted as ways out: exits through one opening of the border (one run of
-    # non-occupied cells along the border ring, corners included) or into one unknown region
-    # are one way out. A wide corridor that leaves the grid at a corner meets the border in
-    # two exits (on two sides, or in two adjacent cells); counted as two, the dead end's own
-    # branch was stripped as a non-terminal leaf and the place read as enclosed (issue 26)
-    n_ways = _ways_out(list(zip(rows[exit_idx].tolist(), cols[exit_idx].tolist(),
-                                strict=True)),
+    n_ways = _ways_out(list(zip(rows[exit_idx].tolist(), cols[exit_idx].tolist(), strict=True)),
                        np.asarray(free_space, bool) | np.asarray(unknown, bool),
-                       np.asarray(unknown, bool))
+                       np.asarray(unknown, bool))  # exits counted as ways out (issue 26)
     terminals = exit_idx if n_ways > 1 else sorted(set(exit_idx) | {ci})
     # stripping every non-terminal leaf until none is left leaves the smallest subtree that
     # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
