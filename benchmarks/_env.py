@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import os
 import platform
+import socket
+import sys
+import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -26,6 +31,10 @@ def device_info() -> dict:
         "x64": bool(jax.config.jax_enable_x64),
         "jax": jax.__version__, "numpy": np.__version__,
         "machine": platform.processor() or platform.machine(),
+        "host": socket.gethostname(),
+        "python": platform.python_version(),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "cpu_count": os.cpu_count(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
     }
@@ -36,3 +45,26 @@ def device_info() -> dict:
     except Exception:  # noqa: BLE001  (CPU devices may not report memory)
         pass
     return info
+
+
+def write_result(result: dict, out: str | os.PathLike, *, process_cpu_s: float | None = None
+                 ) -> Path:
+    """Write ``result`` to ``out`` (JSON) with ``env`` (:func:`device_info`: where it ran, the
+    load now, at the end), the process's total CPU seconds and ``timings`` (every
+    ``_timing`` call: its line, wall and CPU seconds); returns the path."""
+    try:
+        from _timing import CALLS
+    except ImportError:  # imported as benchmarks._env
+        from benchmarks._timing import CALLS
+
+    result = dict(result)
+    if CALLS:
+        result.setdefault("timings", [dict(c) for c in CALLS])
+    env = device_info()
+    env["process_cpu_s"] = round(time.process_time() if process_cpu_s is None
+                                 else process_cpu_s, 2)
+    result["env"] = {**result.get("env", {}), **env}
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2) + "\n")
+    return path

@@ -1,4 +1,5 @@
-"""Benchmark: batched belief-tree planning vs a one-environment-at-a-time loop (issue #16).
+"""Benchmark: the belief-tree planner against its previous version, and batched planning vs a
+one-environment-at-a-time loop (issues #16, #25).
 
 Usage::
 
@@ -14,7 +15,15 @@ jitted call over all environments: ``lax.map`` over chunks of ``chunk`` environm
 chunk ``vmap``-ed; several chunk widths are timed. Both are compiled before timing and the
 plans must agree (same first actions; values to float32 rounding).
 
-To explain the ratio it also records, per plan, XLA's cost analysis of the compiled
+``per_plan`` times this planner against the previous one in the same process (the reference,
+``reference_plan`` below: main's planner before issue #25, verbatim) on the same instances, one
+jitted plan at a time, and compares the plans. ``new_joint_sampler`` is this planner with the
+previous sampler (``PlannerParams(sampler="joint")``): its ẑ draws are the reference's, so its
+plans equal the reference's to float rounding; the default sampler draws (b, s_x, s_τ) one
+after the other, so its first actions and values agree in distribution, not bit for bit (the
+share of equal first actions and the relative value differences are recorded).
+
+To explain the batched ratio it also records, per plan, XLA's cost analysis of the compiled
 single-environment planner (flops, bytes accessed) and the dispatch cost of a jitted function
 that takes the same arguments and does nothing: the loop can lose to batching at most that
 overhead, unless batching makes each plan's own arithmetic cheaper. Writes
@@ -25,12 +34,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
@@ -38,6 +49,124 @@ from pqrm_jax.bsp import env as E
 from pqrm_jax.bsp import graph as G
 from pqrm_jax.bsp import models as M
 from pqrm_jax.bsp import planner as P
+from pqrm_jax.bsp.belief import LINK_K
+
+
+# ------------------------------------------------------------------------------------------
+# The previous planner (main before issue #25), kept verbatim as the in-process reference: one
+# expansion per node (frame-only quantities recomputed for every node of a frame) and one
+# cumsum over the Q²·nb-cell joint per branch.
+class _RefLevel(NamedTuple):
+    cost: jax.Array  # [N, na]
+    acts: jax.Array  # [N, na]
+    ks: jax.Array  # [N, na, nb]
+    w: jax.Array  # [N, na, nb]
+    goal: jax.Array  # [N, na, nb]
+    anyobs: jax.Array  # [N, na]
+    seen: jax.Array  # [N, na] P(some observable candidate seen | a): 1 without nothing_seen
+    frames: jax.Array  # [N, na, nb, 3, 2]
+    robots: jax.Array  # [N, na, nb, 3, Q]
+
+
+def _ref_expand_one(models, D1, trip, scale, fg: G.FrameGraph, goal, key, level, frame, p,
+                    pp: P.PlannerParams, cost):
+    L = trip.shape[0]
+    Q = models.num_states
+    i, j = frame[0], frame[1]
+    sf = scale[i, j]
+    costs = P.step_costs(models, D1, sf, p, cost)
+    wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
+    idx = jnp.arange(L)
+    third = goal.sum() - i - j
+    isg = fg.goal_obs[i, j] & (idx == third)
+    cb = P.cbar(models, D1, cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
+    h_f = P.leaf_values(fg, frame, cb, lam, pp.rho)
+    h_ik = P.leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
+    h_jk = P.leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
+    hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
+    wsum = wt.sum(1)
+    # P(some candidate seen | a): 1 in the thesis model (the candidate weights renormalised,
+    # §Z-24); the nothing-seen EXTENSION clips the sum at 1 (the events may overlap)
+    ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
+    proxy = costs + jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
+                              + (1.0 - ps) * (h_f + cb), h_f + cb)
+    score = -proxy
+    _, acts = jax.lax.top_k(score, pp.n_actions)
+    wa = wt[acts]  # [na, L]
+    wk, ks = jax.lax.top_k(wa, pp.n_beta)  # [na, nb]
+    tot = wk.sum(-1, keepdims=True)
+    anyobs = tot[:, 0] > 0
+    w = wk / jnp.where(tot > 0, tot, 1.0)
+    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
+
+    def branch(a, k):
+        kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
+        k1, k2 = jax.random.split(kk)
+        jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
+        cell = P.sample_index(k1, jw.reshape(-1))
+        x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
+            cell % models.num_bins
+        z = P.sample_index(k2, models.AZ[x, t, b])
+        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
+        s = J.sum()
+        J = J / jnp.where(s > 0, s, 1.0)
+        stay = J.sum(1)
+        ac = jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]])
+        bc = jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])
+        frames = jnp.stack([jnp.stack([i, j]), jnp.stack([i, k]), jnp.stack([j, k])])
+        return frames, jnp.stack([stay, ac, bc])
+
+    fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
+    return _RefLevel(cost=costs[acts], acts=acts, ks=ks, w=w,
+                  goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs,
+                  seen=ps[acts], frames=fr, robots=rb)
+
+
+@partial(jax.jit, static_argnames=("pp",))
+def reference_plan(models, D1, trip, scale, fg: G.FrameGraph, goal, frame, robot, key,
+         pp: P.PlannerParams = P.DEFAULT, cost=None) -> P.Plan:
+    """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
+
+    Args:
+        models: offline tables. D1: (Q, Q) neighbour distance (eq. 4.29).
+        trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
+        fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
+        frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
+        pp: static settings. cost: optional traced 1 or 2 overriding ``pp.cost``.
+    """
+    if pp.depth < 1:
+        raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
+    cost = pp.cost if cost is None else cost
+    cb = P.cbar(models, D1, cost)
+    lam = jnp.asarray(pp.lam, jnp.float32)
+    expand = jax.vmap(lambda f, p, lv: _ref_expand_one(models, D1, trip, scale, fg, goal, key, lv,
+                                                   f, p, pp, cost), (0, 0, None))
+    frames, robots = frame[None], robot[None]
+    levels = []
+    for lv in range(pp.depth):
+        out = expand(frames, robots, lv)
+        levels.append((frames, out))
+        frames = out.frames.reshape(-1, 2)
+        robots = out.robots.reshape(-1, robot.shape[-1])
+    values = P.leaf_values(fg, frames, cb, lam, pp.rho)
+    q = None
+    for parent_frames, out in reversed(levels):
+        n = parent_frames.shape[0]
+        v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
+        vb = jnp.where(out.goal, 0.0, v.min(-1))
+        stuck = P.leaf_values(fg, parent_frames, cb, lam, pp.rho)[:, None] + cb
+        # seen = 1 unless the nothing-seen EXTENSION is on (docs/bsp.md §nothing-seen)
+        q = out.cost + jnp.where(out.anyobs, out.seen * (out.w * vb).sum(-1)
+                                 + (1.0 - out.seen) * stuck, stuck)
+        values = q.min(-1)
+        links = v.argmin(-1)
+    root = levels[0][1]
+    best = jnp.argmin(q[0])
+    value = values[0]
+    return P.Plan(value=value, action=root.acts[0, best], exists=value < 0.5 * lam * cb,
+                actions=root.acts[0], ks=root.ks[0], links=links[0], q=q[0])
 
 
 def _instances(models, n_env: int):
@@ -89,6 +218,49 @@ def bench(models, D1, bels, fgs, goals, pp, chunks, reps: int = 3) -> dict:
     return out
 
 
+def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
+    """This planner against the previous one (``sampler="joint"``, the in-process reference):
+    per-plan time of the jitted single-environment planner in a loop, the ratio, and whether
+    the plans agree (first actions; root values relative to the reference's)."""
+    n = len(bels)
+    keys = jax.random.split(jax.random.key(0), n)
+    args = [(bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame, bels[e].robot,
+             keys[e]) for e in range(n)]
+    out = {}
+    planners = (("reference", reference_plan, pp), ("new_joint_sampler", P.plan,
+                                                     pp._replace(sampler="joint")),
+                ("new", P.plan, pp))
+    for name, f, p in planners:
+        jax.block_until_ready(f(models, D1, *args[0], p))  # compile
+        t, o = best_of(lambda f=f, p=p: [f(models, D1, *a, p) for a in args], reps)
+        out[name] = {"ms_per_plan": 1e3 * t / n,
+                     "actions": [int(x.action) for x in o],
+                     "values": [float(x.value) for x in o]}
+    ra, na = np.array(out["reference"]["actions"]), np.array(out["new"]["actions"])
+    rv, nv = np.array(out["reference"]["values"]), np.array(out["new"]["values"])
+    rel = np.abs(nv - rv) / np.maximum(np.abs(rv), 1e-9)
+    ca = {}
+    for name, f, p in planners:
+        c = f.lower(models, D1, *args[0], p).compile().cost_analysis()
+        c = c[0] if isinstance(c, list) else (c or {})
+        ca[name] = {"flops": c.get("flops"), "bytes_accessed": c.get("bytes accessed")}
+    return {"envs": n, "ms_per_plan_reference": out["reference"]["ms_per_plan"],
+            "ms_per_plan_new": out["new"]["ms_per_plan"],
+            "ms_per_plan_new_joint_sampler": out["new_joint_sampler"]["ms_per_plan"],
+            "same_first_action_joint_sampler": float(np.mean(
+                ra == np.array(out["new_joint_sampler"]["actions"]))),
+            "value_rel_diff_max_joint_sampler": float(np.max(
+                np.abs(np.array(out["new_joint_sampler"]["values"]) - rv)
+                / np.maximum(np.abs(rv), 1e-9))),
+            "ratio": out["reference"]["ms_per_plan"] / out["new"]["ms_per_plan"],
+            "same_first_action": float(np.mean(ra == na)),
+            "value_rel_diff_median": float(np.median(rel)),
+            "value_rel_diff_p90": float(np.quantile(rel, 0.9)),
+            "value_rel_diff_max": float(np.max(rel)),
+            "same_plan_exists": bool(np.array_equal(rv < 0.5 * pp.lam, nv < 0.5 * pp.lam)),
+            "cost_analysis": ca}
+
+
 def overheads(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
     """Per-call dispatch cost of a do-nothing jit with the planner's arguments, and XLA's
     cost analysis of one compiled plan."""
@@ -112,21 +284,22 @@ def main() -> int:
     ap.add_argument("--chunks", type=int, nargs="+", default=[1, 4, 16, 64, 128])
     ap.add_argument("--depth", type=int, default=2)
     ap.add_argument("--samples", type=int, default=600, help="model samples per cell")
-    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "bsp.json"))
+    ap.add_argument("--out", "--json", dest="out",
+                    default=str(Path(__file__).parent / "results" / "bsp.json"))
     a = ap.parse_args()
     sizes = a.envs or ([32] if a.quick else [128, 1024])
     models = M.load_models(M.ModelParams(samples=a.samples, pool=1 << 18, seed=3))
     D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
     pp = P.PlannerParams(depth=a.depth)
     bels, fgs, goals = _instances(models, max(sizes))
+    n_pp = min(max(sizes), 64)
     res = {"depth": a.depth, "n_actions": pp.n_actions, "n_beta": pp.n_beta,
+           "per_plan": per_plan(models, D1, bels[:n_pp], fgs[:n_pp], goals[:n_pp], pp),
            "overheads": overheads(models, D1, bels[:64], fgs[:64], goals[:64], pp),
            "runs": [bench(models, D1, bels[:n], fgs[:n], goals[:n], pp, a.chunks)
                     for n in sizes]}
-    res["env"] = device_info()  # backend, device kind, load average (benchmarks/_env.py)
     print(json.dumps(res, indent=1))
-    Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.json).write_text(json.dumps(res, indent=1))
+    write_result(res, a.out)  # + env: where it ran, load; timings with CPU time
     return 0
 
 

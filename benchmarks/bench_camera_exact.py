@@ -17,13 +17,12 @@ kernel's time per triple (float32 and float64, same process).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 
 from pqrm_jax.qrm import camera as C
 from pqrm_jax.qrm.camera_oracle import oracle_sets
@@ -89,9 +88,7 @@ def main() -> None:
                  f"{out['exact_path_z3_decisions_per_relation']:.2f} z3 decisions/relation, "
                  f"{out['exact_path_s']:.1f} s" if "exact_path_s" in out else ""))
     res["undecided_rates"] = undecided_rates()
-    res["env"] = device_info()
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(res, indent=1))
+    write_result(res, a.out)  # + env: where it ran, load; timings with CPU time
 
 
 def undecided_rates(count: int = 4096) -> dict:

@@ -18,7 +18,7 @@ import time
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import device_info, write_result  # benchmarks/_env.py
 
 from pqrm_jax import calculi
 from pqrm_jax.compositions.propagation import propagate, propagate_loop
@@ -86,7 +86,7 @@ def bench_scaling(tensor, sizes, repeats: int = 2):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
-    ap.add_argument("--json", help="also write the results to this file")
+    ap.add_argument("--out", "--json", dest="out", help="also write the results to this file")
     ap.add_argument("--calculus", default="edc")
     args = ap.parse_args(argv)
     calc = calculi.get(args.calculus)
@@ -119,9 +119,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{om['error']:.3f}/{om['entropy']:.2f}/{om['nll']:.2f} fused "
               f"{of['error']:.3f}/{of['entropy']:.2f}/{of['nll']:.2f}", flush=True)
     results["heldout"] = study
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(results, fh, indent=1)
+    if args.out:
+        write_result(results, args.out)  # + env and timings with CPU time
     return 0
 
 

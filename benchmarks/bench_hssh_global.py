@@ -13,13 +13,12 @@ dense over sparse, both batched. Compile time is excluded (one warm-up call each
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from pathlib import Path
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of
 
 from pqrm_jax import hssh_global as hg
@@ -28,6 +27,7 @@ from pqrm_jax import hssh_global as hg
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "hssh_global.json"))
     a = ap.parse_args()
     cases = [(3, 3, 16, 5, 1), (4, 3, 24, 5, 1)] if a.quick else [(3, 3, 16, 5, 1),
                                                                   (4, 3, 24, 5, 1),
@@ -56,10 +56,8 @@ def main() -> None:
         rows.append(row)
         print(rows[-1])
     out = {"benchmark": "hssh_global layout relaxation", "backend": jax.default_backend(),
-           "devices": str(jax.devices()), "cpu_count": os.cpu_count(), "env": device_info(),
-           "rows": rows}
-    path = Path(__file__).parent / "results" / "hssh_global.json"
-    path.write_text(json.dumps(out, indent=2))
+           "devices": str(jax.devices()), "cpu_count": os.cpu_count(), "rows": rows}
+    path = write_result(out, a.out)  # + env and timings with CPU time
     print("wrote", path)
 
 

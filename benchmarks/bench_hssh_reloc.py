@@ -14,12 +14,11 @@ excluded (one warm-up call each). Writes ``benchmarks/results/hssh_reloc.json``.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
-from _timing import best_of
+from _env import write_result  # benchmarks/_env.py
+from _timing import best_of_cpu
 
 from pqrm_jax.hssh_global import relocalize as rl
 
@@ -40,6 +39,8 @@ def t_junction(n: int = 45, cells: int = 14) -> np.ndarray:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--repeat", type=int, default=5, help="best of this many runs")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "hssh_reloc.json"))
     a = ap.parse_args()
     width, cells = 1.0, 14
     res = width / cells
@@ -57,18 +58,19 @@ def main() -> None:
         one = [tuple(x[i:i + 1] if isinstance(x, np.ndarray) else x for x in args)
                for i in range(k)]
         rl.match_pairs(*one[0])                                 # compile the K = 1 shape
-        t_b, (c_b, _) = best_of(lambda args=args: rl.match_pairs(*args))
-        t_l, outs = best_of(lambda one=one: [rl.match_pairs(*o) for o in one])
+        t_b, cpu_b, (c_b, _) = best_of_cpu(lambda args=args: rl.match_pairs(*args), a.repeat)
+        t_l, cpu_l, outs = best_of_cpu(lambda one=one: [rl.match_pairs(*o) for o in one],
+                                       a.repeat)
         c_l = np.concatenate([np.asarray(o[0]) for o in outs])
         err = np.abs(np.asarray(c_b) - offs)
         rows.append({"pairs": k, "batched_s": t_b, "loop_s": t_l, "loop_over_batched": t_l / t_b,
+                     "batched_cpu_s": cpu_b, "loop_cpu_s": cpu_l,
+                     "loop_over_batched_cpu": cpu_l / cpu_b,
                      "max_err_xy_widths": float(err[:, :2].max() / width),
                      "max_err_theta": float(err[:, 2].max()),
                      "batched_equals_loop": bool(np.allclose(c_b, c_l, atol=1e-4))})
         print(rows[-1])
-    out = {"benchmark": "hssh_reloc", "device": device_info(), "rows": rows}
-    path = Path(__file__).parent / "results" / "hssh_reloc.json"
-    path.write_text(json.dumps(out, indent=2))
+    write_result({"benchmark": "hssh_reloc", "rows": rows}, a.out)  # + env (where it ran)
 
 
 if __name__ == "__main__":

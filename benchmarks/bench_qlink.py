@@ -22,7 +22,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 
 from pqrm_jax import sim
 from pqrm_jax.qlink import elements as qel
@@ -36,6 +36,7 @@ CHUNK = 128
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "qlink.json"))
     a = ap.parse_args()
     n_batch, n_loop = (128, 8) if a.quick else (512, 24)
     r = 20.0
@@ -112,11 +113,8 @@ def main() -> None:
            "drive_only_ratio": round(td_l / td_b, 1), "cpu_count": os.cpu_count(),
            "device": str(jax.devices()[0]), "setting": "50 landmarks, 100 m x 100 m, R = 20 m, "
            "R' = 0.8R, beta = 2, sigma = 0.3"}
-    out["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
     print(json.dumps(out, indent=1))
-    res = Path(__file__).parent / "results"
-    res.mkdir(exist_ok=True)
-    (res / "qlink.json").write_text(json.dumps(out, indent=1) + "\n")
+    write_result(out, a.out)  # + env: where it ran, load at the end; process CPU time
 
 
 if __name__ == "__main__":

@@ -16,14 +16,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 
 from pqrm_jax import sim
 from pqrm_jax.qrm import camera as C
@@ -147,9 +146,7 @@ def main() -> None:
     res["load_avg_end"] = os.getloadavg()
     print(f"peak per-update log-log slope {res['per_update']['peak_loglog_slope']:.2f} "
           "(paper 3.5)")
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
-    Path(a.out).write_text(json.dumps(res, indent=1))
+    write_result(res, a.out)  # + env: where it ran; timings with CPU time
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ What each reported ratio compares and how the reference is timed: docs/benchmark
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -22,7 +21,7 @@ if "--one-core" in sys.argv:  # before JAX starts its thread pool (threads inher
 
 import jax
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax._parallel import default_queues
@@ -39,7 +38,7 @@ def main(argv=None) -> int:
                     help="trials of the NumPy reference measured (scaled to T)")
     ap.add_argument("--mu", type=int, default=20)
     ap.add_argument("--sigma", type=float, default=2.0)
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--out", "--json", dest="json", default=None)
     ap.add_argument("--one-core", action="store_true",
                     help="run the whole process on one core (the NumPy reference's resources)")
     args = ap.parse_args(argv)
@@ -108,9 +107,7 @@ def main(argv=None) -> int:
     for k, v in out.items():
         print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")
     if args.json:
-        out["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
-        with open(args.json, "w") as fh:
-            json.dump(out, fh, indent=1)
+        write_result(out, args.json)  # + env: where it ran; timings with CPU time
     return 0
 
 

@@ -19,7 +19,7 @@ if "--one-core" in sys.argv:  # before JAX starts its thread pool (threads inher
 from pathlib import Path
 
 import numpy as np
-from _env import device_info  # benchmarks/_env.py
+from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
@@ -151,9 +151,7 @@ def main() -> None:
                     "batched_first_call_s = the builds' own solver calls, compilation "
                     "included; build times include the witness pre-pass, problem "
                     "construction, path-consistency refutation and z3")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    res["env"] = device_info()  # backend, device kind (benchmarks/_env.py)
-    Path(args.out).write_text(json.dumps(res, indent=1, default=float))
+    write_result(json.loads(json.dumps(res, default=float)), args.out)  # + env, CPU times
 
 
 if __name__ == "__main__":

@@ -17,6 +17,8 @@ Subpackages (each imported on first access, ``pqrm_jax.qrm`` etc.; design notes 
 * :mod:`~pqrm_jax.triplets` — the triplet vocabulary: orderings, layouts and converters.
 * :mod:`~pqrm_jax.protocols` — the step convention ``init`` / ``update(state, key, *obs)`` and
   :func:`~pqrm_jax.protocols.run`.
+* :mod:`~pqrm_jax.io` — your data in (CSV/NumPy, ROS maps), maps out (save/load, GraphML).
+* :mod:`~pqrm_jax.plot` — figures of maps: PQRM/QRM, Link Graph, HSSH local and global.
 
 >>> import pqrm_jax
 >>> pqrm_jax.calculi.get("lr").states
@@ -33,7 +35,8 @@ from . import calculi
 
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
-           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global", "protocols"]
+           "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global", "protocols", "io",
+           "plot"]
 SUBPACKAGES = tuple(__all__)
 
 

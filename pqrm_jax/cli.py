@@ -94,6 +94,10 @@ def main(argv: list[str] | None = None) -> int:
         return default_format(message, category, filename, lineno, line)
 
     warnings.formatwarning = one_line
+    if argv is None:  # the command itself (not a call from Python): warm starts
+        from . import compile_cache
+
+        compile_cache.enable()  # PQRM_JAX_COMPILE_CACHE=DIR or =off; docs/benchmarks.md
     try:
         return _dispatch(list(sys.argv[1:] if argv is None else argv))
     finally:

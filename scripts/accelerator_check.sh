@@ -1,22 +1,30 @@
 #!/usr/bin/env bash
-# Accelerator readiness check (issue 19 item 2): the PQRM, tables, QRM, SERGE and compositions
-# benchmarks in reduced form and one reduced padgett-mc study, on whatever device JAX finds
-# (set JAX_PLATFORMS=cpu to force the CPU), all written into ONE JSON.
+# Accelerator readiness check (issue 19 item 2, issue 31 item 7): every benchmark in reduced
+# form (PQRM, padgett runner, tables, QRM, SERGE, compositions, BSP, Q-Link, HSSH cellular,
+# HSSH global layout and re-localisation), one reduced padgett-mc study and the FULL padgett-mc
+# study (--runs 1000, 24 levels), on whatever device JAX finds (set JAX_PLATFORMS=cpu to force
+# the CPU), all written into ONE JSON.
 #
 #   bash scripts/accelerator_check.sh [OUT.json]     # default benchmarks/results/accelerator_check_<backend>.json
 #
-# Each step has its own time limit (STEP_S, default 60 s; QRM_S 150 s; SERGE_S 75 s; the study
-# STUDY_S 60 s: at most 465 s in all) so the whole check stays under 8 minutes; a step that fails or times out is recorded as such
-# (rc, timed_out, the tail of its log) and the check goes on. Every step's JSON carries
-# "env" (backend, device kind; benchmarks/_env.py).
+# Each step has its own time limit (STEP_S, default 90 s; QRM_S 150 s; SERGE_S 75 s; the
+# reduced study STUDY_S 60 s; the full study FULL_S 300 s: at most ~20 min in all, ~4 min on a
+# GPU) and its wall time, user+system CPU seconds and peak memory are recorded
+# (/usr/bin/time); a step that fails or times out is recorded as such (rc, timed_out, the tail
+# of its log) and the check goes on. Every step's JSON carries "env" (where it ran:
+# backend, device kind, host, load; benchmarks/_env.py). SKIP="bsp hssh ..." leaves steps out.
+# The compilation cache is off (PQRM_JAX_COMPILE_CACHE=off): every step compiles cold.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-.venv/bin/python}
 [ -x "$PY" ] || PY=python3
-STEP_S=${STEP_S:-60}
+STEP_S=${STEP_S:-90}
 QRM_S=${QRM_S:-150}
 SERGE_S=${SERGE_S:-75}
 STUDY_S=${STUDY_S:-60}
+FULL_S=${FULL_S:-300}
+SKIP=${SKIP:-}
+export PQRM_JAX_COMPILE_CACHE=off
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/pqrm-accel.XXXXXX")
 trap 'rm -rf "$WORK"' EXIT
 T0=$(date +%s)
@@ -24,24 +32,41 @@ T0=$(date +%s)
 step() {  # step NAME LIMIT_S command...
   local name=$1 limit=$2; shift 2
   local t0 rc
+  case " $SKIP " in *" $name "*) printf '%-14s skipped\n' "$name"; return;; esac
   t0=$(date +%s%N)
-  timeout --kill-after=5 "$limit" "$@" >"$WORK/$name.log" 2>&1
+  if [ -x /usr/bin/time ]; then
+    /usr/bin/time -f "%e %U %S %M" -o "$WORK/$name.time" \
+      timeout --kill-after=5 "$limit" "$@" >"$WORK/$name.log" 2>&1
+  else
+    timeout --kill-after=5 "$limit" "$@" >"$WORK/$name.log" 2>&1
+  fi
   rc=$?
   echo "$name $rc $(awk -v a="$(date +%s%N)" -v b="$t0" 'BEGIN{print (a-b)/1e9}')" >>"$WORK/steps.txt"
   printf '%-14s rc=%s\n' "$name" "$rc"
 }
 
-step pqrm "$STEP_S" "$PY" benchmarks/bench_pqrm.py --triplets 720 --samples 256 --study-runs 0 \
-  --json "$WORK/pqrm.json"
+step pqrm "$STEP_S" "$PY" benchmarks/bench_pqrm.py --triplets 7200 --samples 1024 \
+  --study-runs 0 --out "$WORK/pqrm.json"
+step padgett "$STEP_S" "$PY" benchmarks/bench_padgett.py --runs 100 --repeat 2 \
+  --out "$WORK/padgett.json"
 step tables "$STEP_S" "$PY" benchmarks/bench_tables.py --repeat 1 --single-problems 10 \
   --random 48 --random-only --out "$WORK/tables.json"
 step qrm "$QRM_S" "$PY" benchmarks/bench_qrm.py --quick --out "$WORK/qrm.json"
 step serge "$SERGE_S" "$PY" benchmarks/bench_serge.py --trials 64 --seq-trials 4 --ref-trials 4 \
-  --json "$WORK/serge.json"
+  --out "$WORK/serge.json"
 step compositions "$STEP_S" "$PY" benchmarks/bench_compositions.py --quick \
-  --json "$WORK/compositions.json"
+  --out "$WORK/compositions.json"
+step bsp "$STEP_S" "$PY" benchmarks/bench_bsp.py --quick --out "$WORK/bsp.json"
+step qlink "$STEP_S" "$PY" benchmarks/bench_qlink.py --quick --out "$WORK/qlink.json"
+step hssh "$STEP_S" "$PY" benchmarks/bench_hssh.py --batch 16 --repeats 2 --out "$WORK/hssh.json"
+step hssh_global "$STEP_S" "$PY" benchmarks/bench_hssh_global.py --quick \
+  --out "$WORK/hssh_global.json"
+step hssh_reloc "$STEP_S" "$PY" benchmarks/bench_hssh_reloc.py --quick --repeat 2 \
+  --out "$WORK/hssh_reloc.json"
 step study "$STUDY_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 20 --levels 2 \
   --quiet --out "$WORK/study"
+step study_full "$FULL_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 1000 \
+  --quiet --out "$WORK/study_full"
 
 "$PY" - "$WORK" "${1:-}" "$T0" <<'EOF'
 import json, sys, time
@@ -59,11 +84,18 @@ for line in (work / "steps.txt").read_text().split("\n"):
     name, rc, secs = line.split()
     rc = int(rc)
     entry = {"rc": rc, "timed_out": rc in (124, 137), "wall_s": round(float(secs), 2)}
-    src = work / ("study/timing.json" if name == "study" else f"{name}.json")
+    tfile = work / f"{name}.time"
+    if tfile.exists() and len(tfile.read_text().split()) >= 4:
+        wall, user, system, kb = tfile.read_text().split()[-4:]
+        entry.update({"time_wall_s": float(wall), "cpu_s": round(float(user) + float(system), 2),
+                      "max_rss_mb": round(int(kb) / 1024, 1)})
+    study = name.startswith("study")
+    src = work / (f"{name}/timing.json" if study else f"{name}.json")
     if src.exists():
         entry["result"] = json.loads(src.read_text())
-    if name == "study" and (work / "study/levels.jsonl").exists():
-        lines = [json.loads(x) for x in (work / "study/levels.jsonl").read_text().split("\n") if x]
+    if study and (work / f"{name}/levels.jsonl").exists():
+        lines = [json.loads(x) for x in (work / f"{name}/levels.jsonl").read_text().split("\n")
+                 if x]
         entry["levels"] = [{"sigma_r": r["sigma_r"],
                             "edc_error": r["reps"]["edc"]["error_mean"],
                             "edc_entropy": r["reps"]["edc"]["entropy_mean"]} for r in lines]

@@ -243,7 +243,6 @@ def test_no_two_public_names_for_different_things():
 LONG_FUNCTION_ALLOWED = {
     "qlink/navigate.py:_machine": "issue 24 (qlink Trials bundle) rewrites the executive",
     "qlink/hybrid.py:_drive": "issue 24 (qlink.drive naming) rewrites the hybrid executive",
-    "bsp/execute.py:run_lane": "issue 25 (LaneState / Lane bundle) rewrites the bsp executive",
 }
 MAX_FUNCTION_LINES = 100
 

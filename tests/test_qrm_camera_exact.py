@@ -56,18 +56,18 @@ def _check(bear):
     spec = qrm_spec("edc")
     exact = np.stack([oracle_sets(b, spec) for b in bear])
     assert (popcount(exact) > 0).all()  # the configuration the bearings came from is one
-    kern = C.measure_triples(bear, spec, exact=False)
+    kern = C.measure_triples(bear, spec, exact=False, tol=0)
     sets, und = np.asarray(kern.sets), np.asarray(kern.undecided)
     assert ((exact & ~sets) == 0).all(), "kernel removed a feasible state"
     assert ((sets & ~und & ~exact) == 0).all(), "kernel proved an infeasible state"
-    ex = C.measure_triples(bear, spec, exact=True)
+    ex = C.measure_triples(bear, spec, exact=True, tol=0)
     np.testing.assert_array_equal(np.asarray(ex.sets), exact)
     assert not np.asarray(ex.undecided).any()
     assert 0 <= ex.exact_decisions <= 3 * spec.num_states * len(bear)
     import jax
 
     with jax.enable_x64(True):
-        k64 = C.measure_triples(bear.astype(np.float64), spec, exact=False)
+        k64 = C.measure_triples(bear.astype(np.float64), spec, exact=False, tol=0)
     s64, u64 = np.asarray(k64.sets), np.asarray(k64.undecided)
     # two equal bearings make constraints vanish identically on a cone edge, which the
     # rounding band cannot tell from "nearly": such rows may keep undecided states
@@ -104,9 +104,12 @@ def test_exact_sets_equal_oracle_slow(kind):
 
 def test_documented_bad_input():
     spec = qrm_spec("edc")
-    # three on one ray: collinear for every range assignment, no open state
+    # three on one ray: collinear for every range assignment, no open state (tolerance 0;
+    # with a tolerance, bearings within it of each other are ordinary input)
     with pytest.raises(ValueError, match="all equal"):
-        C.measure_triples(np.array([[0.7, 0.7, 0.7]], np.float32), spec)
+        C.measure_triples(np.array([[0.7, 0.7, 0.7]], np.float32), spec, tol=0)
+    assert (np.asarray(C.measure_triples(np.array([[0.7, 0.7, 0.7]], np.float32), spec,
+                                         exact=False).sets) != 0).all()
     with pytest.raises(ValueError, match="NaN"):
         C.measure_triples(np.array([[0.7, np.inf, 0.1]], np.float32), spec)
     with pytest.raises(ValueError, match="non-finite"):

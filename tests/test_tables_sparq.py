@@ -141,3 +141,84 @@ def test_cli_format_sparq_and_json(tmp_path, capsys):
     assert "unknown table format 'xml'" in capsys.readouterr().err
     assert main(["tables", "edc", "lr", "--format", "sparq", str(out)]) == 2
     assert not (tmp_path / "x").exists()
+
+
+# Keys of SparQ's def-calculus (SparQ Source/calculi.lisp, macro def-calculus): a missing
+# MUST key is an error ("... not specified"), a missing SHOULD key a warning, any other key a
+# warning ("key value pair(s) will be ignored").
+SPARQ_MUST = ("BASE-RELATIONS", "ARITY", "IDENTITY-RELATION", "COMPOSITION-OPERATION")
+SPARQ_SHOULD = ("PARAMETRIC?", "CONSISTENCY", "INVERSE-OPERATION", "SHORTCUT-OPERATION",
+                "HOMING-OPERATION")
+SPARQ_KNOWN = {"ARITY", "PARAMETRIC?", "BASIS-ENTITY", "IDENTITY-RELATION", "CONVERSE-OPERATION",
+               "INVERSE-OPERATION", "QUALIFIER", "HOMING-OPERATION", "SHORTCUT-OPERATION",
+               "CONSISTENCY", "BASE-RELATIONS", "COMPOSITION-OPERATION",
+               "ALGEBRAIC-SPECIFICATION", "N-ARY-COMPOSITION-OPERATION", "QUANTIFIER",
+               "TRACTABLE-SUBSETS", "CNHS"}
+SPARQ_CONSISTENCY = {":UNKNOWN", ":A-CLOSURE", ":ALGEBRAIC-CLOSURE", ":N-ARY-CLOSURE",
+                     ":SCENARIO-CONSISTENCY", ":N-ARY-SCENARIO-CONSISTENCY"}
+SHIPPED = ("edc", "edc_lune", "triple_cross", "double_cross", "single_cross", "lr", "quadrant",
+           "dcc", "lr_full")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_key_sparq_requires_is_present_and_well_formed(name):
+    """What a real SparQ refused before (``Identity relation not specified`` for 7 of the 9
+    shipped calculi), checked key by key for every shipped calculus without SparQ."""
+    t = calculi.get(name).tables
+    text = to_sparq(t)
+    d = parse_calculus(text)
+    for key in SPARQ_MUST + SPARQ_SHOULD:
+        assert key in d, (name, key)
+    assert set(d) <= SPARQ_KNOWN, set(d) - SPARQ_KNOWN
+    assert d["ARITY"] == ":TERNARY" and d["PARAMETRIC?"] == "NIL"
+    assert d["CONSISTENCY"] in SPARQ_CONSISTENCY
+    base = d["BASE-RELATIONS"]
+    assert len(base) == t.num_states and len(set(base)) == len(base)
+    assert d["IDENTITY-RELATION"] in base
+    for key in ("INVERSE-OPERATION", "SHORTCUT-OPERATION", "HOMING-OPERATION"):
+        assert sorted(row[0] for row in d[key]) == sorted(base), key
+        assert all(set(row[1:]) <= set(base) for row in d[key]), key
+    comp = d["COMPOSITION-OPERATION"]
+    assert sorted((a, b) for a, b, _ in comp) == sorted((a, b) for a in base for b in base)
+    assert all(r == "NIL" or set(r) <= set(base) for _, _, r in comp)
+    # the conceptual neighbourhood: one structure named default/def, one row per relation,
+    # symmetric, no self-loops, equal to our adjacency
+    (cn_names, rows), = d["CNHS"]
+    assert cn_names == ["DEFAULT", "DEF"]
+    assert sorted(r[0] for r in rows) == sorted(base)
+    nb = {r[0]: set(r[1:]) for r in rows}
+    pos = {s: i for i, s in enumerate(base)}
+    adj = np.zeros((t.num_states,) * 2, bool)
+    for a, ns in nb.items():
+        assert a not in ns
+        for b in ns:
+            adj[pos[a], pos[b]] = True
+    np.testing.assert_array_equal(adj, adj.T)
+    np.testing.assert_array_equal(adj, t.adjacency & ~np.eye(t.num_states, dtype=bool))
+
+
+@pytest.mark.parametrize("name,true_id", [("lr_full", "E"), ("dcc", "R5")])
+def test_true_identity_is_declared_as_identity(name, true_id):
+    text = to_sparq(calculi.get(name).tables)
+    assert parse_calculus(text)["IDENTITY-RELATION"] == true_id
+    assert "PLACEHOLDER" not in text
+
+
+@pytest.mark.parametrize("name", ["edc", "edc_lune", "triple_cross", "double_cross",
+                                  "single_cross", "lr", "quadrant"])
+def test_calculus_without_identity_names_a_placeholder_and_says_so(name):
+    from pqrm_jax.tables.sparq import identity_relation
+    t = calculi.get(name).tables
+    e, true_identity = identity_relation(t)
+    assert not true_identity
+    # really no identity: some r has COMPOSE(r, e) neither {r} nor empty
+    Q = t.num_states
+    assert any(t.compose[r, e].any() and not (t.compose[r, e] == np.eye(Q, dtype=bool)[r]).all()
+               for r in range(Q))
+    # the placeholder keeps r in COMPOSE(r, e) for at least as many r as any other state
+    counts = [sum(bool(t.compose[r, x, r]) for r in range(Q)) for x in range(Q)]
+    assert counts[e] == max(counts)
+    text = to_sparq(t)
+    assert "PLACEHOLDER, not an identity" in text
+    sym = parse_calculus(text)["IDENTITY-RELATION"]
+    assert _mapping_from_comments(text)[t.states[e]] == sym

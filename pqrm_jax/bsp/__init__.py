@@ -17,7 +17,16 @@
 5
 """
 
-from .belief import QBelief, check_distribution, non_detection, scale_posteriors, update
+from .belief import (
+    SCALE_MODELS,
+    QBelief,
+    belief_scales,
+    check_distribution,
+    in_belief,
+    non_detection,
+    scale_posteriors,
+    update,
+)
 from .compose import augment, triplet_link_graph
 from .env import Environment, check_environment, generate, initial_belief
 from .execute import ExecParams, Outcome, run_lane, run_lanes
@@ -26,7 +35,8 @@ from .models import ModelParams, Models, build_models, load_models, sample_table
 from .planner import Plan, PlannerParams, plan
 
 __all__ = [
-    "QBelief", "check_distribution", "non_detection", "scale_posteriors", "update", "augment",
+    "SCALE_MODELS", "QBelief", "belief_scales", "check_distribution", "in_belief",
+    "non_detection", "scale_posteriors", "update", "augment",
     "triplet_link_graph", "Environment", "check_environment", "generate", "initial_belief",
     "ExecParams", "Outcome", "run_lane", "run_lanes", "FrameGraph", "frame_graph",
     "plan_exists", "ModelParams", "Models", "build_models", "load_models", "sample_tables",

@@ -6,10 +6,13 @@ The belief is the factorised product of eq. 4.2, held as a pytree of static shap
 * ``frame`` (2,) int32 — the current ordered frame (i, j): i at (0, 0), j at (0, 1);
 * ``robot`` (Q,) — ``P(S_frame^X)``, the robot's state in its frame;
 * ``trip`` (L, L, L, Q) — ``P(ij:k)`` for every ordering (P §2.3 layout);
-* ``trip_src`` (L, L, L) int8 — 0 unknown, 1 measured, 2 composed (Z eq. 4.26);
+* ``trip_src`` (L, L, L) int8 — 0 unknown, 1 measured, 2 composed (Z eq. 4.26), 3 composed
+  for the frame scales only (not a candidate: the without-compositions mode of the
+  ``"composed"`` scale model, docs/bsp.md §Z-10);
 * ``ncomp`` (L, L, L) int8 — compositions in the tree that produced a composed row;
 * ``scale`` (L, L, nb) — ``P(S^{ij})`` global frame-scale bins, symmetric (Z §4.2.5);
-* ``lm_mask`` (L,) bool; ``conflicts`` () int32 — updates whose evidence had zero likelihood.
+* ``lm_mask`` (L,) bool; ``conflicts`` () int32 — updates whose evidence had zero likelihood
+  (ψ with η = 0, and PQRM row fusions whose product was zero, :func:`pqrm_jax.pqrm.fuse_rows`).
 
 The update ψ (eq. 4.25) for action ``a`` (go to state a), observed triplet ``β = ij:k``,
 discrete measurement ``ẑ`` and link option ``link`` (0 stay, 1 → frame (i, k), 2 → (j, k),
@@ -35,6 +38,47 @@ from .models import Models
 
 #: link option → index into ``Models.K`` (the link types "AC" and "BC").
 LINK_K = (1, 3)
+
+#: ``QBelief.trip_src`` codes.
+UNKNOWN, MEASURED, COMPOSED, SCALE_ONLY = 0, 1, 2, 3
+
+#: Scale models (docs/bsp.md §Z-10). ``"composed"`` (default): the frame scales of both modes
+#: are derived from the measured and the composed rows (Z §4.2.5 eq. 4.24 with §4.2.6), so
+#: "without compositions" changes only the candidate set. ``"belief"`` (the previous model,
+#: kept as a declared option): the scales come from the rows of the mode's own belief, and a
+#: pair inside a measured triplet keeps its measured-only scale (uniform over the observable
+#: bins when not derivable from measured rows).
+SCALE_MODELS = ("composed", "belief")
+
+
+def in_belief(trip_src) -> jax.Array:
+    """Rows that are candidates (measured or composed; not ``SCALE_ONLY``), same shape."""
+    return (trip_src == MEASURED) | (trip_src == COMPOSED)
+
+
+def check_scale_model(scale_model: str) -> str:
+    """``ValueError`` naming ``scale_model`` unless it is one of :data:`SCALE_MODELS`."""
+    if scale_model not in SCALE_MODELS:
+        raise ValueError(f"scale_model must be one of {SCALE_MODELS}, got {scale_model!r}")
+    return scale_model
+
+
+def belief_scales(models: Models, trip, trip_src, ref, ref_scale, lm_mask,
+                  scale_model: str = "composed") -> jax.Array:
+    """[L, L, nb] frame scales of a belief under ``scale_model`` (docs/bsp.md §Z-10).
+
+    Args:
+        models: the offline tables (``G2``, ``GA``, ``GB``).
+        trip: [L, L, L, Q] triplet rows. trip_src: [L, L, L] source codes (module docstring).
+        ref: [2] the reference frame; ref_scale: [nb] its known scale.
+        lm_mask: [L] real landmarks.
+        scale_model: ``"composed"`` or ``"belief"`` (:data:`SCALE_MODELS`), static.
+    """
+    check_scale_model(scale_model)
+    if scale_model == "composed":
+        return scale_posteriors(models, trip, trip_src > 0, ref, ref_scale, lm_mask)
+    return scale_posteriors(models, trip, in_belief(trip_src), ref, ref_scale, lm_mask,
+                            measured=trip_src == MEASURED)
 
 
 class QBelief(NamedTuple):

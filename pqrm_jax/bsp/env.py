@@ -14,10 +14,14 @@
 * Initial belief: every ``M_1`` triplet measured once by PQRM (all orderings), the robot's
   state from the same inverse-sensor sampling, the reference scale (the known frame of
   Z §4.2.5) is F_1's true length bin (docs/bsp.md §Z-10), and — with compositions — every
-  other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`).
+  other triplet composed (:func:`~pqrm_jax.bsp.compose.augment`). Under the default
+  ``"composed"`` scale model the composed rows also serve the frame scales without
+  compositions (marked ``SCALE_ONLY``: never candidates).
 
-Bad input raises ``ValueError``: fewer than 3 landmarks, NaN positions, a target with repeated
-or unknown landmarks, a non-composable initial belief, a frame with repeated landmarks.
+Bad input raises ``ValueError`` naming it: fewer than 3 landmarks, NaN or coincident positions,
+landmark ids that are not integers or are repeated or unknown (target, frame, triplets), a
+non-composable initial belief; ``generate`` refuses a non-integer ``n`` and a non-positive or
+non-finite ``size`` / ``R`` (negative ``r_min``).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from .. import calculi
 from ..compositions import is_composable
 from ..compositions.simulation import measure_map
 from ..pqrm import state_probabilities
-from .belief import QBelief, scale_posteriors
+from .belief import COMPOSED, SCALE_ONLY, QBelief, belief_scales, check_scale_model
 from .compose import augment
 from .models import Models
 
@@ -88,11 +92,58 @@ def grow_triplets(pos: np.ndarray, rng: np.random.Generator, R: float = 1.0):
     return out
 
 
+def _is_real(v) -> bool:
+    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(
+        v, bool | np.bool_)
+
+
+def _integer(name: str, v, low: int) -> int:
+    """``v`` as an int (Python or NumPy integer, no bool) >= ``low``; else ``ValueError``."""
+    if not isinstance(v, int | np.integer) or isinstance(v, bool | np.bool_) or v < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+def _ids(what: str, ids, count: int | None, n: int) -> tuple:
+    """Landmark ids as ints: integers (Python or NumPy) in ``[0, n)``, ``count`` of them."""
+    ids = tuple(ids)
+    if count is not None and len(ids) != count:
+        raise ValueError(f"{what} must have {count} landmark ids, got {ids}")
+    for x in ids:
+        if not isinstance(x, int | np.integer) or isinstance(x, bool | np.bool_):
+            raise ValueError(f"{what} {ids} must hold integer landmark ids, got {x!r}")
+    if not all(0 <= x < n for x in ids):
+        raise ValueError(f"{what} {ids} uses unknown landmarks (ids 0..{n - 1})")
+    return tuple(int(x) for x in ids)
+
+
 def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
              R: float = 1.0, max_tries: int = 1000) -> Environment:
-    """One random environment (module docstring)."""
+    """One random environment (module docstring).
+
+    Args:
+        rng: NumPy generator.
+        n: number of landmarks, an integer >= 3.
+        size: S, the side of the square ``[0, S]²`` in units of R (positive, finite).
+        r_min: minimum landmark spacing (non-negative, finite).
+        R: sensing range (positive, finite).
+        max_tries: draws before giving up (positive integer).
+
+    Raises:
+        ValueError: naming the argument for bad values; RuntimeError when no valid
+            environment is found in ``max_tries`` draws (e.g. ``size`` too small for ``n``
+            landmarks ``r_min`` apart).
+    """
+    if not isinstance(n, int | np.integer) or isinstance(n, bool | np.bool_):
+        raise ValueError(f"n must be an integer >= 3, got {n!r}")
+    n = int(n)
     if n < 3:
-        raise ValueError(f"an environment needs at least 3 landmarks, got {n}")
+        raise ValueError(f"an environment needs at least 3 landmarks (n), got {n}")
+    max_tries = _integer("max_tries", max_tries, 1)
+    for nm, v, positive in (("size", size, True), ("r_min", r_min, False), ("R", R, True)):
+        if not _is_real(v) or not np.isfinite(v) or v < 0 or (positive and v == 0):
+            what = "positive" if positive else "non-negative"
+            raise ValueError(f"{nm} must be {what} and finite, got {v!r}")
     for _ in range(max_tries):
         pos = rng.uniform(0, size, (n, 2))
         D = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
@@ -118,7 +169,12 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
 
 
 def check_environment(env: Environment, L_max: int) -> None:
-    """``ValueError`` naming the problem (module docstring)."""
+    """``ValueError`` naming the problem (module docstring).
+
+    Refused: fewer than 3 or more than ``L_max`` landmarks, non-finite or coincident
+    landmark positions, a non-finite robot start, landmark ids (target, frame, initial-belief
+    triplets) that are not integers, repeated or unknown, a non-composable initial belief.
+    """
     pos = np.asarray(env.pos, float)
     n = len(pos)
     if n < 3:
@@ -127,18 +183,23 @@ def check_environment(env: Environment, L_max: int) -> None:
         raise ValueError(f"{n} landmarks exceed the padding L_max={L_max}")
     if pos.shape != (n, 2) or not np.all(np.isfinite(pos)):
         raise ValueError("landmark positions must be finite (n, 2)")
-    if not np.all(np.isfinite(env.start)):
-        raise ValueError("robot start position must be finite")
-    g = tuple(env.goal)
-    if len(g) != 3 or len(set(g)) != 3:
+    D = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.diag(np.full(n, np.inf))
+    if np.any(D == 0):
+        a, b = (int(x) for x in np.argwhere(D == 0)[0])
+        raise ValueError(f"landmarks {a} and {b} coincide at {pos[a].tolist()}: every frame "
+                         "and triplet needs distinct positions")
+    start = np.asarray(env.start, float)
+    if start.shape != (2,) or not np.all(np.isfinite(start)):
+        raise ValueError(f"robot start position must be finite (2,), got {start.tolist()}")
+    g = _ids("target triplet", env.goal, 3, n)
+    if len(set(g)) != 3:
         raise ValueError(f"target triplet must have 3 distinct landmarks, got {g}")
-    if not all(0 <= x < n for x in g):
-        raise ValueError(f"target triplet {g} uses unknown landmarks (ids 0..{n - 1})")
-    f = tuple(env.frame)
-    if len(f) != 2 or f[0] == f[1] or not all(0 <= x < n for x in f):
+    f = _ids("initial frame", env.frame, 2, n)
+    if f[0] == f[1]:
         raise ValueError(f"initial frame {f} must be two distinct known landmarks")
     for t in env.triplets:
-        if len(set(t)) != 3 or not all(0 <= x < n for x in t):
+        t = _ids("initial-belief triplet", t, 3, n)
+        if len(set(t)) != 3:
             raise ValueError(f"initial-belief triplet {t} has repeated or unknown landmarks")
     if not is_composable(env.triplets, range(n)):
         raise ValueError("the initial belief is not composable under the landmark set "
@@ -147,8 +208,14 @@ def check_environment(env: Environment, L_max: int) -> None:
 
 def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
                    L_max: int = 12, sigma_z: float = 0.05, samples: int = 256,
-                   calculus: str = "edc") -> QBelief:
-    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks."""
+                   calculus: str = "edc", scale_model: str = "composed") -> QBelief:
+    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks.
+
+    With ``scale_model="composed"`` (docs/bsp.md §Z-10) the composed rows are computed in both
+    modes; without compositions they are marked ``SCALE_ONLY`` (frame scales, not
+    candidates), so both modes have the same initial frame scales.
+    """
+    check_scale_model(scale_model)
     check_environment(env, L_max)
     calc = calculi.get(calculus)
     n = len(env.pos)
@@ -162,10 +229,12 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
     trip[:n, :n, :n] = probs
     measured = np.zeros((L_max, L_max, L_max), bool)
     measured[:n, :n, :n] = observed
-    if compositions:
+    if compositions or scale_model == "composed":
         U = np.asarray(models.U)
         trip, src, ncomp = augment(trip, measured, n, np.asarray(calc.tables.prob_compose,
                                                                  np.float32), U)
+        if not compositions:  # composed rows serve the frame scales only (§Z-10)
+            src = np.where(src == COMPOSED, SCALE_ONLY, src).astype(np.int8)
     else:
         src = measured.astype(np.int8)
         ncomp = np.zeros_like(src)
@@ -176,8 +245,8 @@ def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
                                 samples)[0]
     ref_scale = reference_scale(models, env)
     lm = np.arange(L_max) < n
-    scale = scale_posteriors(models, trip, src > 0, jnp.asarray([a, b]), jnp.asarray(ref_scale),
-                             jnp.asarray(lm), measured=jnp.asarray(src == 1))
+    scale = belief_scales(models, jnp.asarray(trip), jnp.asarray(src), jnp.asarray([a, b]),
+                          jnp.asarray(ref_scale), jnp.asarray(lm), scale_model)
     return QBelief(frame=jnp.asarray([a, b], jnp.int32), robot=jnp.asarray(robot),
                    trip=jnp.asarray(trip), trip_src=jnp.asarray(src, jnp.int8),
                    ncomp=jnp.asarray(ncomp, jnp.int8), scale=scale, lm_mask=jnp.asarray(lm),

@@ -14,8 +14,11 @@ One lane is one test (environment × mode × cost). Each step (``lax.scan`` over
    has the smallest leaf value ``h`` (goal first; ties keep the frame), compute ẑ from the
    real measurement and update the robot's state with ψ (eq. 4.25);
 5. update the rows of every observed candidate triplet (all orderings) by PQRM (P eq. 2.9
-   sampled inverse sensor model, eq. 2.10 Bayes product) and recompute the frame scales.
-   Composed rows are kept from the initial session (decision: compositions once per episode).
+   sampled inverse sensor model; eq. 2.10 by :func:`pqrm_jax.pqrm.fuse_rows`, the one row
+   rule of the library: a zero product keeps the prior, leaves the row's source as it was
+   and adds a conflict to ``QBelief.conflicts``) and recompute the frame scales
+   (``ExecParams.scale_model``, docs/bsp.md §Z-10). Composed rows are kept from the initial
+   session (decision: compositions once per episode).
 
 Ground-truth executed costs (docs/bsp.md §Z-17): cost 1 sums the neighbour distance between the
 true states before and after each move in the frame of that step; cost 2 sums the metric
@@ -31,9 +34,18 @@ import jax
 import jax.numpy as jnp
 
 from .. import calculi, sim
-from ..pqrm import state_probabilities
+from ..pqrm import fuse_rows, state_probabilities
 from ..triplets import ORDERINGS
-from .belief import QBelief, discretise, non_detection, predict, scale_posteriors, update
+from .belief import (
+    MEASURED,
+    QBelief,
+    belief_scales,
+    discretise,
+    in_belief,
+    non_detection,
+    predict,
+    update,
+)
 from .graph import frame_graph, plan_exists
 from .models import Models
 from .planner import PlannerParams, cbar, leaf_values, plan
@@ -52,6 +64,15 @@ class ExecParams(NamedTuple):
     #: the rows of the frame's candidates that were not seen get the negative-information
     #: update :func:`~pqrm_jax.bsp.belief.non_detection`.
     nondetection: bool = False
+    #: how frame scales are derived (docs/bsp.md §Z-10; ``bsp.belief.SCALE_MODELS``): from
+    #: measured and composed rows in both modes (default) or from the mode's own belief.
+    scale_model: str = "composed"
+    #: what a lane does when a later frame graph says "no plan" (docs/bsp.md §execution):
+    #: ``"continue"`` (default) takes the planner's action anyway and replans at the next
+    #: step — measured: 4 of the 11 lanes a later "no plan" ended reach the goal when they go
+    #: on; ``"stop"`` (the previous rule) ends the lane as a failure. The first session's
+    #: "no plan" always ends it.
+    on_no_plan: str = "continue"
 
 
 class Outcome(NamedTuple):
@@ -77,20 +98,83 @@ def _to_world(pa, pb, p):
     return pa + p[1] * e + p[0] * right
 
 
+class LaneState(NamedTuple):
+    """The carry of one lane's ``lax.scan`` (shapes for L landmarks)."""
+
+    pos: jax.Array  # [2] the true robot position (units of R)
+    belief: QBelief  # the belief (frame, robot state, map)
+    done: jax.Array  # [] bool: the lane has ended (goal seen, or no plan)
+    reached: jax.Array  # [] bool: the three goal landmarks were seen at once
+    cost1: jax.Array  # [] executed cost 1 so far (eq. 4.29, ground truth)
+    cost2: jax.Array  # [] executed cost 2 so far (displacement in R)
+    steps: jax.Array  # [] int32 executed steps
+    exists: jax.Array  # [] bool: the first session's frame graph has a plan
+    tree_exists: jax.Array  # [] bool: the first session's tree root < λ
+    root_value: jax.Array  # [] the first session's root value
+    key: jax.Array  # the lane's PRNG key
+
+
+def map_update(key, models: Models, before: QBelief, after: QBelief, rel, cand, ref, ref_scale,
+               ep: ExecParams) -> QBelief:
+    """PQRM update of the rows of every observed candidate triplet (step 5 of the module).
+
+    For each landmark ``k`` with ``cand[k]``, the six orderings of the triplet (i, j, k) of the
+    frame (i, j) are measured by P eq. 2.9 from ``rel`` and fused into the rows of ``before``
+    (the belief before this observation: ψ's marginal of the same observation is replaced,
+    not counted twice) by :func:`pqrm_jax.pqrm.fuse_rows` (P eq. 2.10, the library's one row
+    rule): a zero product keeps the prior row and its source and adds one conflict per row to
+    ``conflicts``; otherwise the row becomes the posterior and is marked measured. Then the
+    frame scales are recomputed (``ep.scale_model``, docs/bsp.md §Z-10).
+
+    Args:
+        key: PRNG key of the eq. 2.9 samples.
+        models: the offline tables.
+        before: the belief before the observation (its frame is the observing frame).
+        after: the belief after ψ (its other fields are kept).
+        rel: [L, 2] measured landmark positions relative to the robot.
+        cand: [L] bool, landmarks k whose triplet with the frame was observed.
+        ref: [2] reference frame; ref_scale: [nb] its scale.
+        ep: execution settings (``calculus``, ``sigma_z``, ``pqrm_samples``, ``scale_model``).
+
+    Returns:
+        ``after`` with the fused rows, their sources, the scales and the conflict count.
+    """
+    calc = calculi.get(ep.calculus)
+    L = rel.shape[0]
+    i, j = before.frame[0], before.frame[1]
+    idx = jnp.arange(L)
+    ids = jnp.stack([jnp.full(L, i), jnp.full(L, j), idx], -1)  # (L, 3)
+    pid = ids[:, jnp.asarray(ORDERINGS)]  # (L, 6, 3)
+    sel = (pid[..., 0], pid[..., 1], pid[..., 2])
+    meas = state_probabilities(key, calc, rel[pid].reshape(-1, 3, 2), ep.sigma_z,
+                               ep.pqrm_samples).reshape(L, 6, -1)
+    okm = cand[:, None] & (meas.sum(-1) > 0)
+    srcv = after.trip_src[sel]
+    fused, conflict = fuse_rows(before.trip[sel], meas, in_belief(srcv), okm)
+    rows = jnp.where(okm[..., None], fused, after.trip[sel])
+    trip = after.trip.at[sel].set(rows)
+    src = after.trip_src.at[sel].set(jnp.where(okm & ~conflict, jnp.int8(MEASURED), srcv))
+    scale = belief_scales(models, trip, src, ref, ref_scale, before.lm_mask, ep.scale_model)
+    return after._replace(trip=trip, trip_src=src, scale=scale,
+                          conflicts=after.conflicts + conflict.sum().astype(jnp.int32))
+
+
 def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref, ref_scale,
              key, cost, pp: PlannerParams, ep: ExecParams) -> Outcome:
     """Execute one test (module docstring) with cost ``cost`` (1 or 2, traced); pure and
     ``vmap``-able over lanes (``pp.cost`` is ignored)."""
+    if ep.on_no_plan not in ("stop", "continue"):
+        raise ValueError(f"ExecParams.on_no_plan must be 'stop' or 'continue', got "
+                         f"{ep.on_no_plan!r}")
     calc = calculi.get(ep.calculus)
     L = pos.shape[0]
     idx = jnp.arange(L)
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     sensor = sim.SensorParams(max_range=1.0, sigma=ep.sigma_z)
-    perms = jnp.asarray(ORDERINGS)
 
-    def step(carry, t):
-        x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = carry
+    def step(st: LaneState, t):
+        x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = st
         key, kp, km, ko, kq = jax.random.split(key, 5)
         fg = frame_graph(models, bel.trip, bel.trip_src, bel.scale, lm_mask, goal, ep.eps_obs)
         pl = plan(models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, kp, pp, cost)
@@ -98,7 +182,8 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         ex0 = jnp.where(t == 0, exists, ex0)
         tex0 = jnp.where(t == 0, pl.exists, tex0)
         v0 = jnp.where(t == 0, pl.value, v0)
-        active = (~done) & exists
+        go_on = exists if ep.on_no_plan == "stop" else (exists | (t > 0))
+        active = (~done) & go_on
         a = pl.action
         i, j = bel.frame[0], bel.frame[1]
         tgt = _to_world(pos[i], pos[j], models.targets[a])
@@ -112,7 +197,7 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         ob = sim.observe(ko, jnp.concatenate([xn, jnp.zeros(1)]), pos, sensor)
         vis = ob.visible & lm_mask
         got = active & vis[goal].all()
-        avail = bel.trip_src[i, j] > 0
+        avail = in_belief(bel.trip_src[i, j])
         cand = vis & vis[i] & vis[j] & (idx != i) & (idx != j) & avail
         isg = fg.goal_obs[i, j] & (idx == goal.sum() - i - j)
         h_f = leaf_values(fg, bel.frame, cb, lam, pp.rho)
@@ -142,43 +227,26 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
             nd_trip = nb_.trip.at[i, j].set(rows_ij).at[j, i].set(rows_ji @ P)
             nb_ = nb_._replace(trip=nd_trip, conflicts=nb_.conflicts + bad)
         # PQRM rows of every observed candidate triplet (i, j, k'), all orderings
-        rel = ob.rel
-        ids = jnp.stack([jnp.full(L, i), jnp.full(L, j), idx], -1)  # (L, 3)
-        pid = ids[:, perms]  # (L, 6, 3)
-        means = rel[pid]  # (L, 6, 3, 2)
-        meas = state_probabilities(kq, calc, means.reshape(-1, 3, 2), ep.sigma_z,
-                                   ep.pqrm_samples).reshape(L, 6, -1)
-        prior = bel.trip[pid[..., 0], pid[..., 1], pid[..., 2]]  # (L, 6, Q)
-        post = prior * meas
-        s = post.sum(-1, keepdims=True)
-        post = jnp.where(s > 0, post / jnp.where(s > 0, s, 1.0), meas)
-        okm = cand[:, None] & (meas.sum(-1) > 0)
-        cur = nb_.trip[pid[..., 0], pid[..., 1], pid[..., 2]]
-        rows = jnp.where(okm[..., None], post, cur)
-        trip = nb_.trip.at[pid[..., 0], pid[..., 1], pid[..., 2]].set(rows)
-        srcv = nb_.trip_src[pid[..., 0], pid[..., 1], pid[..., 2]]
-        src = nb_.trip_src.at[pid[..., 0], pid[..., 1], pid[..., 2]].set(
-            jnp.where(okm, jnp.int8(1), srcv))
-        scale = scale_posteriors(models, trip, src > 0, ref, ref_scale, lm_mask,
-                                 measured=src == 1)
-        nb_ = nb_._replace(trip=trip, trip_src=src, scale=scale)
+        nb_ = map_update(kq, models, bel, nb_, ob.rel, cand, ref, ref_scale, ep)
         bel = jax.tree.map(lambda u, v: jnp.where(active, u, v), nb_, bel)
         x = xn
         reached = reached | got
         nst = nst + active.astype(jnp.int32)
-        done = done | got | ~exists
+        done = done | got | ~go_on
         logs = (jnp.where(active, bel.frame, -1), jnp.where(active, a, -1),
                 jnp.where(active & anyc, k, -1), x)
-        return (x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs
+        return LaneState(x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs
 
     f0 = jnp.zeros((), bool)
     z0 = jnp.zeros((), jnp.float32)
-    init = (start, belief, f0, f0, z0, z0, jnp.zeros((), jnp.int32), f0, f0, z0, key)
-    carry, logs = jax.lax.scan(step, init, jnp.arange(ep.t_max))
-    _, bel, _, reached, c1, c2, nst, ex0, tex0, v0, _ = carry
-    return Outcome(exists=ex0, tree_exists=tex0, reached=reached, cost1=c1, cost2=c2, steps=nst,
-                   conflicts=bel.conflicts, root_value=v0, log_frame=logs[0], log_action=logs[1],
-                   log_beta=logs[2], log_pos=logs[3])
+    init = LaneState(pos=start, belief=belief, done=f0, reached=f0, cost1=z0, cost2=z0,
+                     steps=jnp.zeros((), jnp.int32), exists=f0, tree_exists=f0, root_value=z0,
+                     key=key)
+    st, logs = jax.lax.scan(step, init, jnp.arange(ep.t_max))
+    return Outcome(exists=st.exists, tree_exists=st.tree_exists, reached=st.reached,
+                   cost1=st.cost1, cost2=st.cost2, steps=st.steps,
+                   conflicts=st.belief.conflicts, root_value=st.root_value, log_frame=logs[0],
+                   log_action=logs[1], log_beta=logs[2], log_pos=logs[3])
 
 
 @partial(jax.jit, static_argnames=("pp", "ep"))

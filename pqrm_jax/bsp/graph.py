@@ -23,6 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from .belief import in_belief
 from .models import Models
 
 INF = 10_000
@@ -38,12 +39,13 @@ class FrameGraph(NamedTuple):
 
 
 def available(trip_src, lm_mask) -> jax.Array:
-    """(L, L, L) bool: ordered triplets of distinct real landmarks present in the belief."""
+    """(L, L, L) bool: ordered triplets of distinct real landmarks that are candidates
+    (measured or composed rows of the belief; not rows kept for the frame scales only)."""
     L = trip_src.shape[0]
     i, j, k = jnp.meshgrid(jnp.arange(L), jnp.arange(L), jnp.arange(L), indexing="ij")
     distinct = (i != j) & (j != k) & (i != k)
     real = lm_mask[:, None, None] & lm_mask[None, :, None] & lm_mask[None, None, :]
-    return (trip_src > 0) & distinct & real
+    return in_belief(trip_src) & distinct & real
 
 
 @partial(jax.jit, static_argnames=("eps",))

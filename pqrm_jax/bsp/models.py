@@ -91,21 +91,34 @@ class ModelParams:
     seed: int = 0
     target_half_width: float = 1.5
 
+    def __post_init__(self):
+        # NumPy integers and floats are accepted and stored as Python numbers (the cache key
+        # is JSON); booleans and non-numbers are refused naming the field (validate)
+        for nm in ("n_f", "samples", "pool", "seed"):
+            v = getattr(self, nm)
+            if isinstance(v, np.integer) and not isinstance(v, np.bool_):
+                object.__setattr__(self, nm, int(v))
+        for nm in ("window", "sigma_m", "sigma_z", "r_min", "target_half_width"):
+            v = getattr(self, nm)
+            if isinstance(v, np.floating | np.integer) and not isinstance(v, np.bool_):
+                object.__setattr__(self, nm, float(v))
+
     def validate(self) -> ModelParams:
         """Raise ``ValueError`` naming the first bad field; return self."""
+        if not isinstance(self.calculus, str):
+            raise ValueError(f"calculus must be a calculus name, got {self.calculus!r}")
         calculi.get(self.calculus)
-        if not isinstance(self.n_f, int) or self.n_f < 1:
-            raise ValueError(f"n_f must be a positive integer, got {self.n_f!r}")
-        if not isinstance(self.samples, int) or self.samples < 1:
-            raise ValueError(f"samples must be a positive integer, got {self.samples!r}")
-        for nm in ("window", "target_half_width"):
+        for nm, low in (("n_f", 1), ("samples", 1), ("pool", 1), ("seed", 0)):
             v = getattr(self, nm)
-            if not np.isfinite(v) or v <= 0:
-                raise ValueError(f"{nm} must be positive and finite, got {v!r}")
-        for nm in ("sigma_m", "sigma_z", "r_min"):
+            if not isinstance(v, int) or isinstance(v, bool) or v < low:
+                raise ValueError(f"{nm} must be an integer >= {low}, got {v!r}")
+        for nm, positive in (("window", True), ("target_half_width", True), ("sigma_m", False),
+                             ("sigma_z", False), ("r_min", False)):
             v = getattr(self, nm)
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"{nm} must be non-negative and finite, got {v!r}")
+            if not isinstance(v, int | float) or isinstance(v, bool) or not np.isfinite(v) \
+                    or v < 0 or (positive and v == 0):
+                what = "positive" if positive else "non-negative"
+                raise ValueError(f"{nm} must be {what} and finite, got {v!r}")
         if self.r_min >= 2.0 / self.n_f:
             raise ValueError("r_min must be below the first scale bin's upper edge 2R/n_f")
         return self

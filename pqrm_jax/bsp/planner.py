@@ -15,7 +15,8 @@ sequence is ill-defined (docs/bsp.md §Z-11). The planner is an expectimax tree 
   candidates, eq. 4.14; docs/bsp.md §Z-24);
 * ẑ — ``n_z = 1`` draw per (node, a, β) from ``P(ẑ | β, a)`` (plain average, docs/bsp.md §Z-6); the
   key is a function of (level, frame, a, β) only, so pruned and full trees and any chunking of
-  lanes draw the same measurement for the same branch;
+  lanes draw the same measurement for the same branch; (b, s_x, s_τ) are drawn one after the
+  other from their conditionals (nb, Q, Q cells) and ẑ from ``AZ[s_x, s_τ, b]``;
 * ``c`` — eq. 4.29 (``cost = 1``: expected neighbour distance of the traversed states) or
   eq. 4.30 (``cost = 2``: expected displacement ``D2`` times the frame scale); neither depends
   on ẑ (law of total expectation);
@@ -56,6 +57,11 @@ class PlannerParams(NamedTuple):
     #: branch with weight 1 − P(some candidate seen | a), valued as staying in the frame
     #: (h(F) + c̄), instead of renormalising the candidate weights to 1 (§Z-24).
     nothing_seen: bool = False
+    #: how a branch draws (s_x, s_τ, b) before ẑ: ``"factored"`` (b, then s_x | b, then
+    #: s_τ | s_x, b: cumsums of nb, Q and Q cells) or ``"joint"`` (the previous sampler: one
+    #: cumsum over the Q²·nb-cell joint; the in-process reference of benchmarks/bench_bsp.py).
+    #: The same distribution; the draws differ.
+    sampler: str = "factored"
 
 
 DEFAULT = PlannerParams()
@@ -103,16 +109,28 @@ class _Level(NamedTuple):
     anyobs: jax.Array  # [N, na]
     seen: jax.Array  # [N, na] P(some observable candidate seen | a): 1 without nothing_seen
     frames: jax.Array  # [N, na, nb, 3, 2]
-    robots: jax.Array  # [N, na, nb, 3, Q]
+    robots: jax.Array | None  # [N, na, nb, 3, Q]; None at the last level (leaves need frames)
 
 
-def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame, p,
-                pp: PlannerParams, cost):
-    L = trip.shape[0]
-    Q = models.num_states
+class _FramePart(NamedTuple):
+    """What a node's expansion needs that depends on its frame only (not on its robot
+    belief): computed once per distinct frame of a level."""
+
+    Tf: jax.Array  # [Q, Q] Σ_b P_F(b) T[b, a, s]
+    T2f: jax.Array  # [Q, Q] Σ_b P_F(b) mid_b T[b, a, s]
+    E: jax.Array  # [Q] the proxy's expectation over candidates (leaf values after a)
+    ks: jax.Array  # [Q, nb] the kept candidates of each action
+    w: jax.Array  # [Q, nb] their renormalised weights
+    anyobs: jax.Array  # [Q] some kept candidate has weight
+    goal: jax.Array  # [Q, nb] the kept candidate is the goal (observed from a goal frame)
+    seen: jax.Array  # [Q]
+
+
+def _frame_part(models, D1, scale, fg: FrameGraph, goal, frame, pp: PlannerParams, cost
+                ) -> _FramePart:
+    L = fg.obs.shape[0]
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    costs = step_costs(models, D1, sf, p, cost)
     wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
     idx = jnp.arange(L)
     third = goal.sum() - i - j
@@ -128,38 +146,104 @@ def _expand_one(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frame
     # P(some candidate seen | a): 1 in the thesis model (the candidate weights renormalised,
     # §Z-24); the nothing-seen EXTENSION clips the sum at 1 (the events may overlap)
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
-    proxy = costs + jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
-                              + (1.0 - ps) * (h_f + cb), h_f + cb)
-    score = -proxy
-    _, acts = jax.lax.top_k(score, pp.n_actions)
-    wa = wt[acts]  # [na, L]
-    wk, ks = jax.lax.top_k(wa, pp.n_beta)  # [na, nb]
+    E = jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
+                  + (1.0 - ps) * (h_f + cb), h_f + cb)
+    wk, ks = jax.lax.top_k(wt, pp.n_beta)  # [Q, nb]
     tot = wk.sum(-1, keepdims=True)
-    anyobs = tot[:, 0] > 0
-    w = wk / jnp.where(tot > 0, tot, 1.0)
-    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
+    return _FramePart(
+        Tf=jnp.einsum("b,bas->as", sf, models.T),
+        T2f=jnp.einsum("b,b,bas->as", sf, models.mid, models.T), E=E, ks=ks,
+        w=wk / jnp.where(tot > 0, tot, 1.0), anyobs=tot[:, 0] > 0,
+        goal=fg.goal_obs[i, j] & (ks == third), seen=ps)
 
-    def branch(a, k):
-        kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
-        k1, k2 = jax.random.split(kk)
+
+def _branch(models, trip, fg: FrameGraph, key, level, frame, sf, a, k, pp: PlannerParams):
+    """[3, Q] robot states after action ``a`` with candidate ``k`` seen and one drawn ẑ, for
+    the three link options (stay, (i, k), (j, k)); the draw's key depends on (level, frame,
+    a, k) only."""
+    L, Q, nb = trip.shape[0], models.num_states, models.num_bins
+    i, j = frame[0], frame[1]
+    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
+    kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
+    k1, k2 = jax.random.split(kk)
+    if pp.sampler == "joint":  # one cumsum over the Q²·nb-cell joint
         jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
         cell = sample_index(k1, jw.reshape(-1))
-        x, t, b = cell // (Q * models.num_bins), (cell // models.num_bins) % Q, \
-            cell % models.num_bins
-        z = sample_index(k2, models.AZ[x, t, b])
-        J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
-        s = J.sum()
-        J = J / jnp.where(s > 0, s, 1.0)
-        stay = J.sum(1)
-        ac = jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]])
-        bc = jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])
-        frames = jnp.stack([jnp.stack([i, j]), jnp.stack([i, k]), jnp.stack([j, k])])
-        return frames, jnp.stack([stay, ac, bc])
+        x, t, b = cell // (Q * nb), (cell // nb) % Q, cell % nb
+    else:  # b, then x | b, then t | x, b: the same joint, nb + Q + Q cells
+        kb, kx, kt = jax.random.split(k1, 3)
+        tab = models.T[:, a] * fg.Ab[i, j, k].T  # [nb, Q]: T[b, a, x] Ab[x, b]
+        b = sample_index(kb, sf * tab.sum(-1))
+        x = sample_index(kx, tab[b])
+        t = sample_index(kt, trip[i, j, k] * models.A[x, :, b])
+    z = sample_index(k2, models.AZ[x, t, b])
+    J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
+    s = J.sum()
+    J = J / jnp.where(s > 0, s, 1.0)
+    robots = jnp.stack([J.sum(1), jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]]),
+                        jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])])
+    return robots
 
-    fr, rb = jax.vmap(jax.vmap(branch, (None, 0)), (0, 0))(acts, ks)
-    return _Level(cost=costs[acts], acts=acts, ks=ks, w=w,
-                  goal=fg.goal_obs[i, j] & (ks == third), anyobs=anyobs,
-                  seen=ps[acts], frames=fr, robots=rb)
+
+def _children(frame, ks, w):
+    """[na, nb, 3, 2] frames after each kept candidate and link; a branch of weight 0 (fewer
+    observable candidates than ``n_beta``) stays in ``frame`` (its value is multiplied by 0),
+    so a level has at most 1 + 2 (L − 2) distinct frames below one frame."""
+    i, j = frame[0], frame[1]
+    fi = jnp.stack([jnp.broadcast_to(i, ks.shape), ks], -1)
+    fj = jnp.stack([jnp.broadcast_to(j, ks.shape), ks], -1)
+    out = jnp.stack([jnp.broadcast_to(frame, fi.shape), fi, fj], -2)
+    return jnp.where((w > 0)[..., None, None], out, frame)
+
+
+def _expand_level(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frames, robots,
+                  slots: int, last: bool, pp: PlannerParams, cost) -> _Level:
+    """Expand the N nodes (``frames`` [N, 2], ``robots`` [N, Q]) of one level.
+
+    What depends only on a node's frame (:class:`_FramePart`) is computed once per distinct
+    frame: the level's frames are sorted into ``slots`` (static, at least the number of
+    distinct frames) by ``jnp.unique``. At the ``last`` level only the children's frames are
+    needed (leaf values depend on the frame alone), so no branch is sampled.
+    """
+    L = trip.shape[0]
+    n = frames.shape[0]
+    codes = frames[:, 0] * L + frames[:, 1]
+    fpart = partial(_frame_part, models, D1, scale, fg, goal, pp=pp, cost=cost)
+    if slots < n:
+        uniq = jnp.unique(codes, size=slots, fill_value=L * L)
+        slot = jnp.searchsorted(uniq, codes)
+        uniq = jnp.minimum(uniq, L * L - 1)
+        fp = jax.vmap(fpart)(jnp.stack([uniq // L, uniq % L], -1))
+        fp = jax.tree.map(lambda x: x[slot], fp)
+    else:
+        fp = jax.vmap(fpart)(frames)
+    cst = jnp.where(cost == 1, jnp.einsum("nas,ts,nt->na", fp.Tf, D1, robots),
+                    jnp.einsum("nas,ts,nt->na", fp.T2f, models.D2, robots))
+    _, acts = jax.lax.top_k(-(cst + fp.E), pp.n_actions)  # [N, na]
+    pick = lambda x: jnp.take_along_axis(  # noqa: E731
+        x, acts.reshape(n, -1, *([1] * (x.ndim - 2))), axis=1)
+    ks, w = pick(fp.ks), pick(fp.w)
+    ch = jax.vmap(_children)(frames, ks, w)
+    rb = None
+    if not last:
+        def node(frame, acts_n, ks_n):
+            sf = scale[frame[0], frame[1]]
+            br = partial(_branch, models, trip, fg, key, level, frame, sf, pp=pp)
+            return jax.vmap(jax.vmap(br, (None, 0)), (0, 0))(acts_n, ks_n)
+        rb = jax.vmap(node)(frames, acts, ks)
+    return _Level(cost=jnp.take_along_axis(cst, acts, 1), acts=acts, ks=ks, w=w,
+                  goal=pick(fp.goal), anyobs=pick(fp.anyobs), seen=pick(fp.seen),
+                  frames=ch, robots=rb)
+
+
+def _slots(level: int, n: int, L: int, pp: PlannerParams) -> int:
+    """Static bound on the distinct frames of a level's ``n`` nodes: 1 at the root; below
+    one frame at most 1 + 2 min(L − 2, n_actions · n_beta) (:func:`_children`); else L(L − 1)."""
+    if level == 0:
+        return 1
+    if level == 1:
+        return min(n, 1 + 2 * min(L - 2, pp.n_actions * pp.n_beta))
+    return min(n, L * (L - 1))
 
 
 def sample_index(key, weights) -> jax.Array:
@@ -175,7 +259,7 @@ def sample_index(key, weights) -> jax.Array:
     """
     c = jnp.cumsum(weights)
     u = jax.random.uniform(key, dtype=c.dtype) * c[-1]
-    idx = jnp.searchsorted(c, u, side="right")
+    idx = jnp.searchsorted(c, u, side="right", method="compare_all")  # no loop: n is small
     return jnp.clip(jnp.where(c[-1] > 0, idx, 0), 0, weights.shape[0] - 1)
 
 
@@ -199,18 +283,22 @@ def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, ke
     """
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
+    if pp.sampler not in ("factored", "joint"):
+        raise ValueError(f"PlannerParams.sampler must be 'factored' or 'joint', got "
+                         f"{pp.sampler!r}")
     cost = pp.cost if cost is None else cost
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
-    expand = jax.vmap(lambda f, p, lv: _expand_one(models, D1, trip, scale, fg, goal, key, lv,
-                                                   f, p, pp, cost), (0, 0, None))
+    L = trip.shape[0]
     frames, robots = frame[None], robot[None]
     levels = []
     for lv in range(pp.depth):
-        out = expand(frames, robots, lv)
+        last = lv == pp.depth - 1
+        out = _expand_level(models, D1, trip, scale, fg, goal, key, lv, frames, robots,
+                            _slots(lv, frames.shape[0], L, pp), last, pp, cost)
         levels.append((frames, out))
         frames = out.frames.reshape(-1, 2)
-        robots = out.robots.reshape(-1, robot.shape[-1])
+        robots = None if last else out.robots.reshape(-1, robot.shape[-1])
     values = leaf_values(fg, frames, cb, lam, pp.rho)
     q = None
     for parent_frames, out in reversed(levels):

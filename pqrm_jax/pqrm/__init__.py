@@ -16,7 +16,7 @@
 """
 
 from . import metrics, reference
-from .map import MapInfo, Mapper, MapState, mapper, ordered_triplets, update_observed
+from .map import MapInfo, Mapper, MapState, fuse_rows, mapper, ordered_triplets, update_observed
 from .measurement import (
     aggregation_matrix,
     fine_counts,
@@ -26,7 +26,7 @@ from .measurement import (
 )
 
 __all__ = [
-    "MapInfo", "MapState", "Mapper", "aggregation_matrix", "fine_counts", "mapper", "metrics",
-    "multi_state_probabilities", "ordered_triplets", "reference", "state_counts",
+    "MapInfo", "MapState", "Mapper", "aggregation_matrix", "fine_counts", "fuse_rows", "mapper",
+    "metrics", "multi_state_probabilities", "ordered_triplets", "reference", "state_counts",
     "state_probabilities", "update_observed",
 ]

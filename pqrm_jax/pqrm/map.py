@@ -35,8 +35,8 @@ from .measurement import (
     sample_bank,
 )
 
-__all__ = ["MapInfo", "MapState", "Mapper", "mapper", "ordered_triplets", "update_observed",
-           "map_bytes_per_triplet", "check_triplets"]
+__all__ = ["MapInfo", "MapState", "Mapper", "fuse_rows", "mapper", "ordered_triplets",
+           "update_observed", "map_bytes_per_triplet", "check_triplets"]
 
 
 def check_triplets(triplets, num_landmarks: int) -> np.ndarray:
@@ -155,21 +155,52 @@ class Mapper(NamedTuple):
     update_batch: Callable[..., tuple[MapState, MapInfo]] | None = None
 
 
-def _bayes(prior, meas, mapped, seen):
-    """Eq. 2.10 with initialisation and the conflict rule; returns (new, conflict).
+def fuse_rows(prior: jax.Array, meas: jax.Array, mapped: jax.Array, seen: jax.Array
+              ) -> tuple[jax.Array, jax.Array]:
+    """One PQRM row fusion (P eq. 2.10 with initialisation and the conflict rule).
 
-    The normaliser is summed column by column in a fixed order: XLA's row reduction picks
-    its summation order from the number of rows, which would make a row's bits depend on how
-    many triplets share the call (a sparse map must give exactly the dense map's rows).
+    The one rule of every PQRM row update in the library (the PQRM map and the qualitative
+    BSP executive, ``pqrm_jax.bsp.execute``; docs/pqrm.md §map):
+
+    * a row not ``seen`` keeps ``prior``;
+    * a row seen for the first time (``~mapped``) becomes ``meas``;
+    * a mapped row becomes ``p(q) ∝ meas(q) · prior(q)``; when that product is zero for every
+      state (a **conflict**) the prior is kept and ``conflict`` is True for the row.
+
+    Never a NaN for finite, non-negative inputs. ``qlink.elements.fuse`` is the *floored*
+    variant (likelihoods floored before the product, so it never conflicts; docs/pqrm.md §map).
+    The normaliser is summed column by column in a fixed order: XLA's row reduction picks its
+    summation order from the number of rows, which would make a row's bits depend on how many
+    triplets share the call (a sparse map must give exactly the dense map's rows).
+    The products pass through ``max(·, 0)`` (a no-op on them) so that LLVM cannot contract a
+    product and the running sum into an FMA — which it did in some programs and not in
+    others, by fusion, so the dense and sparse maps differed by a few ulps (issue 31).
+
+    Args:
+        prior: [..., Q] current rows (ignored where ``~mapped``).
+        meas: [..., Q] measurement distributions ``p(q | Z_t)`` (P eq. 2.9).
+        mapped: [...] bool, the row holds a distribution.
+        seen: [...] bool, the row is measured now (with a defined measurement).
+
+    Returns:
+        ``(rows [..., Q], conflict [...] bool)``.
+
+    >>> import jax.numpy as jnp
+    >>> prior = jnp.array([[0.5, 0.5, 0.0], [1.0, 0.0, 0.0], [0.2, 0.8, 0.0]])
+    >>> meas = jnp.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    >>> rows, conflict = fuse_rows(prior, meas, jnp.array([True, True, False]),
+    ...                            jnp.array([True, True, True]))
+    >>> rows.tolist(), conflict.tolist()
+    ([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [False, True, False])
     """
-    post = meas * prior
-    z = post[:, :1]
+    post = jnp.maximum(meas * prior, 0.0)  # no FMA into z (see above)
+    z = post[..., :1]
     for q in range(1, post.shape[-1]):
-        z = z + post[:, q:q + 1]
-    conflict = seen & mapped & (z[:, 0] <= 0)
+        z = z + post[..., q:q + 1]
+    conflict = seen & mapped & (z[..., 0] <= 0)
     post = post / jnp.where(z > 0, z, 1.0)
-    new = jnp.where((seen & ~mapped)[:, None], meas, prior)
-    new = jnp.where((seen & mapped & ~conflict)[:, None], post, new)
+    new = jnp.where((seen & ~mapped)[..., None], meas, prior)
+    new = jnp.where((seen & mapped & ~conflict)[..., None], post, new)
     return new, conflict
 
 
@@ -197,7 +228,7 @@ def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
     probs, conflicts = {}, {}
     for c in cals:
         meas = counts_to_probabilities(fine @ jnp.asarray(aggregation_matrix(c)))
-        new, conflict = _bayes(state.probs[c.name], meas, state.mapped, use)
+        new, conflict = fuse_rows(state.probs[c.name], meas, state.mapped, use)
         probs[c.name] = new
         conflicts[c.name] = state.num_conflicts[c.name] + conflict.astype(jnp.int32)
     return MapState(
@@ -248,7 +279,10 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
 
     z = z.reshape(g, r // g, *z.shape[1:])
     rows = jax.tree_util.tree_map(grouped, rows)
-    group_fn = partial(_sparse_group_update, n=t, block=block, cals=cals)
+    # the most rows seen in a group (unbatched, so that the buffer choice below is a real
+    # branch, not a select running both sides under vmap)
+    most_seen = jnp.max(jnp.sum(grouped(seen), axis=1, dtype=jnp.int32))
+    group_fn = partial(_sparse_group_update, most_seen=most_seen, n=t, block=block, cals=cals)
     rows = jax.vmap(group_fn)(z, grouped(means.reshape(r, t, 6)), grouped(sig),
                               grouped(seen), rows)
     probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
@@ -259,15 +293,22 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     return new, map_info(state, new)
 
 
-def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
+SMALL_BUFFER_FRACTION = 4  # the small compact buffer holds 1/4 of a group's rows
+
+
+def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, cals):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
     z [Rg, c, C, 6] banks of the Rg maps; m [Rg·N, 6], s [Rg·N, 3], mask [Rg·N] per triplet
     row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
     the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
-    ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, so every seen row is updated and nothing
-    else is computed. Each row's arithmetic is that of the dense ``update`` (same bank, same
-    kernel, same eq. 2.10), so the results are identical.
+    ``lax.while_loop`` runs ⌈#seen / block⌉ pieces into a compact buffer, scattered into the
+    map once, so every seen row is updated and nothing else is computed. The buffer (zeroed,
+    then scattered, every step) holds 1/:data:`SMALL_BUFFER_FRACTION` of the rows when no
+    group saw more (``most_seen``, the same for every group; in Padgett's study about 1 row
+    in 8 is seen), else all of them: the same pieces either way. Each row's arithmetic is
+    that of the dense ``update`` (same bank, same kernel, same eq. 2.10), so the results are
+    identical.
     """
     total = mask.shape[0]
     blk = max(1, min(block, total))
@@ -297,12 +338,20 @@ def _sparse_group_update(z, m, s, mask, rows, *, n: int, block: int, cals):
             new_rows)
         return p + 1, buf
 
-    buf0 = jax.tree_util.tree_map(lambda x: jnp.zeros((nblk_max * blk, *x.shape[1:]), x.dtype),
-                                  rows)
-    _, buf = jax.lax.while_loop(lambda c: c[0] * blk < num_seen, body, (jnp.int32(0), buf0))
-    # pieces never run hold zeros at padding positions (index ``total``): dropped
-    rows = jax.tree_util.tree_map(lambda x, y: x.at[order].set(y, mode="drop"), rows, buf)
-    return rows
+    def pieces(nblk: int):
+        buf0 = jax.tree_util.tree_map(lambda x: jnp.zeros((nblk * blk, *x.shape[1:]), x.dtype),
+                                      rows)
+        _, buf = jax.lax.while_loop(lambda c: c[0] * blk < num_seen, body,
+                                    (jnp.int32(0), buf0))
+        # pieces never run hold zeros at padding positions (index ``total``): dropped
+        return jax.tree_util.tree_map(
+            lambda x, y: x.at[order[:nblk * blk]].set(y, mode="drop"), rows, buf)
+
+    small = -(-nblk_max // SMALL_BUFFER_FRACTION)
+    if small >= nblk_max:
+        return pieces(nblk_max)
+    return jax.lax.cond(most_seen <= small * blk, lambda: pieces(small),
+                        lambda: pieces(nblk_max))
 
 
 def _check_map_bytes(t: int, cals, max_bytes, *, dense: bool) -> None:

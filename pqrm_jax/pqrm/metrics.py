@@ -30,7 +30,7 @@ from ..calculi import Calculus
 __all__ = [
     "entropy", "mean_map_entropy", "ml_states", "error_rate", "topn_error_rates",
     "ml_probability", "neighbor_distance", "confusion_matrix", "normalized_positions",
-    "true_states", "random_neighbor_distance", "masked_mean", "defined_mask",
+    "true_states", "random_neighbor_distance", "masked_mean", "defined_mask", "truth_rank",
 ]
 
 
@@ -73,11 +73,42 @@ def error_rate(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array
     return masked_mean((ml_states(probs) != truth).astype(jnp.float32), mask)
 
 
+def truth_rank(probs: jax.Array, truth: jax.Array) -> jax.Array:
+    """[T] position of the truth in each row sorted most likely first (stable: ties by index).
+
+    A count instead of a sort: ``#{j : p_j > p_t} + #{j < t : p_j = p_t}`` in the total order
+    of ``jnp.argsort`` (−0 = +0, NaN after every number, NaNs equal), so it equals the position
+    of ``truth`` in ``jnp.argsort(-probs, stable=True)`` for every input, at O(Q) per row and
+    without a sort. A truth outside ``[0, Q)`` gives 0 (the metrics mask it out).
+
+    Args:
+        probs: [T, Q] map rows.
+        truth: [T] int true state per row.
+
+    Returns:
+        [T] int32 ranks (0: the truth is the ML state).
+
+    >>> print(truth_rank(jnp.array([[0.1, 0.5, 0.1, 0.3]]), jnp.array([2])))  # 0.5, 0.3, tie 0
+    [3]
+    """
+    probs = jnp.asarray(probs)
+    q = probs.shape[-1]
+    t = jnp.asarray(truth)
+    ok = (t >= 0) & (t < q)
+    tc = jnp.clip(t, 0, q - 1)
+    pt = jnp.take_along_axis(probs, tc[:, None], axis=-1)  # (T, 1)
+    nan_j, nan_t = jnp.isnan(probs), jnp.isnan(pt)
+    before = (probs > pt) | (~nan_j & nan_t)  # −p_j < −p_t in the sort's total order
+    tie = (probs == pt) | (nan_j & nan_t)
+    earlier = jnp.arange(q)[None, :] < tc[:, None]
+    rank = jnp.sum(before | (tie & earlier), axis=-1, dtype=jnp.int32)
+    return jnp.where(ok, rank, 0)
+
+
 def topn_error_rates(probs: jax.Array, truth: jax.Array, mask: jax.Array) -> jax.Array:
     """[Q] error rates for n = 1..Q: truth not among the n most likely states (Fig. 2.16)."""
-    order = jnp.argsort(-probs, axis=-1, stable=True)  # (T, Q) most likely first
-    rank = jnp.argmax(order == truth[:, None], axis=-1)  # position of the truth
     q = probs.shape[-1]
+    rank = truth_rank(probs, truth)
     wrong = rank[:, None] >= jnp.arange(1, q + 1)[None, :]  # (T, Q)
     m = defined_mask(truth, mask, q)
     return jnp.sum(jnp.where(m[:, None], wrong, False), axis=0) / jnp.maximum(jnp.sum(m), 1)

@@ -20,11 +20,37 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..calculi import Calculus
-from .exact_camera import CYCLIC, exact_sets
-from .spec import QRMSpec, qrm_spec
+from .exact_camera import exact_sets
+from .spec import CYCLIC, QRMSpec, qrm_spec
 
 __all__ = ["TripleMeasurement", "ImageMeasurement", "measure_triples", "measure_image",
-           "select_nearest", "slot_triples", "CYCLIC"]
+           "select_nearest", "slot_triples", "CYCLIC", "BEARING_ULPS", "default_tolerance",
+           "resolve_tolerance"]
+
+#: default bearing tolerance in units of the machine epsilon of the bearings' dtype: the
+#: bearings a float32/float64 camera computes (rotation, arctan2, the heading subtraction)
+#: are within a few eps of the exact bearings of the scene (measured:
+#: benchmarks/bench_qrm_tolerance.py; docs/qrm.md §camera)
+BEARING_ULPS = 16.0
+
+
+def default_tolerance(dtype) -> float:
+    """Default bearing tolerance (radians) for bearings of ``dtype``: ``BEARING_ULPS · eps``
+    (float32: 1.9e-6 rad, float64: 3.6e-15 rad); a user adds their sensor's noise."""
+    return float(BEARING_ULPS * np.finfo(np.dtype(dtype)).eps)
+
+
+def resolve_tolerance(tol, dtype) -> float:
+    """``tol`` checked (a finite float in [0, π/4)), or the default of ``dtype`` for None."""
+    if tol is None:
+        return default_tolerance(dtype)
+    if isinstance(tol, bool) or not isinstance(tol, int | float | np.floating | np.integer):
+        raise ValueError(f"tol (bearing tolerance, radians) must be a float or None, got {tol!r}")
+    tol = float(tol)
+    if not (np.isfinite(tol) and 0 <= tol < np.pi / 4):
+        raise ValueError(f"tol (bearing tolerance, radians) must be finite and in [0, π/4), "
+                         f"got {tol!r}")
+    return tol
 
 
 class TripleMeasurement(NamedTuple):
@@ -74,14 +100,16 @@ def _atom_masks_to_states(atom_mask, atom_state):
 
 
 @partial(jax.jit, static_argnames=("spec",))
-def _kernel(spec: QRMSpec, bearings, target_states):
+def _kernel(spec: QRMSpec, bearings, target_states, tol=None):
     """(sets, undecided) [T, 3] state masks of every triple (exact_camera.exact_sets)."""
+    tol = default_tolerance(bearings.dtype) if tol is None else tol
     atom_state = jnp.asarray(spec.atom_state)
-    possible, undecided = exact_sets(spec, bearings)
+    possible, undecided = exact_sets(spec, bearings, tol)
     sets = _atom_masks_to_states(possible, atom_state)
     und = _atom_masks_to_states(undecided, atom_state) & target_states
-    # three equal bearings: collinear for every range assignment, no open state (exact)
-    ray = jnp.all(bearings == bearings[:, :1], -1)[:, None]
+    # three equal bearings: collinear for every range assignment, no open state (exact);
+    # with a tolerance, bearings within it of each other are ordinary input
+    ray = (jnp.all(bearings == bearings[:, :1], -1) & (jnp.asarray(tol) == 0))[:, None]
     return jnp.where(ray, jnp.uint32(0), sets), jnp.where(ray, jnp.uint32(0), und)
 
 
@@ -91,6 +119,7 @@ def measure_triples(
     target: jax.Array | None = None,
     *,
     exact: bool = True,
+    tol: float | None = None,
 ) -> TripleMeasurement:
     """Feasible states of the three cyclic relations of each triple (M§IV–V), batched.
 
@@ -100,7 +129,13 @@ def measure_triples(
         calc: the calculus (object, name or prepared spec).
         target: [T, 3] uint32 state masks of the states still open in the map; only those
             are reported as ``undecided`` (the sets are exact for every state); default all.
-        exact: settle the undecided states with z3 (concrete input only).
+        exact: settle the undecided states with z3 (concrete input, ``tol = 0`` only).
+        tol: bearing tolerance τ in radians: the sets hold every state feasible for *some*
+            bearings within τ of the given ones (each independently) and ranges in the
+            given order — sound for a scene whose computed bearings are within τ of its
+            exact ones. None: :func:`default_tolerance` of the bearings' dtype (their
+            rounding; add a real sensor's noise yourself). 0: the sets of the given bearings
+            exactly (equal to the z3 oracle with ``exact=True``).
 
     Returns:
         A :class:`TripleMeasurement`: state masks of ``01:2, 12:0, 20:1`` (slots 0 = near,
@@ -108,17 +143,21 @@ def measure_triples(
 
     Raises:
         ValueError: for an empty batch (T = 0), bearings of the wrong shape or with NaN/inf,
-            a ``target`` of the wrong shape, or three equal bearings.
+            a ``target`` of the wrong shape, a ``tol`` outside [0, π/4), or (``tol = 0``)
+            three equal bearings.
 
     The kernel (:func:`pqrm_jax.qrm.exact_camera.exact_sets`) decides every state from the
     boundary of the range cone: a kept state has a witness range assignment, a removed one
     is infeasible. States that only near-degenerate input leaves open (a sample within the
     rounding band of a constraint; in float64 none were seen in 61 440 random relations, in
     float32 0.6–4.5 % of relations at bearing spreads ≥ 0.3 rad) are kept and counted in
-    ``undecided``. ``exact=True`` decides those with z3 on the exact polynomial systems
-    (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets are exactly the
-    feasible sets; ``exact_decisions`` counts the z3 calls. ``exact=False`` (and any traced
-    call) returns the kernel's sets with the undecided states kept.
+    ``undecided``. At ``tol = 0``, ``exact=True`` decides those with z3 on the exact
+    polynomial systems (:func:`pqrm_jax.qrm.camera_oracle.settle_undecided`), so the sets
+    are exactly the feasible sets; ``exact_decisions`` counts the z3 calls. ``exact=False``,
+    any traced call and ``tol > 0`` return the kernel's sets with the undecided states kept
+    (sound; with a tolerance every kept state not counted undecided has a witness at the
+    given bearings, and the undecided ones are those the kernel can neither witness nor
+    exclude; docs/qrm.md §camera).
 
     Bearings all equal (three landmarks on one ray): the points are collinear for every
     range assignment, which no (open) EDC state admits — ``ValueError`` (in a traced call
@@ -133,7 +172,7 @@ def measure_triples(
     >>> from pqrm_jax.qrm.spec import states_of
     >>> P = np.array([[2.0, 0.5], [1.0, 3.0], [-4.0, 1.5]])   # near, mid, far; truth: 1
     >>> m = measure_triples(np.arctan2(P[:, 1], P[:, 0])[None].astype(np.float32))
-    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 3 (exact)
+    >>> states_of("edc", int(m.sets[0, 0]))                    # 20 states → 3
     ['1', '5', '11']
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
@@ -154,16 +193,17 @@ def measure_triples(
     target = jnp.asarray(target, jnp.uint32)
     if target.shape != bearings.shape[:1] + (3,):
         raise ValueError(f"target must have shape {bearings.shape[:1] + (3,)}, got {target.shape}")
+    tol = resolve_tolerance(tol, bearings.dtype)
     concrete = not any(isinstance(x, jax.core.Tracer) for x in (bearings, target))
-    if concrete:
+    if concrete and tol == 0:
         b = np.asarray(bearings, np.float64)
         same = (np.remainder(b - b[:, :1] + np.pi, 2 * np.pi) - np.pi == 0).all(-1)
         if same.any():
             raise ValueError(f"bearings of triple(s) {np.flatnonzero(same).tolist()} are all "
                              "equal: three landmarks on one ray are collinear, no open EDC "
                              "state fits")
-    sets, und = _kernel(spec, bearings, target)
-    if exact and concrete and bool(jnp.any(und != 0)):
+    sets, und = _kernel(spec, bearings, target, jnp.asarray(tol, bearings.dtype))
+    if exact and concrete and tol == 0 and bool(jnp.any(und != 0)):
         from .camera_oracle import settle_undecided
 
         sets, n = settle_undecided(spec, bearings, sets, und)
@@ -217,7 +257,7 @@ def _check_observation(bearings, range_rank, visible):
 
 
 @partial(jax.jit, static_argnames=("spec", "n"))
-def _measure_image(spec, bearings, range_rank, visible, target_map, *, n):
+def _measure_image(spec, bearings, range_rank, visible, target_map, tol=None, *, n):
     ids = select_nearest(range_rank, visible, n)
     tri = jnp.asarray(slot_triples(n))
     lid = ids[tri]  # (T, 3)
@@ -229,7 +269,7 @@ def _measure_image(spec, bearings, range_rank, visible, target_map, *, n):
     else:
         target = jnp.stack([target_map[safe[:, X], safe[:, Y], safe[:, Z]]
                             for X, Y, Z in CYCLIC], -1)
-    sets, und = _kernel(spec, b, target)
+    sets, und = _kernel(spec, b, target, tol)
     full = jnp.uint32(spec.full)
     sets = jnp.where(valid[:, None], sets, full)
     und = jnp.where(valid[:, None], und, jnp.uint32(0))
@@ -249,6 +289,7 @@ def measure_image(
     target_map: jax.Array | None = None,
     *,
     check: bool = True,
+    tol: float | None = None,
 ) -> ImageMeasurement:
     """Measure every triple of the ``n`` nearest visible landmarks of one image (M§IV).
 
@@ -261,6 +302,8 @@ def measure_image(
         target_map: [N, N, N] uint32, the current map relations (only their open states are
             tested).
         check: check the observation when it is concrete.
+        tol: bearing tolerance in radians (:func:`measure_triples`; None: the default of
+            the bearings' dtype, 0: exact for the given bearings).
 
     Returns:
         The :class:`ImageMeasurement` of the image.
@@ -268,7 +311,8 @@ def measure_image(
     Raises:
         ValueError: for ``n < 3``, and (when concrete, ``check=True``) arrays of unequal
             length, non-finite bearings of visible landmarks, a visible landmark without a
-            rank, repeated ranks or fewer than three visible landmarks.
+            rank, repeated ranks or fewer than three visible landmarks; a ``tol`` outside
+            [0, π/4).
 
     >>> import jax
     >>> from pqrm_jax import sim
@@ -283,5 +327,7 @@ def measure_image(
         raise ValueError(f"n (landmarks per image) must be an int >= 3, got {n!r}")
     if check and not any(isinstance(x, jax.core.Tracer) for x in (bearings, range_rank, visible)):
         _check_observation(bearings, range_rank, visible)
-    return _measure_image(spec, jnp.asarray(bearings), jnp.asarray(range_rank),
-                          jnp.asarray(visible), target_map, n=n)
+    bearings = jnp.asarray(bearings)
+    tol = resolve_tolerance(tol, bearings.dtype)
+    return _measure_image(spec, bearings, jnp.asarray(range_rank),
+                          jnp.asarray(visible), target_map, jnp.asarray(tol, bearings.dtype), n=n)

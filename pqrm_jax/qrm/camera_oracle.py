@@ -26,8 +26,7 @@ import numpy as np
 
 from ..calculi.poly import Poly
 from ..tables.certify import DEFAULT_RLIMIT, SAT, UNSAT, decide
-from .exact_camera import CYCLIC
-from .spec import QRMSpec, qrm_spec
+from .spec import CYCLIC, QRMSpec, qrm_spec
 
 __all__ = ["exact_vectors", "exact_forms", "exact_signs", "decide_state", "oracle_sets",
            "settle_undecided"]
@@ -146,9 +145,9 @@ def oracle_sets(bearings, calc: str | QRMSpec = "edc", rlimit: int = DEFAULT_RLI
 def settle_undecided(spec: QRMSpec, bearings, sets, undecided, rlimit: int = DEFAULT_RLIMIT):
     """The exact stage: every undecided state of a measurement decided by z3.
 
-    ``bearings`` (T, 3), ``sets``/``undecided`` (T, 3) uint32 masks from the kernel. Returns
-    ``(sets, n_decided)``: the exact sets (undecided states kept only if feasible) and the
-    number of z3 decisions made.
+    ``bearings`` (T, 3), ``sets``/``undecided`` (T, 3) uint32 masks from the kernel (bearing
+    tolerance 0). Returns ``(sets, n_decided)``: the exact sets
+    (undecided states kept only if feasible) and the number of z3 decisions made.
     """
     b = np.asarray(bearings, np.float64)
     sets = np.array(sets, np.uint32)

@@ -53,13 +53,11 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
 
-from .spec import QRMSpec
+from .spec import CYCLIC, QRMSpec
 
 __all__ = ["CameraStructure", "camera_structure", "form_values", "exact_sets", "CYCLIC",
            "VERTICES", "EDGES", "BAND"]
 
-#: the three cyclic relations of a slot triple (near, mid, far) = (0, 1, 2): XY:Z
-CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
 #: vertices of the range-order cone on d_far = 1: (0,0,1) both nearer landmarks at the camera,
 #: (0,1,1) near at the camera and mid = far, (1,1,1) all ranges equal
 VERTICES = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0]])
@@ -231,7 +229,10 @@ def _roots(A, B, C, z0, z1):
 def _sample_params(A, B, C, z0, z1):
     """Edge parameters ``t`` [3K + 1, …] and their validity: the midpoints between
     consecutive roots in (0, 1) and the ends (2K + 1; repeated roots repeat a sample), then
-    the vertex of every quadratic (K)."""
+    the vertex of every quadratic (K); and each sample's interval ``(lo, hi)`` between
+    consecutive roots with the constraint whose root each end is (−1: an end of the edge;
+    a vertex sample's interval is the point itself)."""
+    K = A.shape[0]
     r = _roots(A, B, C, z0, z1).reshape((-1,) + A.shape[1:])  # (2K, …)
     inside = jnp.isfinite(r) & (r > 0) & (r < 1)
     r = jnp.where(inside, r, 0.0)
@@ -241,17 +242,41 @@ def _sample_params(A, B, C, z0, z1):
     # (ties broken by index: a repeated root gives a sample on it, as a sort would)
     idx = np.arange(pts.shape[0]).reshape((-1,) + (1,) * (pts.ndim - 1))
     above = (pts[None] > pts[:, None]) | ((pts[None] == pts[:, None]) & (idx[None] > idx[:, None]))
-    nxt = jnp.min(jnp.where(above, pts[None], 1.0), axis=1)
+    cand = jnp.where(above, pts[None], 1.0)
+    nxt = jnp.min(cand, axis=1)
     mids = 0.5 * (pts + nxt)
     top = -B / jnp.where(A == 0, 1.0, 2 * A)
     t = jnp.concatenate([mids, jnp.where(A != 0, top, 0.5)])
     valid = (t > 0) & (t < 1)
-    return jnp.where(valid, t, 0.5), valid
+    t = jnp.where(valid, t, 0.5)
+    lo = jnp.concatenate([pts, t[pts.shape[0]:]])
+    hi = jnp.concatenate([nxt, t[pts.shape[0]:]])
+    # owner constraint of each end: pts[1 + m] is a root of constraint m % K
+    owner = np.concatenate([[-1], np.arange(2 * K) % K]).reshape(idx.shape)
+    own_lo = jnp.where(pts > 0, jnp.asarray(owner), -1)
+    nidx = jnp.argmin(jnp.where(above, pts[None], 2.0), axis=1)
+    own_hi = jnp.where(nxt < 1, jnp.asarray(owner.ravel())[nidx], -1)
+    minus = jnp.full((K,) + A.shape[1:], -1, jnp.int32)
+    own_lo = jnp.concatenate([own_lo.astype(jnp.int32) + 0 * minus[:1], minus])
+    own_hi = jnp.concatenate([own_hi.astype(jnp.int32), minus])
+    return t, valid, lo, hi, own_lo, own_hi
 
 
-def _atoms(spec: QRMSpec, f, cert, band):
+def _reduced(A, B, C, z0, z1):
+    """Coefficients ``(a2, a1, a0)`` of ``q / h`` for the edge quadratic ``q = A t² + B t + C``
+    with its structural roots divided out (``h = t``, ``t − 1`` or ``t (t − 1)`` where ``q``
+    vanishes identically at ``t = 0`` / ``t = 1``; ``h`` keeps one sign on (0, 1))."""
+    zero = jnp.zeros_like(A)
+    a2 = jnp.where(z0 | z1, zero, A)
+    a1 = jnp.where(z0 & z1, zero, jnp.where(z0 | z1, A, B))
+    a0 = jnp.where(z0 & z1, A, jnp.where(z0, B, jnp.where(z1, -C, C)))
+    return a2, a1, a0
+
+
+def _atoms(spec: QRMSpec, f, cert, band, loose=None):
     """Witness and possible atom masks [...] from values ``f`` [K, ...] with the certain
-    threshold ``cert`` and the uncertainty band ``band``."""
+    threshold ``cert`` and the uncertainty band ``band``; ``loose`` [K, ...] marks more
+    signs as uncertain (the bearing tolerance)."""
     K = spec.k
     sure = jnp.where(f > cert, 1, jnp.where(f < -cert, -1, 0))
     wts = jnp.asarray(3 ** np.arange(K), jnp.int32).reshape((K,) + (1,) * (f.ndim - 1))
@@ -263,8 +288,117 @@ def _atoms(spec: QRMSpec, f, cert, band):
     pos, neg, amb = (jnp.asarray(x, jnp.uint32).reshape(shape)
                      for x in (spec.pos, spec.neg, spec.amb))
     cm = jnp.where(f > band, pos, jnp.where(f < -band, neg, amb))
+    if loose is not None:
+        cm = jnp.where(loose, amb, cm)
     poss = jax.lax.reduce(cm, np.uint32(0xFFFFFFFF), jax.lax.bitwise_and, (0,))
     return wit, poss
+
+
+def _form_derivatives(spec: QRMSpec, w, d):
+    """[3, K, ...] derivatives of the constraints of XY:Z with respect to the bearings of X,
+    Y and Z at ranges ``d`` (as :func:`form_values`): ``∂P_s/∂θ_s = d_s w_s⊥``."""
+    cw, sw = w
+    dX, dY, dZ = d
+    PX, PY, PZ = ((dd * cw[k], dd * sw[k]) for k, dd in enumerate(d))
+    Dx, Dy = PY[0] - PX[0], PY[1] - PX[1]
+    Ex, Ey = PZ[0] - PX[0], PZ[1] - PX[1]
+    perp = [(-dd * sw[k], dd * cw[k]) for k, dd in enumerate(d)]  # ∂P_s / ∂θ_s
+    lin = np.asarray(spec.lin)
+    out = []
+    for p in range(3):
+        zero = jnp.zeros_like(Dx)
+        dDx = (perp[1][0] if p == 1 else zero) - (perp[0][0] if p == 0 else zero)
+        dDy = (perp[1][1] if p == 1 else zero) - (perp[0][1] if p == 0 else zero)
+        dEx = (perp[2][0] if p == 2 else zero) - (perp[0][0] if p == 0 else zero)
+        dEy = (perp[2][1] if p == 2 else zero) - (perp[0][1] if p == 0 else zero)
+        g = (2 * (Dx * dDx + Dy * dDy),
+             dEx * Dy + Ex * dDy - dEy * Dx - Ey * dDx,
+             dEx * Dx + Ex * dDx + dEy * Dy + Ey * dDy,
+             2 * (Ex * dEx + Ey * dEy))
+        out.append(jnp.stack(jnp.broadcast_arrays(
+            *[sum(float(c) * x for c, x in zip(row, g, strict=True) if c != 0) + 0 * Dx
+              for row in lin])))
+    return jnp.stack(out)
+
+
+def _perturbation(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol):
+    """[K, O, 3, T] bound on how much a change of at most ``tol`` of each bearing moves
+    ``q / h`` on each edge (``q`` the constraint on the edge ``d = Vi + t Vd``, ``h`` its
+    structural factor, :func:`_reduced`).
+
+    First order: ``tol Σ_s max_t |∂(q/h)/∂θ_s|`` (the derivatives are quadratics in ``t``,
+    interpolated from the edge nodes like ``q``, structural roots divided out; the max is
+    bounded by the sum of their coefficients' magnitudes). Second order: each form is a
+    symmetric bilinear ``β(x, y)`` of the linear maps ``D``, ``E`` of the ranges; rotating
+    ``w_s`` by ``δ`` moves it by ``δ w_s⊥`` plus at most ``δ²/2``, which bounds the remainder
+    ``ρ(x, y)`` from the norms at the given bearings, summed as ``q(t) = β(a, a) +
+    2t β(a, b) + t² β(b, b)`` (vanishing terms dropped; ``a`` the vertex with the structural
+    root)."""
+    i, j = np.array(EDGES).T
+    z0, z1 = van[:, :, i, None], van[:, :, j, None]
+    dg = _form_derivatives(spec, w, nodes_d)  # (3, K, O, 6, T)
+    dg = jnp.concatenate([jnp.where(van[None, ..., None], 0.0, dg[..., :3, :]),
+                          dg[..., 3:, :]], -2)
+    g0, gh, g1 = dg[..., i, :], dg[..., 3:, :], dg[..., j, :]
+    full = (2 * g0 - 4 * gh + 2 * g1, -3 * g0 + 4 * gh - g1, g0)  # 3 × (3, K, O, 3, T)
+    red = _reduced(*full, z0, z1)
+    cw, sw = w  # [3 (X, Y, Z), O, 1, T]
+    cw, sw = cw[:, :, 0], sw[:, :, 0]  # [3, O, T]
+
+    def maps(x):  # ranges 3 × (1, O, 3, 1), (X, Y, Z) order → |D|, |E|, rD, rE (O, 3, T)
+        x = [v[0] for v in x]
+        Dx = x[1] * cw[1][:, None] - x[0] * cw[0][:, None]
+        Dy = x[1] * sw[1][:, None] - x[0] * sw[0][:, None]
+        Ex = x[2] * cw[2][:, None] - x[0] * cw[0][:, None]
+        Ey = x[2] * sw[2][:, None] - x[0] * sw[0][:, None]
+        return (jnp.hypot(Dx, Dy), jnp.hypot(Ex, Ey), jnp.abs(x[0]) + jnp.abs(x[1]),
+                jnp.abs(x[0]) + jnp.abs(x[2]))
+
+    cl = np.abs(np.asarray(spec.lin))
+    t2 = tol * tol
+
+    def rho(x, y):  # (K, O, 3, T) second-order remainder of β(x, y)
+        Dx_, Ex_, rDx, rEx = x
+        Dy_, Ey_, rDy, rEy = y
+
+        def one(A, rA, B, rB):  # A(x)·B(y): ½ τ² (|A| rB + rA |B|) + τ² rA rB
+            return t2 * (0.5 * (A * rB + rA * B) + rA * rB)
+
+        nn = one(Dx_, rDx, Dy_, rDy)
+        mm = one(Ex_, rEx, Ey_, rEy)
+        ed = 0.5 * (one(Ex_, rEx, Dy_, rDy) + one(Ey_, rEy, Dx_, rDx))
+        return jnp.stack([2 * c[0] * nn + 2 * (c[1] + c[2]) * ed + 2 * c[3] * mm for c in cl])
+
+    eps = jnp.finfo(cw.dtype).eps
+    a, b = maps(Vi), maps(Vd)
+    a1_ = maps([Vi[k] + Vd[k] for k in range(3)])
+    b1 = maps([-Vd[k] for k in range(3)])
+    none = rho(a, a) + 2 * rho(a, b) + rho(b, b)
+    d0 = 2 * rho(a, b) + rho(b, b)
+    d1 = 2 * rho(a1_, b1) + rho(b1, b1)
+    both = rho(b, b)
+    second_red = jnp.where(z0 & z1, both, jnp.where(z0, d0, jnp.where(z1, d1, none)))
+    return full, red, none * (1 + 64 * eps), second_red * (1 + 64 * eps)
+
+
+def _interval_max(c, lo, hi):
+    """[K, S, …] ``Σ_p max over [lo, hi] of |c2 t² + c1 t + c0|`` for derivative
+    coefficients ``c`` = 3 × (3 p, K, …) (``lo``/``hi`` [S, …]), with the rounding of the
+    evaluation."""
+    tot = 0.0
+    for p in range(3):
+        c2, c1, c0 = (x[p][:, None] for x in c)
+        eps = jnp.finfo(c0.dtype).eps
+
+        def q(x, c2=c2, c1=c1, c0=c0):
+            return (c2 * x + c1) * x + c0
+
+        v = -c1 / jnp.where(c2 == 0, 1.0, 2 * c2)
+        inside = (c2 != 0) & (v > lo[None]) & (v < hi[None])
+        m = jnp.maximum(jnp.abs(q(lo[None])), jnp.abs(q(hi[None])))
+        m = jnp.maximum(m, jnp.where(inside, jnp.abs(q(v)), 0.0))
+        tot = tot + m + 4 * eps * (jnp.abs(c2) + jnp.abs(c1) + jnp.abs(c0))
+    return tot
 
 
 def _or(x, axes):
@@ -284,24 +418,132 @@ def _preimage(w, reps):
             re[0] * im[1] - re[1] * im[0]]
 
 
-def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, samples,
+                      fe, ee, emax):
+    """[K, S, O, 3, T] signs made uncertain by the bearing tolerance, and the bound ``Δ``.
+
+    A sign is unsure where a change of at most ``tol`` of each bearing can flip it somewhere
+    on the sample's interval ``[lo, hi]``: the value at the sample or at an end that is not
+    the constraint's own root is within rounding + ``Δ`` of zero, ``Δ`` the first-order
+    change (derivatives, max over the interval) plus the second-order bound
+    (:func:`_perturbation`); at a structural root the reduced polynomial's value is tested.
+    """
+    A, B, f0, f1 = quad
+    t, lo, hi, own_lo, own_hi = samples
+    K = spec.k
+    i, j = np.array(EDGES).T
+    z0, z1 = van[:, :, i, None], van[:, :, j, None]
+    full_d, red_d, second, second_red = _perturbation(spec, w, nodes_d, Vi, Vd, van, tol)
+    delta = tol * _interval_max(full_d, lo, hi) + second[:, None]  # (K, S, O, 3, T)
+    P = 2 * K + 1  # interval samples; then the K vertex samples (lo = hi = t)
+    fp, ep = form_values(spec, w, [Vi[k] + lo[:P] * Vd[k] for k in range(3)])  # (K,P,O,3,T)
+    nidx = jnp.argmin(jnp.where(
+        (lo[None, :P] > lo[:P, None]) | ((lo[None, :P] == lo[:P, None])
+                                         & (np.arange(P)[None, :, None, None, None]
+                                            > np.arange(P)[:, None, None, None, None])),
+        lo[None, :P], 2.0), axis=1)  # index of each interval's upper end among the pts
+    f_hi = jnp.take_along_axis(fp, jnp.broadcast_to(nidx[None], fp.shape), 1)
+    e_hi = jnp.take_along_axis(ep, jnp.broadcast_to(nidx[None], ep.shape), 1)
+    at1 = hi[:P] >= 1
+    f_hi = jnp.where(at1[None], f1[:, None], f_hi)
+    e_hi = jnp.where(at1[None], emax[:, None], e_hi)
+    f_lo = jnp.concatenate([fp, fe[:, P:]], 1)
+    e_lo = jnp.concatenate([ep, ee[:, P:]], 1)
+    f_hi = jnp.concatenate([f_hi, fe[:, P:]], 1)
+    e_hi = jnp.concatenate([e_hi, ee[:, P:]], 1)
+    kk = jnp.arange(K).reshape((K,) + (1,) * t.ndim)
+    str_l = (own_lo[None] == -1) & (lo[None] == 0) & z0[:, None]  # structural root at t = 0
+    str_h = (own_hi[None] == -1) & (hi[None] >= 1) & z1[:, None]
+    use_l = (own_lo[None] != kk) & ~str_l
+    use_h = (own_hi[None] != kk) & ~str_h
+    bmin = BAND * emax[:, None]
+
+    def near0(f_, e_):
+        return jnp.abs(f_) <= jnp.maximum(_CERTAIN * e_, bmin) + delta
+
+    flip = lambda f_: jnp.sign(f_) != jnp.sign(fe)  # noqa: E731
+    # at a structural root the reduced polynomial's value there (its sign near the vertex)
+    r2, r1, r0 = _reduced(A, B, f0, z0, z1)
+    g_0, g_1 = r0, r2 + r1 + r0
+    dg_0 = jnp.sum(jnp.abs(red_d[2]), 0)
+    dg_1 = jnp.sum(jnp.abs(red_d[0] + red_d[1] + red_d[2]), 0)
+    str_band = BAND * emax + second_red
+    unsure = loose & (near0(fe, ee)
+                      | (use_l & (near0(f_lo, e_lo) | flip(f_lo)))
+                      | (use_h & (near0(f_hi, e_hi) | flip(f_hi)))
+                      | (str_l & (jnp.abs(g_0) <= str_band + tol * dg_0)[:, None])
+                      | (str_h & (jnp.abs(g_1) <= str_band + tol * dg_1)[:, None]))
+    return unsure, delta
+
+
+def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
+    """Witness and possible atom masks [O, T] of the region points (lemma case 2: ``R_s``
+    inside the image of the cone): a point's range preimage inside the cone is a witness,
+    within rounding of it (or, with a tolerance, within ``2 tol (|c|, |c − 1|, |c| |c − 1|)``
+    of it) keeps the point's atom possible."""
+    dtype = w[0].dtype
+    eps = jnp.finfo(dtype).eps
+    reps = jnp.asarray(st.reps, dtype)
+    dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
+    fr, er = form_values(spec, w, dr)  # (K, O, R, T)
+    D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
+    take = jnp.asarray(inv.T)[:, :, None, None]
+    ds = jnp.take_along_axis(D, take, 0)
+    # how far any bearing change within tol moves the preimage (|Δd| ≤ 2 tol |·|, per
+    # component: |c|, |c − 1|, |c| |c − 1| in (X, Y, Z) order), in slot order
+    ca, cb_ = jnp.hypot(reps[:, 0], reps[:, 1]), jnp.hypot(reps[:, 0] - 1, reps[:, 1])
+    dd = jnp.stack([ca, cb_, ca * cb_])[:, None, :, None] * (2 * tol * (1 + 16 * eps))
+    dd = jnp.take_along_axis(jnp.broadcast_to(dd, D.shape), take, 0)
+    rnd = 2 * _CONE_BAND * eps * jnp.max(jnp.abs(ds), 0)
+    gl = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
+    gb = (dd[0], dd[1] + dd[0], dd[2] + dd[1])
+    pairs = list(zip(gl, gb, strict=True))
+    near_tol = loose & (jnp.all(jnp.stack([g > -(b + rnd) for g, b in pairs]), 0)
+                        | jnp.all(jnp.stack([-g > -(b + rnd) for g, b in pairs]), 0))
+    ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
+    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
+    g = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
+    inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
+    cb = -_CONE_BAND * eps
+    near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
+    rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)  # (O, R, T)
+    wit = _or(jnp.where(inside, rw, jnp.uint32(0)), (1,))
+    # (the atom of a region point is fixed: the pattern depends on c only)
+    rep_bit = (jnp.uint32(1) << jnp.asarray(st.rep_atoms, jnp.uint32))[None, :, None]
+    poss = (_or(jnp.where(near, rp, jnp.uint32(0)), (1,))
+            | _or(jnp.where(near_tol, rep_bit, jnp.uint32(0)), (1,)))
+    return wit, poss
+
+
+def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, jax.Array]:
     """Feasible atoms of the three cyclic relations of each triple, by the boundary decision.
 
     Args:
         spec: the calculus.
         bearings: [T, 3] bearings in range order (near, mid, far), float32 or float64.
+        tol: bearing tolerance τ (radians, a scalar, may be traced): the sets hold every atom
+            feasible for *some* bearings within τ of the given ones (each bearing
+            independently) and ranges in the given order (ties allowed). 0: the sets of the
+            given bearings exactly.
 
     Returns:
         ``(possible, undecided)`` [T, 3] uint32 *atom* masks: ``possible`` holds every
         feasible atom and, besides the witnessed ones, the ``undecided`` atoms that only a
-        near-degenerate sample could not exclude (normally none).
+        near-degenerate sample could not exclude (normally none at ``tol = 0``).
 
     The three relations run as one program along an axis O = 3: relation o is relation 0
     of the triple with its slots permuted to (X, Y, Z) = ``CYCLIC[o]``.
+
+    With ``tol > 0`` the witnesses are those of the given bearings on the widened cone, and a
+    sign counts as uncertain also where the constraint's value on a sample's whole interval
+    of the edge (structural roots divided out) comes within ``Δ`` of zero, ``Δ`` a bound on
+    how much any bearing change within τ moves it; a region point counts as inside where its
+    range preimage is within the same kind of bound of the cone (docs/qrm.md §camera).
     """
     st = camera_structure(spec)
     dtype = bearings.dtype
-    eps = jnp.finfo(dtype).eps
+    tol = jnp.asarray(tol, dtype)
+    loose = tol > 0
     K = spec.k
     perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
     inv = np.argsort(perm, 1)  # inv[o][slot] = relation-order position
@@ -310,52 +552,47 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array) -> tuple[jax.Array, jax.Array
 
     w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
 
-    def rel_d(vals, shape):  # slot-order constants (..., 3) → 3 × [O, ...] in (X, Y, Z) order
-        v = np.asarray(vals)[..., perm]  # (..., O, 3)
-        v = np.moveaxis(v, -2, 0)  # (O, ..., 3)
-        return [jnp.asarray(v[..., k].reshape(shape), dtype) for k in range(3)]
+    def rel_d(vals, shape):  # slot-order values (..., 3) → 3 × [O, ...] in (X, Y, Z) order
+        v = jnp.asarray(vals, dtype)[..., perm]  # (..., O, 3)
+        v = jnp.moveaxis(v, -2, 0)  # (O, ..., 3)
+        return [v[..., k].reshape(shape) for k in range(3)]
 
     i, j = np.array(EDGES).T
+    verts = jnp.asarray(VERTICES, dtype)
     # the three vertices and the three edge midpoints, for the edge quadratics
-    nodes = np.concatenate([VERTICES, 0.5 * (VERTICES[i] + VERTICES[j])], 0)  # (6, 3)
+    nodes = jnp.concatenate([verts, 0.5 * (verts[i] + verts[j])], 0)  # (6, 3)
     f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)))  # (K, O, 6, T)
-    van = np.moveaxis(st.vanish, 1, 0)  # (K, O, 3 vertices)
-    vmask = jnp.asarray(van)[..., None]
+    van = jnp.asarray(np.moveaxis(st.vanish, 1, 0))  # (K, O, 3 vertices)
+    vmask = van[..., None]
     f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
     e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
     f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
     A = 2 * f0 - 4 * fh + 2 * f1
     B = -3 * f0 + 4 * fh - f1
     emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
-    t, valid = _sample_params(A, B, f0, jnp.asarray(van[:, :, i, None]),
-                              jnp.asarray(van[:, :, j, None]))  # (S, O, 3, T)
+    z0, z1 = van[:, :, i, None], van[:, :, j, None]
+    t, valid, lo, hi, own_lo, own_hi = _sample_params(A, B, f0, z0, z1)  # (S, O, 3, T)
     S = t.shape[0]
-    Vi = rel_d(VERTICES[i], (1, 3, 3, 1))
-    Vd = rel_d(VERTICES[j] - VERTICES[i], (1, 3, 3, 1))
+    Vi = rel_d(verts[i], (1, 3, 3, 1))
+    Vd = rel_d(verts[j] - verts[i], (1, 3, 3, 1))
     fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
     band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
+    unsure, delta = _tolerance_unsure(
+        spec, w, rel_d(nodes, (3, 6, 1)), Vi, Vd, van, tol, loose, (A, B, f0, f1),
+        (t, lo, hi, own_lo, own_hi), fe, ee, emax)
     # a quadratic's vertex is only needed where it nears zero there (a tangency that the
     # roots may have missed); elsewhere it could sit on another constraint's root
     own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
     own_band = jnp.moveaxis(jnp.diagonal(band[:, S - K:], axis1=0, axis2=1), -1, 0)
+    own_d = jnp.moveaxis(jnp.diagonal(delta[:, S - K:], axis1=0, axis2=1), -1, 0)
+    own_band = own_band + jnp.where(loose, own_d, 0.0)
     valid = jnp.concatenate([valid[:S - K], valid[S - K:] & (jnp.abs(own) <= own_band)])
-    wit, poss = _atoms(spec, fe, _CERTAIN * ee, band)  # (S, O, 3, T)
+    wit, poss = _atoms(spec, fe, _CERTAIN * ee, band, unsure)  # (S, O, 3, T)
     ok = jnp.asarray(st.edge_ok)[None, :, :, None] & valid
     wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 2))  # (O, T)
     poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 2))
     # region points: R_s inside the image of the cone
-    reps = jnp.asarray(st.reps, dtype)
-    dr = _preimage(w, reps)  # 3 × (O, R, T), (X, Y, Z) order
-    fr, er = form_values(spec, w, dr)  # (K, O, R, T)
-    D = jnp.stack(dr)  # slot order for the cone test: slot s is position inv[o][s]
-    ds = jnp.take_along_axis(D, jnp.asarray(inv.T)[:, :, None, None], 0)
-    ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
-    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
-    g = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
-    inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
-    cb = -_CONE_BAND * eps
-    near = (g[0] > cb) & (g[1] > cb) & (g[2] > cb)
-    rw, rp = _atoms(spec, fr, _CERTAIN * er, _CERTAIN * er)  # (O, R, T)
-    wit = wit | _or(jnp.where(inside, rw, jnp.uint32(0)), (1,))
-    poss = poss | _or(jnp.where(near, rp, jnp.uint32(0)), (1,)) | wit
+    rwit, rposs = _region_atoms(spec, st, w, tol, loose, inv)
+    wit = wit | rwit
+    poss = poss | rposs | wit
     return poss.T, (poss & ~wit).T

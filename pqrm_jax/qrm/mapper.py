@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 
 from ..calculi import Calculus
-from .camera import measure_image_kernel
+from .camera import measure_image_kernel, resolve_tolerance
 from .hypergraph import QRMMap, UpdateReport, apply_relations_kernel, empty_map
 from .pipeline import map_metrics
 from .spec import QRMSpec, qrm_spec
@@ -55,16 +55,16 @@ class Mapper(NamedTuple):
     n: int
 
 
-def _update(spec: QRMSpec, m: QRMMap, key, image, *, n: int, max_sweeps: int):
+def _update(spec: QRMSpec, m: QRMMap, key, image, *, n: int, max_sweeps: int, tol=None):
     del key  # deterministic (accepted for the step convention)
     meas = measure_image_kernel(spec, image.bearings, image.range_rank, image.visible, m.rel,
-                                n=n)
+                                tol, n=n)
     return apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid,
                                   max_sweeps=max_sweeps)
 
 
 def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: int = 18, *,
-           max_sweeps: int = 64) -> Mapper:
+           max_sweeps: int = 64, tol: float | None = None) -> Mapper:
     """A QRM mapper over ``num_landmarks`` landmarks, ``n`` nearest measured per image (M§VI).
 
     Args:
@@ -72,6 +72,9 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
         num_landmarks: N, the map capacity (landmark ids 0..N−1).
         n: landmarks measured per image (the nearest visible ones; capped at N).
         max_sweeps: path-consistency sweeps per update (M§VI.B).
+        tol: bearing tolerance of the measurement in radians (None: the default of the
+            images' dtype, :func:`pqrm_jax.qrm.camera.default_tolerance`; 0: exact for the
+            given bearings; docs/qrm.md §camera).
 
     Returns:
         ``Mapper(init, update, metrics, spec, num_landmarks, n)``; the same map as
@@ -83,12 +86,14 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
     if not isinstance(n, int) or n < 3:
         raise ValueError(f"n must be an int >= 3, got {n!r}")
     n = min(n, num_landmarks)
+    if tol is not None:
+        tol = resolve_tolerance(tol, "float64")
 
     def init() -> QRMMap:
         return empty_map(num_landmarks, spec)
 
     update = jax.jit(partial(_update, spec, n=n,
-                             max_sweeps=int(max_sweeps)))
+                             max_sweeps=int(max_sweeps), tol=tol))
 
     def metrics(m: QRMMap, landmarks) -> dict:
         return map_metrics(m, landmarks, spec)

@@ -23,7 +23,7 @@ from pqrm_jax import sim
 
 from ..calculi import Calculus
 from ..triplets import cyclic_mask
-from .camera import measure_image_kernel
+from .camera import measure_image_kernel, resolve_tolerance
 from .hypergraph import QRMMap, apply_relations_kernel, empty_map, true_relations
 from .rng import rng_estimate_kernel
 from .spec import QRMSpec, popcount, qrm_spec
@@ -80,9 +80,10 @@ def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") ->
     return {k: float(v) for k, v in zip(keys, vals, strict=True)}
 
 
-def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n):
+def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None):
     cam = sim.sensors.camera_kernel(pose, landmarks, sensor)
-    meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, n=n)
+    meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, tol,
+                                n=n)
     # histogram of open counts of relations measured for the first time
     tri = jnp.maximum(meas.triples, 0)
     first = meas.valid & ~(m.known[tri[:, 0]] & m.known[tri[:, 1]] & m.known[tri[:, 2]])
@@ -99,8 +100,8 @@ def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n):
 
 
 @partial(jax.jit, static_argnames=("spec", "n"))
-def _map_step(spec, m, pose, landmarks, truth, sensor, *, n):
-    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n)
+def _map_step(spec, m, pose, landmarks, truth, sensor, tol, *, n):
+    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol)
 
 
 def _real(x):
@@ -115,21 +116,27 @@ def resolve_sensor(sensor):
 
 
 def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec = "edc",
-             sensor: sim.SensorParams | None = None, truth=None) -> tuple[QRMMap, Metrics]:
-    """One image: camera at ``pose``, measurement of the ``n`` nearest, update, metrics."""
+             sensor: sim.SensorParams | None = None, truth=None, *,
+             tol: float | None = None) -> tuple[QRMMap, Metrics]:
+    """One image: camera at ``pose``, measurement of the ``n`` nearest, update, metrics.
+
+    ``tol``: bearing tolerance of the measurement in radians (None: the default of the
+    dtype, :func:`pqrm_jax.qrm.camera.default_tolerance`; docs/qrm.md §camera).
+    """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     landmarks = _real(landmarks)
+    tol = resolve_tolerance(tol, landmarks.dtype)
     truth = true_relations(landmarks, spec) if truth is None else truth
     return _map_step(spec, m, _real(pose), landmarks, truth,
-                     resolve_sensor(sensor), n=n)
+                     resolve_sensor(sensor), jnp.asarray(tol, landmarks.dtype), n=n)
 
 
 @partial(jax.jit, static_argnames=("spec", "n"))
-def _run(spec, poses, landmarks, truth, sensor, *, n):
+def _run(spec, poses, landmarks, truth, sensor, tol, *, n):
     m0 = empty_map(landmarks.shape[0], spec)
 
     def body(m, pose):
-        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n)
+        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol)
 
     return jax.lax.scan(body, m0, poses)
 
@@ -140,12 +147,16 @@ def run_sequence(
     n: int,
     calc: Calculus | str | QRMSpec = "edc",
     sensor: sim.SensorParams | None = None,
+    *,
+    tol: float | None = None,
 ) -> tuple[QRMMap, Metrics]:
     """Map a layout from a sequence of imaging poses [T, 3]; per-image metrics [T, ...].
 
     float32 by default; float64 ``landmarks`` and ``poses`` (with ``jax_enable_x64`` on) run
-    the simulator and the measurement in float64, where the camera measurement leaves no
-    state undecided (docs/qrm.md §camera).
+    the simulator and the measurement in float64. ``tol`` is the bearing tolerance of the
+    measurement in radians (None: the dtype's default, which covers the simulator's
+    rounding of the bearings, so the true state is never dropped; 0: exact for the computed
+    bearings; docs/qrm.md §camera).
 
     >>> import jax
     >>> from pqrm_jax import sim
@@ -168,7 +179,8 @@ def run_sequence(
         # a NaN would make every comparison false and the map look sound ("truth kept")
         if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
             raise ValueError(f"run_sequence: {nm} contain NaN or inf")
+    tol = resolve_tolerance(tol, landmarks.dtype)
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
     return _run(spec, poses, landmarks, truth, resolve_sensor(sensor),
-                n=n)
+                jnp.asarray(tol, landmarks.dtype), n=n)

@@ -18,7 +18,10 @@ import numpy as np
 from ..calculi import Calculus
 from ..calculi import get as get_calculus
 
-__all__ = ["QRMSpec", "qrm_spec", "mask_of", "states_of", "popcount"]
+__all__ = ["QRMSpec", "qrm_spec", "mask_of", "states_of", "popcount", "CYCLIC"]
+
+#: the three cyclic relations of a slot triple (near, mid, far) = (0, 1, 2): XY:Z
+CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
 
 #: EDC lune states (M Alg. 2): C inside both circles of radius |AB| around A and B.
 _LUNE = {"edc": ("7", "8", "13", "14"), "edc_lune": ("lune",)}

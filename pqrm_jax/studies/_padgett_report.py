@@ -55,6 +55,27 @@ def _nearest(lines, sigma_r, tag=None):
     return min(cands, key=lambda ln: abs(ln["sigma_r"] - sigma_r))
 
 
+CAPTIONS = {
+    "fig2_6_neighbor_distance.png": "Fig. 2.6 — mean neighbour distance between the ML and the "
+    "true EDC state against the noise σ_N (error bars: std over runs); red dashes: the "
+    "distance of a random estimate.",
+    "fig2_7_entropy.png": "Fig. 2.7 — mean entropy of the EDC map against σ_N; blue squares: "
+    "the worst case ln 20.",
+    "fig2_8_error_locations.png": "Fig. 2.8 — where the incorrectly estimated EDC triplets "
+    "lie: C in the frame normalised to A = (0, 0), B = (0, 1), coloured by d(A, B), at low "
+    "and high noise; black lines: the EDC boundaries.",
+    "fig2_9_confusion.png": "Fig. 2.9 — off-diagonal EDC confusion matrices (true state by "
+    "row, ML estimate by column; colour: number of misclassified triplets) at low and high "
+    "noise.",
+    "fig2_10_entropy_representations.png": "Fig. 2.10 — mean map entropy of the six "
+    "representations against σ_N, in nats (left) and normalised by ln Q (right).",
+    "fig2_11_error_pml.png": "Fig. 2.11 — mean ML error rate (dotted: a random guess, "
+    "1 − 1/Q) and mean probability of the ML state of the six representations.",
+    "fig2_16_topn.png": "Fig. 2.16 (simulated regimes) — error rate when the n most likely "
+    "states are output.",
+}
+
+
 def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
     plt = _plt()
     reps = cfg["representations"]
@@ -62,7 +83,7 @@ def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
 
     def save(fig, name):
         fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
+        fig.savefig(out / name, dpi=110, bbox_inches="tight")  # no clipped label
         plt.close(fig)
         files.append(name)
 
@@ -74,9 +95,11 @@ def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
     rnd = _random_nd(cfg)
     if rnd is not None:
         ax.axhline(rnd, color="r", ls="--", label=f"random estimate ({rnd:.2f})")
+        top = max(rnd, float(np.nanmax(np.asarray(y) + np.asarray(s))))
+        ax.set_ylim(top=1.12 * top)  # the random-estimate line clear of the top edge
     ax.set_xlabel("σ_N")
     ax.set_ylabel("mean neighbour distance")
-    ax.legend()
+    ax.legend(loc="lower right")
     ax.set_title("Fig. 2.6: EDC neighbour distance")
     save(fig, "fig2_6_neighbor_distance.png")
 
@@ -113,7 +136,7 @@ def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
         off = cm.copy()
         np.fill_diagonal(off, 0)
         im = ax.imshow(off, cmap="magma")
-        fig.colorbar(im, ax=ax)
+        fig.colorbar(im, ax=ax, label="misclassified triplets (count)")
         ax.set_xticks(range(20), [str(i) for i in range(1, 21)], fontsize=6)
         ax.set_yticks(range(20), [str(i) for i in range(1, 21)], fontsize=6)
         ax.set_xlabel("estimated (ML) state")
@@ -133,7 +156,9 @@ def make_figures(out: Path, cfg, lines, arrays) -> list[str]:
     axes[1].set_ylabel("mean map entropy / ln Q")
     for ax in axes:
         ax.set_xlabel("σ_N")
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8,
+               bbox_to_anchor=(0.5, -0.06))  # below the axes: covers no curve
     fig.suptitle("Fig. 2.10: entropy of the six representations")
     save(fig, "fig2_10_entropy_representations.png")
 
@@ -360,7 +385,9 @@ def write_report(out: Path) -> Path:
                   f"{ln['mean_updates_per_triplet']:.2f} | {r['entropy_mean']:.3f} | "
                   f"{r['entropy_std']:.3f} | {r['error_mean']:.3f} | {r['p_ml_mean']:.3f} | "
                   f"{r['neighbor_mean']:.3f} | {r['conflicts_per_update']:.4f} |")
-    md += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figs] + [""]
+    md += ["", "## Figures", ""]
+    for f in figs:
+        md += [f"![{CAPTIONS.get(f, f)}]({f})", "", f"*{CAPTIONS.get(f, f)}*", ""]
     md += ["Notes: a *conflict* is an eq. 2.10 product that is zero for every state (finite S "
            "gives zero likelihood to states the sampled cloud missed); the prior is kept "
            "(documented in `pqrm_jax.pqrm.map`). Error locations are sub-sampled for plotting; "

@@ -7,10 +7,12 @@ design is searched for: a greedy choice among random candidate poses (each candi
 by one batched, ``vmap``-ed map update), with the rule that images 1–3 may not fully
 constrain an edge. The same QRM pipeline runs with the FDC calculus (``double_cross``, the
 open 6-state FDC; ``--calc dcc`` for the boundary-inclusive version when its tables exist).
-Outputs: ``fdc_design.png`` (layout + curves of % open states and % constrained edges, like
-MT Fig. 1.6a), ``design.json`` and ``report.md``. As N processes on ``jax.distributed``
-(``--coordinator/--processes/--process-id``; :mod:`pqrm_jax.studies.distributed`) the searches
-are split over the processes and process 0 writes them.
+Outputs: ``searches.jsonl`` (one record per search, appended as it ends: a killed run
+keeps it), ``design.json``, ``fdc_design.png`` (layout + curves of % open states and %
+constrained edges, like MT Fig. 1.6a) and ``report.md`` with the claims table. As N
+processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``;
+:mod:`pqrm_jax.studies.distributed`) the searches are split over the processes and process 0
+writes them.
 """
 
 from __future__ import annotations

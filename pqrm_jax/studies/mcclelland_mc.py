@@ -38,6 +38,10 @@ class Config:
     #: triples of the first image of run 0 (per n) whose relations the report also decides
     #: with the exact z3 oracle (issue #14: kernel sets vs the exact feasible sets)
     exact_sample: int = 24
+    #: bearing tolerance of the camera measurement in radians (issue #27); None = the
+    #: default of the float32 bearings, qrm.camera.default_tolerance: the rounding of the
+    #: simulated camera, so the true state is never dropped (docs/qrm.md §camera)
+    bearing_tol: float | None = None
 
 
 REDUCED = dict(runs=3, images=20, ns=(6, 12, 18, 30), timed_runs=1)
@@ -61,13 +65,13 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
     spec = qrm_spec("edc")
     truth = H.true_relations(lm, spec)
     m = H.empty_map(cfg.landmarks, spec)
-    m, _ = P.map_step(m, poses[0], lm, n, spec, truth=truth)
+    m, _ = P.map_step(m, poses[0], lm, n, spec, truth=truth, tol=cfg.bearing_tol)
     jax.block_until_ready(m.rel)  # compile
     m = H.empty_map(cfg.landmarks, spec)
     out = []
     for t in range(poses.shape[0]):
         t0 = time.perf_counter()
-        m, met = P.map_step(m, poses[t], lm, n, spec, truth=truth)
+        m, met = P.map_step(m, poses[t], lm, n, spec, truth=truth, tol=cfg.bearing_tol)
         jax.block_until_ready(m.rel)
         out.append(time.perf_counter() - t0)
     return np.asarray(out)
@@ -126,7 +130,7 @@ def run_unit(cfg: Config, n: int, r: int) -> dict[str, np.ndarray]:
 
     lm, poses = _layout(cfg, r)
     t0 = time.perf_counter()
-    m, met = P.run_sequence(lm, poses, n, "edc")
+    m, met = P.run_sequence(lm, poses, n, "edc", tol=cfg.bearing_tol)
     jax.block_until_ready(m.rel)
     wall = time.perf_counter() - t0
     rec = {f: np.asarray(getattr(met, f)) for f in met._fields}
@@ -150,7 +154,8 @@ def exact_first_image(cfg: Config, n: int) -> dict:
     spec = qrm_spec("edc")
     lm, poses = _layout(cfg, 0)
     cam = sim.camera(poses[0], lm, sim.SensorParams(max_range=1e6))
-    m = C.measure_image(cam.bearings, cam.range_rank, cam.visible, n, spec)
+    m = C.measure_image(cam.bearings, cam.range_rank, cam.visible, n, spec,
+                        tol=cfg.bearing_tol)
     valid = np.flatnonzero(np.asarray(m.valid))
     pick = valid[np.linspace(0, len(valid) - 1, min(cfg.exact_sample, len(valid))).astype(int)]
     bear = np.asarray(cam.bearings)[np.asarray(m.triples)[pick]]

@@ -18,8 +18,11 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
 
@@ -44,7 +47,7 @@ HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
-NUMERICS_VERSION = 2  # bump when the map's floating-point results change (see Config notes)
+NUMERICS_VERSION = 3  # bump when the map's floating-point results change (see Config notes)
 
 
 @dataclasses.dataclass
@@ -89,6 +92,12 @@ class Config:
                         "(common random numbers); fresh bank every update",
             "numerics": "2 = power-of-two rescaled EDC kernel and a fixed-order Bayes "
                         "normaliser (entropy and p_ml differ from version 1 in the last bits); "
+                        "3 = no FMA contraction in that normaliser, so the sparse runner "
+                        "equals the dense reference bit for bit (probabilities of lr, "
+                        "single/double/triple_cross differ from version 2 by a few ulps, so "
+                        "their ML state can flip where two states are within an ulp: on the "
+                        "full study rates moved by at most 3.3e-6, about one triplet in "
+                        "300 000; counts and every EDC and edc_lune result unchanged); "
                         "a directory written by another version is refused, not mixed",
         }
         return d
@@ -276,6 +285,22 @@ FALLBACK_CHUNK = 250  # runs per call when neither the device nor the OS reports
 _AOT: dict = {}
 
 
+_LOCK = threading.Lock()  # levels run side by side (level_workers): compile once
+
+
+def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
+    """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached."""
+    with _LOCK:
+        _, batched, sharding = compiled_runner(cfg, dense=dense)
+        key = (id(batched), chunk)
+        if key not in _AOT:
+            if len(_AOT) > 4:
+                _AOT.clear()
+            keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
+            _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
+        return _AOT[key][1], sharding
+
+
 def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
                   memory_bytes: int | None = None):
     """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached.
@@ -287,14 +312,7 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
     """
     from . import chunking
 
-    _, batched, sharding = compiled_runner(cfg, dense=dense)
-    key = (id(batched), chunk)
-    if key not in _AOT:
-        if len(_AOT) > 4:
-            _AOT.clear()
-        keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
-        _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
-    compiled = _AOT[key][1]
+    compiled, sharding = _compiled_chunk(cfg, chunk, dense=dense)
     chunking.check_fits(chunking.program_bytes(compiled), chunking.budget(memory_bytes),
                         option="--chunk-runs",
                         what=f"{NAME}: a chunk of {chunk} runs "
@@ -305,21 +323,30 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
 def auto_chunk_runs(cfg: Config, *, memory_bytes: int | None = None) -> int:
     """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
 
-    One run's bytes are bounded by the compiled program of :data:`PROBE_LANES` run per device
-    (XLA's memory analysis; its fixed part counted for every run, so ``n`` runs need at most
-    ``n`` times it), then
+    First the program of every run in one call (``cfg.runs`` rounded up to the devices) is
+    compiled — the program the study then runs, so in the usual case nothing else is
+    compiled — and taken when XLA's memory analysis puts it within
+    :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget. Otherwise one run's bytes are
+    bounded by the compiled program of :data:`PROBE_LANES` run per device (its fixed part
+    counted for every run, so ``n`` runs need at most ``n`` times it), and
     :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of runs per
-    device that fits, capped at ``cfg.runs``. Without memory figures (no device statistics,
-    no OS figure) it falls back to :data:`FALLBACK_CHUNK`.
+    device that fits. Without memory figures (no device statistics, no OS figure) it falls
+    back to :data:`FALLBACK_CHUNK`.
     """
     from . import chunking
 
     ndev = len(jax.local_devices())
+    whole = -(-cfg.runs // ndev) * ndev
+    budget = chunking.budget(memory_bytes)
+    full = dataclasses.replace(cfg, chunk_runs=whole)
+    nbytes = chunking.program_bytes(_compiled_chunk(full, whole)[0])
+    if nbytes is not None and budget is not None and nbytes <= chunking.FRACTION * budget:
+        return whole
     per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
     probe = dataclasses.replace(cfg, chunk_runs=per_device * ndev)
     compiled, _ = chunk_program(probe, per_device * ndev, memory_bytes=memory_bytes)
     nbytes = chunking.program_bytes(compiled)
-    chunk = chunking.fit(nbytes and nbytes / per_device, chunking.budget(memory_bytes),
+    chunk = chunking.fit(nbytes and nbytes / per_device, budget,
                          total=cfg.runs, devices=ndev, option="--chunk-runs")
     return FALLBACK_CHUNK if chunk is None else chunk
 
@@ -511,6 +538,29 @@ def resolve_chunk(cfg: Config, out: Path, *, fresh: bool = False, cluster=None,
     return dataclasses.replace(cfg, chunk_runs=chunk)
 
 
+def level_workers(cluster=None) -> int:
+    """Noise levels computed side by side by :func:`run_study`: 2 on a CPU host with at least
+    two cores and one process, else 1.
+
+    XLA's CPU code keeps about 1.6 of 2 cores busy on one level (many small kernels per step);
+    two levels at once fill them (each level is the same program on its own keys, so the
+    results are those of one level at a time, bit for bit; the files are written in level
+    order). Not with several processes (their collectives must run in one order) nor on an
+    accelerator (one device runs one program at a time).
+
+    Args:
+        cluster: the :mod:`.distributed` cluster (None: one process).
+
+    Returns:
+        1 or 2.
+    """
+    if cluster is not None and cluster.distributed:
+        return 1
+    if jax.default_backend() != "cpu":
+        return 1
+    return 2 if (os.cpu_count() or 1) >= 2 else 1
+
+
 def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = False,
               store=None, cluster=None, memory_bytes: int | None = None) -> list[dict]:
     """Run (or resume) the study into ``out``; returns the level summaries.
@@ -552,14 +602,24 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
         bar = tqdm(total=len(todo) * cfg.runs, desc="padgett-mc runs", unit="run",
                    disable=quiet or not cluster.is_main, file=sys.stderr)
         t0 = time.perf_counter()
-        for i in todo:
-            bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
-            res = run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster,
-                            memory_bytes=memory_bytes)
-            if cluster.is_main:
-                line, arrays = summarise_level(cfg, levels[i], res, i)
-                st.write_npz(f"level_{i:02d}.npz", arrays)
-                log.add(line)
+
+        def compute(i):
+            return run_level(cfg, i, levels[i]["sigma_r"], bar, cluster=cluster,
+                             memory_bytes=memory_bytes)
+
+        workers = level_workers(cluster)
+        pool = ThreadPoolExecutor(workers) if workers > 1 else None
+        try:
+            results = pool.map(compute, todo) if pool else map(compute, todo)
+            for i, res in zip(todo, results, strict=True):  # in level order
+                bar.set_postfix_str(f"σ_R={levels[i]['sigma_r']:.1f} m")
+                if cluster.is_main:
+                    line, arrays = summarise_level(cfg, levels[i], res, i)
+                    st.write_npz(f"level_{i:02d}.npz", arrays)
+                    log.add(line)
+        finally:
+            if pool:
+                pool.shutdown(cancel_futures=True)
         bar.close()
         elapsed = time.perf_counter() - t0
         if not cluster.is_main:
@@ -678,5 +738,5 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 __all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk_runs",
-           "resolve_chunk", "chunk_program", "summarise_level", "memory_error", "load_results",
-           "main", "boundary_distance"]
+           "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
+           "load_results", "main", "boundary_distance"]

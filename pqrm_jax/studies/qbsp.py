@@ -72,10 +72,13 @@ DECISIONS = {
     "Z-7": "eta divides (normalisation)",
     "Z-8": "association and measurement condition on the scale of F_{t-1}",
     "Z-9": "frame scale = reference scale x |X1 - X2| (tables G2, GA, GB)",
-    "Z-10": "reference = F_1's true scale bin (one-hot); fallback uniform over observable "
-            "bins for pairs in a known triplet, over all bins otherwise; pairs derivable from "
-            "measured rows or inside a measured triplet keep their measured-only scale in "
-            "both modes (compositions serve only the other pairs: plan existence is monotone)",
+    "Z-10": "reference = F_1's true scale bin (one-hot); scale_model 'composed' (default): "
+            "the missing S^L_AB scale rows are composed (Z 4.2.5 eq. 4.24 with 4.2.6) in both "
+            "modes, so both modes derive the same frame scales and 'without compositions' "
+            "changes only the candidate set; 'belief' (the previous model): scales from the "
+            "mode's own rows, pairs inside a measured triplet keep their measured-only scale; "
+            "fallback uniform over observable bins for pairs in a known triplet, over all bins "
+            "otherwise",
     "Z-11": "expectimax tree: min over actions, expectation over beta and z, min over links; "
             "goal branch terminal; leaf h = cbar (1 + rho) (hops + 1) with rho = 10 (each "
             "remaining link costs ten mean steps: progress first, cost second; rho = 0 made "
@@ -152,8 +155,14 @@ def config_for(args) -> dict:
         "planner": {"depth": base["depth"], "n_actions": 4, "n_beta": 3, "lam": 1.0e5, "rho": 10.0,
                     "n_z": 1},
         "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
-                      "pqrm_samples": 64, "eps_obs": 0.01},
+                      "pqrm_samples": 64, "eps_obs": 0.01,
+                      # a later session's "no plan" does not end the lane (measured,
+                      # docs/bsp.md §execution)
+                      "on_no_plan": getattr(args, "on_no_plan", "continue")},
         "initial_measurement_samples": 256,
+        # how frame scales are derived (docs/bsp.md §Z-10): "composed" in both modes
+        # (default) or "belief" (the mode's own rows; the previous model)
+        "scale_model": getattr(args, "scale_model", "composed"),
         # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
         "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
                    "depths": [1]} if args.tiny else
@@ -200,7 +209,8 @@ def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, d
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
         b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
-                             samples=cfg["initial_measurement_samples"])
+                             samples=cfg["initial_measurement_samples"],
+                             scale_model=cfg["scale_model"])
         for c, x in enumerate(grid):
             fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
                                jnp.asarray(env.goal), float(x))
@@ -241,6 +251,7 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                               nothing_seen="nothing_seen" in cfg.get("extensions", {}))
            for d in sw["depths"]}
     bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
+    topo = {m: [] for m in ("without", "with")}
     for size in sizes:
         ex = {m: [] for m in ("without", "with")}
         tex = {m: {d: [] for d in sw["depths"]} for m in ("without", "with")}
@@ -251,10 +262,15 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                 b = E.initial_belief(models, env, jax.random.key(e),
                                      compositions=mode == "with", L_max=cfg["L_max"],
                                      sigma_z=cfg["execution"]["sigma_z"],
-                                     samples=cfg["initial_measurement_samples"])
+                                     samples=cfg["initial_measurement_samples"],
+                                     scale_model=cfg["scale_model"])
                 fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
                                    float(eps))
                 ex[mode].append(bool(G.plan_exists(fg, b.frame)))
+                if size == cfg["size"]:  # the topological reading: every candidate observable
+                    fg0 = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
+                                        0.0)
+                    topo[mode].append(bool(G.plan_exists(fg0, b.frame)))
                 if size == cfg["size"]:
                     for d, pp in pps.items():
                         pl = P.plan(models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
@@ -267,6 +283,8 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                 out["tree_exists"][mode] = {str(d): float(np.mean(v))
                                             for d, v in tex[mode].items()}
     bar.close()
+    out["topological"] = {"envs": sw["envs"], "size": cfg["size"],
+                          **{m: float(np.mean(v)) for m, v in topo.items()}}
     return out
 
 
@@ -398,7 +416,9 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     ex = cfg["execution"]
     ep = X.ExecParams(t_max=ex["t_max"], sigma_m=ex["sigma_m"], sigma_z=ex["sigma_z"],
                       pqrm_samples=ex["pqrm_samples"], eps_obs=ex["eps_obs"],
-                      nondetection="nondetection" in cfg.get("extensions", {}))
+                      nondetection="nondetection" in cfg.get("extensions", {}),
+                      scale_model=cfg["scale_model"],
+                      on_no_plan=ex["on_no_plan"])
     pos = jnp.asarray(np.stack([E.padded_positions(e, L) for e in pad]))
     lm = jnp.asarray(np.stack([np.arange(L) < len(e.pos) for e in pad]))
     goal = jnp.asarray([e.goal for e in pad], jnp.int32)
@@ -411,7 +431,8 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
         bels = [E.initial_belief(models, e, jax.random.fold_in(jax.random.key(cfg["seed"] + 1),
                                                                 i),
                                  compositions=mode == "with", L_max=L, sigma_z=ex["sigma_z"],
-                                 samples=cfg["initial_measurement_samples"])
+                                 samples=cfg["initial_measurement_samples"],
+                                 scale_model=cfg["scale_model"])
                 for e, i in zip(pad, pid, strict=True)]
         beliefs[mode] = jax.tree.map(lambda *x: jnp.stack(x), *bels)
     # all four tests of every environment in one batched call: lanes = (mode, cost, env)
@@ -454,15 +475,30 @@ def chunk_rows(out, dt: float, envs: list, ids: list[int]) -> list[dict]:
 
 
 # -------------------------------------------------------------------------------- analysis
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson interval of a binomial proportion."""
+def wilson(k: int, n: int) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial proportion (``scipy.stats.binomtest``)."""
     if n == 0:
         return (float("nan"), float("nan"))
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (float(c - h), float(c + h))
+    from scipy.stats import binomtest
+    ci = binomtest(int(k), int(n)).proportion_ci(0.95, method="wilson")
+    return (float(ci.low), float(ci.high))
+
+
+def paired_bootstrap(wo: np.ndarray, wi: np.ndarray, rng: np.random.Generator,
+                     n_resamples: int = 2000) -> tuple[tuple[float, float], tuple[float, float]]:
+    """95 % percentile intervals of ``mean(wi) / mean(wo)`` and ``mean(wo - wi)`` from one
+    paired bootstrap (``scipy.stats.bootstrap``, ``paired=True``; both statistics see the
+    same resamples)."""
+    from scipy.stats import bootstrap
+
+    def stat(a, b, axis=-1):
+        return np.stack([b.mean(axis) / np.maximum(a.mean(axis), 1e-12),
+                         (a - b).mean(axis)])
+
+    res = bootstrap((wo, wi), stat, paired=True, n_resamples=n_resamples,
+                    method="percentile", confidence_level=0.95, rng=rng)
+    lo, hi = res.confidence_interval
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
 
 
 def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
@@ -497,18 +533,11 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
         wo = np.array([by[e, "without", cost]["executed_cost"] for e in diff])
         wi = np.array([by[e, "with", cost]["executed_cost"] for e in diff])
         if k >= 2:
-            boots = []
-            dboot = []
-            for _ in range(2000):
-                s = rng.integers(0, k, k)
-                boots.append(wi[s].mean() / max(wo[s].mean(), 1e-12))
-                dboot.append((wo[s] - wi[s]).mean())
+            ratio_ci, diff_ci = paired_bootstrap(wo, wi, rng)
             res[f"cost{cost}_without"] = float(wo.mean())
             res[f"cost{cost}_with"] = float(wi.mean())
-            res[f"cost{cost}_ratio"] = (float(wi.mean() / max(wo.mean(), 1e-12)),
-                                        *np.percentile(boots, [2.5, 97.5]).tolist())
-            res[f"cost{cost}_paired_diff"] = (float((wo - wi).mean()),
-                                              *np.percentile(dboot, [2.5, 97.5]).tolist())
+            res[f"cost{cost}_ratio"] = (float(wi.mean() / max(wo.mean(), 1e-12)), *ratio_ci)
+            res[f"cost{cost}_paired_diff"] = (float((wo - wi).mean()), *diff_ci)
         else:
             res[f"cost{cost}_without"] = res[f"cost{cost}_with"] = float("nan")
             res[f"cost{cost}_ratio"] = (float("nan"),) * 3
@@ -577,6 +606,17 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
         v, lo, hi = res[f"cost{cost}_ratio"]
         pr = P[f"cost{cost}_with"] / P[f"cost{cost}_without"]
         row(f"executed cost {cost}, with/without ratio", pr, v, lo, hi)
+    pub_ratio = P["exists_without"] / P["exists_with"]
+    ours = res["exists_without"][0] / max(res["exists_with"][0], 1e-12)
+    topo = (res.get("sweep") or {}).get("topological")
+    lines += ["", f"Plan-exists ratio without / with: published {pub_ratio:.3f}, measured "
+              f"{ours:.3f}."]
+    if topo:
+        tr = topo["without"] / max(topo["with"], 1e-12)
+        lines += [f"Held-out check, topological reading (Link-Graph: every candidate of the "
+                  f"belief observable, eps_obs = 0; {topo['envs']} sweep environments at S/R = "
+                  f"{cfg['size']}): plan exists without {topo['without']:.3f} / with "
+                  f"{topo['with']:.3f}, ratio {tr:.3f} (published ratio {pub_ratio:.3f})."]
     lines += ["", "Absolute executed costs on the comparable & different tests (units differ: "
               "the thesis's are not stated; ours are ground truth, cost 2 in units of R):", "",
               "| cost | published without → with | measured without → with |", "|---|---|---|"]
@@ -843,6 +883,14 @@ def main(argv: list[str]) -> int:
                     help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
                          "in the planner instead of renormalised candidate weights "
                          "(docs/bsp.md §nothing-seen)")
+    ap.add_argument("--scale-model", dest="scale_model", choices=("composed", "belief"),
+                    default="composed", help="frame scales from measured and composed rows in "
+                    "both modes (default) or from each mode's own belief (the previous "
+                    "model; docs/bsp.md §Z-10)")
+    ap.add_argument("--on-no-plan", dest="on_no_plan", choices=("stop", "continue"),
+                    default="continue", help="after a later session's 'no plan' the lane "
+                    "goes on (default) or ends as a failure (the previous rule; "
+                    "docs/bsp.md §execution)")
     ap.add_argument("--models-dir", type=Path, help="model cache directory")
     ap.add_argument("--no-progress", "--quiet", action="store_true",
                     help="no progress bars (--quiet: deprecated alias)")
@@ -856,6 +904,18 @@ def main(argv: list[str]) -> int:
         ap.error("--envs and --chunk must be positive")
     if cfg["planner"]["depth"] < 1:
         ap.error("--depth must be >= 1 (L = 0 plans nothing)")
+    if a.samples is not None and a.samples < 1:
+        ap.error(f"--samples must be a positive integer, got {a.samples}")
+    if not (np.isfinite(a.size) and a.size > 0):
+        ap.error(f"--size must be a positive, finite S/R, got {a.size}")
+    if a.eps is not None and not (np.isfinite(a.eps) and 0.0 <= a.eps <= 1.0):
+        ap.error(f"--eps must be a probability in [0, 1] (the observability threshold "
+                 f"eps_obs), got {a.eps}")
+    try:  # a size too small for the landmarks at their minimum spacing: refused up front
+        make_env(cfg, cfg["calib_seed"], 0, cfg["size"])
+    except RuntimeError as exc:
+        ap.error(f"--size {a.size} is too small for {cfg['landmarks']} landmarks "
+                 f"{cfg['r_min']} R apart ({exc})")
 
     from tqdm.auto import tqdm
 

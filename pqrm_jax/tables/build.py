@@ -11,7 +11,6 @@ symmetry: docs/tables.md §build.
 from __future__ import annotations
 
 import time
-from collections import deque
 
 import jax
 import numpy as np
@@ -484,19 +483,29 @@ def merge_tables(calc: Calculus, parent: dict) -> dict:
 
 
 def neighbor_distance(adjacency: np.ndarray) -> np.ndarray:
-    """All-pairs shortest path lengths in the conceptual neighbourhood graph (−1 unreachable)."""
-    Q = adjacency.shape[0]
-    dist = np.full((Q, Q), -1, np.int32)
-    for s in range(Q):
-        dist[s, s] = 0
-        queue = deque([s])
-        while queue:
-            a = queue.popleft()
-            for b in np.flatnonzero(adjacency[a]):
-                if dist[s, b] < 0:
-                    dist[s, b] = dist[s, a] + 1
-                    queue.append(b)
-    return dist
+    """All-pairs shortest path lengths in the conceptual neighbourhood graph (−1 unreachable).
+
+    Breadth-first search from every state, ``scipy.sparse.csgraph.shortest_path`` (unweighted,
+    directed as given).
+
+    Args:
+        adjacency: ``[Q, Q]`` bool, ``adjacency[i, j]`` = an edge i → j.
+
+    Returns:
+        ``[Q, Q]`` int32 hop counts, ``-1`` where j cannot be reached from i.
+
+    >>> neighbor_distance(np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0]], bool)).tolist()
+    [[0, 1, -1], [1, 0, -1], [-1, -1, 0]]
+    """
+    from scipy.sparse import csr_array
+    from scipy.sparse.csgraph import shortest_path
+
+    adj = np.asarray(adjacency, bool)
+    if adj.ndim != 2 or adj.shape[0] != adj.shape[1]:
+        raise ValueError(f"adjacency must be a square (Q, Q) matrix, got shape {adj.shape}")
+    d = shortest_path(csr_array(adj.astype(np.int8)), method="D", directed=True,
+                      unweighted=True)
+    return np.where(np.isfinite(d), d, -1).astype(np.int32)
 
 
 __all__ = ["build_base", "merge_tables", "neighbor_distance"]

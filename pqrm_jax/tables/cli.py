@@ -89,7 +89,10 @@ def plot_report(out: Path, names: list[str]) -> Path:
     fig.tight_layout()
     fig.savefig(out / "edc_compose_sizes.png", dpi=110)
     plt.close(fig)
-    lines = ["# Operator tables", "", "![regions](regions.png)", "",
+    cap = ("Relations AB:C of each calculus with A = (0, 0), B = (0, 1): areas filled, line "
+           "relations as thick lines, point relations (C = A, C = B) as markers; relations "
+           "that need A = B cannot appear in this frame and are named in the title.")
+    lines = ["# Operator tables", "", f"![{cap}](regions.png)", "", f"*{cap}*", "",
              "| calculus | states | compose entries | LEFT/RIGHT/INVERSE entries | adjacent pairs |"
              " undecided by B&B (all certified by z3) | open |", "|---|---|---|---|---|---|---|"]
     for name in names:

@@ -40,7 +40,8 @@ import numpy as np
 
 from .store import OperatorTables
 
-__all__ = ["shortcut_table", "sparq_names", "to_sparq", "write_sparq"]
+__all__ = ["conceptual_neighbours", "identity_relation", "shortcut_table", "sparq_names",
+           "to_sparq", "write_sparq"]
 
 _SAFE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
@@ -131,6 +132,47 @@ def _identity(tables: OperatorTables) -> int | None:
     return found[0][1]
 
 
+def identity_relation(tables: OperatorTables) -> tuple[int, bool]:
+    """The state written as SparQ's ``:identity-relation`` and whether it is a true identity.
+
+    SparQ refuses a calculus file without ``:identity-relation`` (``Identity relation not
+    specified``), whatever the arity. A true identity ``e`` (``B C e D`` means D = C, so
+    COMPOSE(r, e) is ``{r}`` or empty for every r) exists only in calculi with a B = C state
+    (``lr_full``'s ``e``, ``dcc``'s ``5``). For the others (``edc``, ``lr``, ...) no state can
+    be one, and the file names a *placeholder*: the state ``e`` with ``r ∈ COMPOSE(r, e)`` for
+    the most r (first in state order on a tie) — the closest to an identity, still not one.
+    SparQ reads the identity only in its binary-calculus code (binary matching and the
+    converse-based ``analyze-calculus test-algebra``); its ternary composition, closure and
+    scenario commands never read it, so the placeholder changes no ternary result.
+
+    Args:
+        tables: the calculus's tables.
+
+    Returns:
+        ``(index, True)`` for a true identity, ``(index, False)`` for the placeholder.
+    """
+    ident = _identity(tables)
+    if ident is not None:
+        return ident, True
+    Q = tables.num_states
+    self_count = [int(sum(tables.compose[r, e, r] for r in range(Q))) for e in range(Q)]
+    return int(np.argmax(self_count)), False
+
+
+def conceptual_neighbours(tables: OperatorTables) -> list[list[int]]:
+    """SparQ's ``:cnhs`` rows: each state's conceptual neighbours (P §2.3.1).
+
+    Args:
+        tables: the calculus's tables.
+
+    Returns:
+        for every state, its neighbours (``tables.adjacency`` without the diagonal) as state
+        indices in state order.
+    """
+    adj = np.asarray(tables.adjacency, bool)
+    return [[int(j) for j in np.flatnonzero(adj[i]) if j != i] for i in range(adj.shape[0])]
+
+
 def _rows(table: np.ndarray, names: list[str]) -> list[str]:
     return [f"({names[i]} {' '.join(names[j] for j in np.flatnonzero(table[i]))})"
             for i in range(len(names))]
@@ -150,7 +192,7 @@ def to_sparq(tables: OperatorTables) -> str:
     mapping = sparq_names(S)
     N = [mapping[s] for s in S]
     shortcut, exact = shortcut_table(tables)
-    ident = _identity(tables)
+    ident, true_identity = identity_relation(tables)
     ind = "  "
     head = [
         f';;; SparQ calculus definition of the pqrm-jax calculus "{tables.calculus}"',
@@ -166,10 +208,22 @@ def to_sparq(tables: OperatorTables) -> str:
         " = pqrm-jax COMPOSE",
         ";;;   pqrm-jax RIGHT, (A B r C) -> (C A r' B), is homing applied twice.",
         ";;; No :qualifier is exported: pqrm-jax classifies points with its own JAX code.",
-        ";;; " + (f"Identity relation: {N[ident]} (COMPOSE(r, {N[ident]}) is {{r}} or empty "
-                 "for every r)." if ident is not None else
-                 "No identity relation: no single state e has COMPOSE(r, e) = {r} or empty "
-                 "for every r."),
+    ]
+    if true_identity:
+        head.append(f";;; Identity relation: {N[ident]} (COMPOSE(r, {N[ident]}) is {{r}} or empty "
+                    "for every r: (B C {N[ident]} D) means D = C).")
+    else:
+        head += [
+            f";;; Identity relation: {N[ident]} is a PLACEHOLDER, not an identity. No state e of",
+            ";;;   this calculus has COMPOSE(r, e) = {r} or empty for every r (no state means",
+            ";;;   D = C). SparQ refuses a file without :identity-relation, so the file names the",
+            ";;;   state with r in COMPOSE(r, e) for the most r. SparQ reads the identity only in",
+            ";;;   binary-calculus code (matching, analyze-calculus test-algebra); its ternary",
+            ";;;   composition / closure / scenario commands do not use it.",
+        ]
+    head += [
+        ";;; :cnhs exports the conceptual neighbourhood (pqrm-jax adjacency) as neighbourhood"
+        " 'default' (alias 'def').",
         ";;;",
         ";;; Relation-name mapping (SparQ base relation <- pqrm-jax state label):",
     ]
@@ -177,8 +231,7 @@ def to_sparq(tables: OperatorTables) -> str:
     body = [f'(def-calculus "pqrm-jax {tables.calculus}"',
             f"{ind}:arity :ternary", f"{ind}:basis-entity :2d-point", f"{ind}:parametric? nil",
             f"{ind}:consistency :unknown"]
-    if ident is not None:
-        body.append(f"{ind}:identity-relation {N[ident]}")
+    body.append(f"{ind}:identity-relation {N[ident]}")
     body.append(f"{ind}:base-relations ({' '.join(N)})")
     for key, table in (("inverse", tables.inverse), ("shortcut", shortcut),
                        ("homing", tables.left)):
@@ -192,6 +245,11 @@ def to_sparq(tables: OperatorTables) -> str:
             ks = np.flatnonzero(tables.compose[i, j])
             res = f"({' '.join(N[k] for k in ks)})" if len(ks) else "NIL"
             comp.append(f"({N[i]} {N[j]} {res})")
+    cn = [f"({N[i]}{''.join(' ' + N[j] for j in nb)})"
+          for i, nb in enumerate(conceptual_neighbours(tables))]
+    body.append(f"{ind}:cnhs (((default def) ({cn[0]}")
+    body += [f"{ind}{' ' * 23}{c}" for c in cn[1:]]
+    body[-1] += ")))"
     body.append(f"{ind}:composition-operation ({comp[0]}")
     body += [f"{ind}{' ' * 24}{c}" for c in comp[1:]]
     body[-1] += "))"

@@ -106,23 +106,31 @@ def path_consistency_refutes(left: np.ndarray, right: np.ndarray, inverse: np.nd
         rel[rows, _TID[(x, y, z)], problems[:, col]] = True
     L, R, Inv = (m.astype(np.float32) for m in (left, right, inverse))
     T = compose.astype(np.float32).reshape(Q * Q, Q)
+    # each problem's closure is independent of the others: a round runs only on the problems
+    # still open (neither refuted nor at their fixpoint), so each one stops on its own and
+    # ends exactly where the closure over all of them would leave it
+    active = rows
     for _ in range(max_rounds):
-        before = rel.copy()
+        sub = rel[active]
+        before = sub.copy()
+        n = len(active)
         for x, y, z in _TRIPLES:
-            a = rel[:, _TID[(x, y, z)]].astype(np.float32)
-            rel[:, _TID[(y, z, x)]] &= (a @ L) > 0
-            rel[:, _TID[(z, x, y)]] &= (a @ R) > 0
-            rel[:, _TID[(y, x, z)]] &= (a @ Inv) > 0
+            a = sub[:, _TID[(x, y, z)]].astype(np.float32)
+            sub[:, _TID[(y, z, x)]] &= (a @ L) > 0
+            sub[:, _TID[(z, x, y)]] &= (a @ R) > 0
+            sub[:, _TID[(y, x, z)]] &= (a @ Inv) > 0
         for x, y, z in _TRIPLES:
             w = 6 - x - y - z
-            a = rel[:, _TID[(x, y, z)]].astype(np.float32)
-            b = rel[:, _TID[(y, z, w)]].astype(np.float32)
+            a = sub[:, _TID[(x, y, z)]].astype(np.float32)
+            b = sub[:, _TID[(y, z, w)]].astype(np.float32)
             # COMPOSE(a, b) = ∪_{i∈a, j∈b} T[i, j]: (a ⊗ b) · T
-            ab = (a[:, :, None] * b[:, None, :]).reshape(P, Q * Q)
-            rel[:, _TID[(x, y, w)]] &= (ab @ T) > 0
-        if (~rel.any(-1)).any(-1).all() or np.array_equal(rel, before):
+            ab = (a[:, :, None] * b[:, None, :]).reshape(n, Q * Q)
+            sub[:, _TID[(x, y, w)]] &= (ab @ T) > 0
+        rel[active] = sub
+        done = (~sub.any(-1)).any(-1) | (sub == before).all(axis=(1, 2))
+        active = active[~done]
+        if not len(active):
             break
     return (~rel.any(-1)).any(-1)
-
 
 __all__ = ["mirror_atoms", "mirror_witness", "representatives", "path_consistency_refutes"]
