@@ -37,6 +37,17 @@ def test_views_from_local_levels_match_truth(run):
     assert 0 < err[:, :2].max() < 0.05 and err[:, 2].max() < 0.1
 
 
+def test_dead_end_read_at_the_dead_end(run):
+    """Issue 26 item 4: a dead end's view is read where the dead end is (its end wall half a
+    width ahead), not where the end wall first came into view (0.83 widths off before)."""
+    w, sw, se, _ = run
+    ex = se.experience
+    ends = [i for i, p in enumerate(ex.true_places) if sum(w.stars[int(p)].alpha) == 1]
+    assert ends, "the exploration reached the dead-end spur"
+    d = np.hypot(*(se.true_poses[ends, :2] - w.positions[ex.true_places[ends]]).T) / sw.width
+    assert d.max() < 0.25
+
+
 def test_true_map_among_leaves_and_loop_closed(run):
     _, _, se, log = run
     ex = se.experience

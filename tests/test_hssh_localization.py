@@ -141,3 +141,36 @@ def test_kld_sampling_sizes_the_proposal():
     assert KLDParams().n_min <= n["small", "pf"] <= 2 * KLDParams().n_min
     assert n["large", "pf"] > 100
     assert all(v <= 500 for v in n.values())
+
+
+# ------------------------------------------------ equal particle budget (issue 26 item 6)
+
+@pytest.mark.parametrize("budget", [1, 7, 130])
+def test_budget_caps_every_filter(budget):
+    """``budget`` caps the particles every filter scores (KLD compared PF with shrink at about
+    twice PF's particles); a budget of the whole block changes nothing."""
+    from pqrm_jax.hssh.localization import localize_with_count
+
+    world = _room()
+    d2 = squared_distance_transform(world[None], cap=20)[0]
+    prior, true = jnp.array([2.0, 3.0, 0.0]), jnp.array([2.5, 3.1, 0.1])
+    odom0, odom1 = jnp.zeros(3), jnp.array([0.35, 0.0, 0.0])
+    z = lidar_scan(jax.random.key(1), true, world, 0.1, params=LidarParams(n_beams=30,
+                                                                           max_range=8.0))
+    c = jnp.asarray(ACTION_MODELS["large"])
+    for m in ("pf", "shrink", "grow", "shrink_and_grow"):
+        args = (jax.random.key(2), prior, odom0, odom1, z, d2, jnp.zeros(2), 0.1, c)
+        _, lk_b, n_b = localize_with_count(*args, method=m, budget=jnp.int32(budget))
+        _, lk_f, n_f = localize_with_count(*args, method=m)
+        _, lk_all, n_all = localize_with_count(*args, method=m, budget=jnp.int32(500))
+        assert int(n_b) == min(budget, int(n_f))
+        assert float(lk_b) <= float(lk_f) + 1e-7
+        assert (float(lk_all), int(n_all)) == (float(lk_f), int(n_f))
+
+
+def test_equal_budget_is_the_least_kld_count():
+    from pqrm_jax.studies.hssh_localization import equal_budget
+
+    unit = {"pf_n": [10, 40], "shrink_n": [20, 30], "grow_n": [15, 100],
+            "shrink_and_grow_n": [25, 35], "raw_n": [1, 1]}
+    assert equal_budget(unit) == [10, 30]

@@ -17,6 +17,8 @@
 * :mod:`~pqrm_jax.hssh.localization` -- raw odometry, PF, shrink, grow and shrink-and-grow
   proposals as fixed particle blocks with masks, KLD-sampling (Fox 2003) as a mask on each
   block, likelihood-field scan likelihood (B §4.3.2).
+* :mod:`~pqrm_jax.hssh.shapes` -- T, L, straight corridor and dead end drawn like the +
+  corpus, with the robot off the centre, and their expected local topology (issue 26).
 * :mod:`~pqrm_jax.hssh.tracking` -- localizing in the LPM while it is being built: each scan
   localized against the LPM so far, then added at the localized pose, one ``lax.scan``
   (B §4.1, §4.3).
@@ -28,6 +30,7 @@ from pqrm_jax.hssh import (
     localization,
     lpm,
     motion,
+    shapes,
     skeleton,
     star,
     topology,
@@ -54,6 +57,7 @@ from pqrm_jax.hssh.localization import (
 )
 from pqrm_jax.hssh.lpm import LPMParams, LPMState, lpm_classify, lpm_init, lpm_update
 from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
+from pqrm_jax.hssh.shapes import ShapeCase, shape_cases, shape_check, shape_image
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
 from pqrm_jax.hssh.star import (
     StarEntry,
@@ -80,6 +84,7 @@ __all__ = [
     "ACTION_MODELS", "decompose", "sample_motion", "localization",
     "METHODS", "LocalizeParams", "localize", "scan_likelihood",
     "KLDParams", "kld_bound", "kld_mask", "localize_with_count",
+    "shapes", "ShapeCase", "shape_cases", "shape_check", "shape_image",
     "tracking", "Tracker", "TrackState", "TrackStep", "lpm_tracker", "track_run",
     "LPMParams", "LPMState", "lpm_init", "lpm_update", "lpm_classify",
     "CellularMaps", "cellular_stages", "remove_islands", "squared_distance_transform",

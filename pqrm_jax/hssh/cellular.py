@@ -33,6 +33,7 @@ branches reach the border where the frontier-based pruning finds its *exits* (B 
 
 from __future__ import annotations
 
+import math
 from functools import partial
 from typing import NamedTuple
 
@@ -49,6 +50,8 @@ __all__ = [
     "zhang_suen_thin",
     "evg_skeleton",
     "cellular_stages",
+    "check_m_cap",
+    "check_robot_radius",
 ]
 
 
@@ -358,6 +361,42 @@ def _bleed_and_distance(occupied, radius, cap):
     return occupied, dist2
 
 
+def check_m_cap(m_cap) -> float:
+    """``m_cap`` as a float; ``ValueError`` naming it unless finite and > 0 (cells).
+
+    >>> check_m_cap(12)
+    12.0
+    """
+    try:
+        m = float(m_cap)
+    except (TypeError, ValueError):
+        raise ValueError(f"m_cap must be a finite number of cells > 0, got {m_cap!r}") from None
+    if not (math.isfinite(m) and m > 0):
+        raise ValueError(f"m_cap must be finite and > 0 cells, got {m_cap!r}")
+    return m
+
+
+def check_robot_radius(robot_radius, shape) -> float:
+    """``robot_radius`` as a float; ``ValueError`` naming it unless finite, ``>= 0`` and below
+    half the shorter grid side (a robot that wide does not fit in the grid: bleeding by it
+    would cover every cell).
+
+    >>> check_robot_radius(2, (39, 39))
+    2.0
+    """
+    try:
+        r = float(robot_radius)
+    except (TypeError, ValueError):
+        raise ValueError(f"robot_radius must be a finite number >= 0, got {robot_radius!r}") \
+            from None
+    if not math.isfinite(r) or r < 0:
+        raise ValueError(f"robot_radius must be finite and >= 0, got {robot_radius!r}")
+    if r >= min(shape) / 2:
+        raise ValueError(f"robot_radius {robot_radius!r} cells does not fit in a "
+                         f"{shape[0]}x{shape[1]} grid (must be < {min(shape) / 2})")
+    return r
+
+
 def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: float = 0.0,
                     m_cap: float | None = None, chunk_cells: int | None = None) -> CellularMaps:
     """Run island removal, bleeding, the distance transform and the EVG skeleton on a stack.
@@ -377,12 +416,13 @@ def cellular_stages(occupied: jax.Array, unknown: jax.Array, *, robot_radius: fl
     occupied = jnp.asarray(occupied, bool)
     unknown = jnp.asarray(unknown, bool)
     h, w = occupied.shape[-2:]
-    m = float(min(h, w) / 5.0 if m_cap is None else m_cap)
-    cap = int(np.ceil(m + 2.0 + robot_radius))
+    m = float(min(h, w) / 5.0 if m_cap is None else check_m_cap(m_cap))
+    radius = check_robot_radius(robot_radius, (h, w))
+    cap = int(np.ceil(m + 2.0 + radius))
     cells = CHUNK_CELLS if chunk_cells is None else int(chunk_cells)
     if cells < 1:
         raise ValueError(f"chunk_cells must be positive, got {chunk_cells}")
-    return _cellular(occupied, unknown, float(robot_radius), m, cap, cells)
+    return _cellular(occupied, unknown, radius, m, cap, cells)
 
 
 #: default cells per chunk of the batch: ~16 grids of 300 x 300 (CPU caches, see _chunking)

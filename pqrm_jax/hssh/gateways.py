@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 __all__ = ["Core", "Branch", "Gateway", "core", "search_spaces", "find_gateways",
-           "obstacle_index", "SIDE_SLACK"]
+           "obstacle_index", "SIDE_SLACK", "SIDE_CONE"]
 
 _SQRT2 = math.sqrt(2.0)
 
@@ -43,6 +43,22 @@ B searches within ``r + sqrt 2`` (§6.3.3, fn. 4); a thinned skeleton on rotated
 sits cells off the medial axis near junctions, so the far wall falls outside that radius
 and the point is wrongly taken as coastal (one-sided), which tilts its gateway. Points of a
 true coastal (EVG rim) branch have no obstacle on one side within ``M``, far beyond this."""
+
+
+SIDE_CONE = 45.0
+"""Half-angle (degrees) about the branch normal within which an obstacle counts as a *side*
+obstacle of a skeleton point (left or right); obstacles nearer the branch direction are ahead
+or behind, not on a side.
+
+B's ``left_of`` (Alg. 6.4) splits the plane by the branch line only, so an obstacle straight
+behind a point counts as "left" or "right" by a hair. In a wide junction aligned with the grid
+the wall facing a branch across the junction (the T's top wall seen from its stem, the L's
+outer wall seen from the other arm) is then the nearest "side" obstacle of the branch points
+inside the core; Alg. 6.5 takes the first of them as the location hypothesis, and Alg. 6.3
+lays the gateway across the junction centre. With the quadrant rule (45°: more lateral than
+longitudinal) those walls are ahead, and the hypothesis stays at the arm's mouth. Every corner
+of a + or T seen from a point inside its junction square lies at least 45° off the branch, so
+those keep their role. 90 gives B's half-plane rule."""
 
 
 class Core(NamedTuple):
@@ -210,7 +226,7 @@ def _tangents(nodes: np.ndarray, k: int = 2) -> np.ndarray:
 _K_NEAR = (32, 256)  # neighbours fetched per point by the rounds of _closest_sides
 
 
-def _pick_sides_rows(cid, dd, inside, pts, tan, cells):
+def _pick_sides_rows(cid, dd, inside, pts, tan, cells, cone=SIDE_CONE):
     """Per (point, side): the candidate with the least (distance, row, col); -1 if none.
 
     Candidates are rows ``cid [m, k]`` (one per point, ``inside`` marks the real ones, ``dd``
@@ -218,6 +234,9 @@ def _pick_sides_rows(cid, dd, inside, pts, tan, cells):
     sort. Also returns each pick's squared distance (-1 where none)."""
     v = cells[cid] - pts[:, None, :]
     cross = tan[:, None, 1] * (-v[..., 0]) - (-tan[:, None, 0]) * v[..., 1]
+    if cone < 90.0:  # side obstacles only within +-cone of the normal (SIDE_CONE)
+        along = tan[:, None, 0] * v[..., 0] + tan[:, None, 1] * v[..., 1]
+        inside = inside & (np.abs(along) <= np.abs(cross) * math.tan(math.radians(cone)))
     w = int(cells[:, 1].max()) + 1
     hw = (int(cells[:, 0].max()) + 1) * w
     key = dd.astype(np.int64) * hw + cells[cid, 0].astype(np.int64) * w + cells[cid, 1]
@@ -233,7 +252,7 @@ def _pick_sides_rows(cid, dd, inside, pts, tan, cells):
     return left, right, dl, dr
 
 
-def _closest_sides(points, tangents, radii, kd, cells, slack):
+def _closest_sides(points, tangents, radii, kd, cells, slack, cone=SIDE_CONE):
     """Closest left and right obstacle (index into ``cells`` or -1) of each point, searched
     within ``R = r (1 + slack) + sqrt 2``; ties to the lowest (row, col).
 
@@ -260,7 +279,7 @@ def _closest_sides(points, tangents, radii, kd, cells, slack):
         cid = np.where(have, idx, 0)
         dd = ((cells[cid] - pts[todo][:, None, :]) ** 2).sum(axis=-1)
         inside = have & (np.sqrt(dd) <= reach[todo][:, None])
-        lt, rt, dl, dr = _pick_sides_rows(cid, dd, inside, pts[todo], tan[todo], cells)
+        lt, rt, dl, dr = _pick_sides_rows(cid, dd, inside, pts[todo], tan[todo], cells, cone)
         whole_ball = inside.sum(axis=1) < k
         far = np.where(inside[:, -1], dd[:, -1], -1)  # the list's farthest in-ball cell
         exact = whole_ball | ((dl >= 0) & (dr >= 0) & (far > dl) & (far > dr))
@@ -268,11 +287,12 @@ def _closest_sides(points, tangents, radii, kd, cells, slack):
         todo = todo[~exact]
         if len(todo) == 0:
             return left, right
-    left[todo], right[todo] = _closest_sides_ball(pts[todo], tan[todo], reach[todo], kd, cells)
+    left[todo], right[todo] = _closest_sides_ball(pts[todo], tan[todo], reach[todo], kd, cells,
+                                                  cone)
     return left, right
 
 
-def _closest_sides_ball(pts, tan, reach, kd, cells):
+def _closest_sides_ball(pts, tan, reach, kd, cells, cone=SIDE_CONE):
     """Exhaustive form of :func:`_closest_sides`: every obstacle cell within ``reach``
     (one vectorised ball query, padded to rows of the largest ball)."""
     n = len(pts)
@@ -282,7 +302,7 @@ def _closest_sides_ball(pts, tan, reach, kd, cells):
     cid = np.zeros(inside.shape, int)
     cid[inside] = np.fromiter((k for c in cand for k in c), int, count=int(lens.sum()))
     dd = ((cells[cid] - pts[:, None, :]) ** 2).sum(axis=-1)
-    left, right, _, _ = _pick_sides_rows(cid, dd, inside, pts, tan, cells)
+    left, right, _, _ = _pick_sides_rows(cid, dd, inside, pts, tan, cells, cone)
     return left, right
 
 
@@ -338,7 +358,8 @@ def _make(centre, inward, half, anchor, coastal):
 def find_gateways(branches: list[Branch], dist2: np.ndarray, occupied: np.ndarray,
                   method: str = "anchor",
                   index: tuple[cKDTree | None, np.ndarray] | None = None,
-                  side_slack: float = SIDE_SLACK) -> list[Gateway]:
+                  side_slack: float = SIDE_SLACK,
+                  side_cone: float = SIDE_CONE) -> list[Gateway]:
     """Gateways on each branch (B Alg. 6.4--6.5 for ``"anchor"``, Alg. 6.2 for
     ``"constriction"``; the segment by Alg. 6.3, or the coastal rule of Alg. 6.5).
 
@@ -350,12 +371,16 @@ def find_gateways(branches: list[Branch], dist2: np.ndarray, occupied: np.ndarra
         index: a precomputed :func:`obstacle_index` of ``occupied``.
         side_slack: obstacles on each side are searched within ``r (1 + side_slack) +
             sqrt 2`` (see :data:`SIDE_SLACK`).
+        side_cone: half-angle (degrees, in (0, 90]) about the branch normal of the side
+            obstacles (see :data:`SIDE_CONE`; 90 is B's half-plane rule).
 
     Returns:
         list of :class:`Gateway`, one per branch that has a search space.
     """
     if method not in ("anchor", "constriction"):
         raise ValueError(f"method must be 'anchor' or 'constriction', got {method!r}")
+    if not (0.0 < float(side_cone) <= 90.0):
+        raise ValueError(f"side_cone must be in (0, 90] degrees, got {side_cone!r}")
     kd, cells = obstacle_index(occupied) if index is None else index
     gws = []
     for br in branches:
@@ -371,7 +396,7 @@ def find_gateways(branches: list[Branch], dist2: np.ndarray, occupied: np.ndarra
         left = np.full(len(nodes), -1)
         right = np.full(len(nodes), -1)
         left[near], right[near] = _closest_sides(nodes[near], tang[near], radii[near], kd,
-                                                 cells, side_slack)
+                                                 cells, side_slack, float(side_cone))
         absd = np.abs(br.pos)
         anchor = None
         if method == "constriction":

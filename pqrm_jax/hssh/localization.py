@@ -219,17 +219,22 @@ def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.A
 def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
                         odom: jax.Array, scan: LidarScan, dist2: jax.Array, origin: jax.Array,
                         resolution: float, c: jax.Array, method: str = "shrink_and_grow",
-                        params: LocalizeParams = DEFAULT_PARAMS
+                        params: LocalizeParams = DEFAULT_PARAMS,
+                        budget: jax.Array | None = None
                         ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """:func:`localize` that also returns the number of particles scored (int32 scalar).
 
     Without ``params.kld`` the count is the fixed budget the method used (all blocks for
     PF and shrink, the stages up to the stopping one for grow, ...); with it, each proposal
-    is cut by :func:`kld_mask`.
+    is cut by :func:`kld_mask`. ``budget`` (an int scalar, traced) keeps at most that many of
+    the particles the method would score, the first in draw order (proposal blocks first,
+    then refit draws): methods compared at an equal particle budget (issue 26). A refit
+    (shrink, shrink-and-grow) fits its Gaussian to the budgeted particles only.
 
     Args:
         key, prior, prev_odom, odom, scan, dist2, origin, resolution, c, method, params: as
             :func:`localize`.
+        budget: optional int scalar, the most particles scored (see above).
 
     Returns:
         ``(pose [3], likelihood, particles)``.
@@ -248,7 +253,13 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
             return jnp.ones(p.shape[0], bool)
         return kld_mask(p, params.kld)[0]
 
+    def cap(mask):  # the first ``budget`` particles of a mask in draw order
+        if budget is None:
+            return mask
+        return mask & (jnp.cumsum(mask) <= jnp.maximum(jnp.asarray(budget, jnp.int32), 1))
+
     def best(p, lk, mask):
+        mask = cap(mask)
         lk = jnp.where(mask, lk, -1.0)
         k = jnp.argmax(lk)
         return p[k], lk[k], mask.sum().astype(jnp.int32)
@@ -262,8 +273,8 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
         return best(p, lik(p), kmask(p))
     if method == "shrink":
         p0 = sample_motion(keys[0], seed, prev_odom, odom, c)
-        l0, m0 = lik(p0), kmask(p0)
-        mu, cov = _fit(p0, l0 if params.kld is None else l0 * m0, prior)
+        l0, m0 = lik(p0), cap(kmask(p0))
+        mu, cov = _fit(p0, l0 if params.kld is None and budget is None else l0 * m0, prior)
         p1 = _draw(keys[1], mu, cov, (kb - 1) * b, prior)
         p = jnp.concatenate([p0, p1])
         lk = jnp.concatenate([l0, lik(p1)])
@@ -280,7 +291,8 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
         return best(props, lk.reshape(-1), used.reshape(-1))
     # shrink-and-grow: the stage that found a good particle is shrunk with the budget left
     stage = jnp.stack(blocks)[first]
-    wts = lk[first] if params.kld is None else lk[first] * bmask[first]
+    seen = cap(used.reshape(-1)).reshape(kb, b)      # the budget's share of the stages
+    wts = lk[first] if params.kld is None and budget is None else lk[first] * seen[first]
     mu, cov = _fit(stage, wts, prior)
     extra = _draw(keys[kb], mu, cov, (kb - 1) * b, prior)
     left = jnp.arange((kb - 1) * b) < (kb - 1 - first) * b

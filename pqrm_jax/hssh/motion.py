@@ -44,9 +44,12 @@ def _wrap(a):
     return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
 
 
-@jax.jit
 def decompose(prev: jax.Array, pose: jax.Array) -> jax.Array:
     """Turn--travel--turn ``[alpha, rho, beta]`` of the odometry step ``prev -> pose`` (B §4.3.1).
+
+    The difference ``pose - prev`` is taken before anything is rounded to float32: in float64
+    on the host for concrete float64 poses (so a 0.1 m step at UTM-sized coordinates reads
+    0.1 m), in the input precision when traced. Concrete non-finite poses raise ``ValueError``.
 
     Args:
         prev: ``[3]`` the odometry pose before the step.
@@ -59,12 +62,33 @@ def decompose(prev: jax.Array, pose: jax.Array) -> jax.Array:
     [1.5708, 1.0, -1.5708]
     >>> [round(float(v), 4) + 0.0 for v in decompose(jnp.zeros(3), jnp.array([-1.0, 0.0, 0.0]))]
     [0.0, -1.0, 0.0]
+    >>> utm = np.array([5e5, 4.2e6, 0.0])
+    >>> round(float(decompose(utm, utm + np.array([0.0, 0.1, 0.0]))[1]), 6)
+    0.1
     """
-    prev, pose = jnp.asarray(prev, jnp.float32), jnp.asarray(pose, jnp.float32)
-    dx, dy = pose[0] - prev[0], pose[1] - prev[1]
-    dth = _wrap(pose[2] - prev[2])
+    if isinstance(prev, jax.core.Tracer) or isinstance(pose, jax.core.Tracer):
+        prev, pose = jnp.asarray(prev), jnp.asarray(pose)
+        return _decompose_delta(pose - prev, prev[2])
+    a, b = np.asarray(prev), np.asarray(pose)
+    for name, v in (("prev", a), ("pose", b)):
+        if v.shape != (3,):
+            raise ValueError(f"{name} must be [3] (x, y, theta), got shape {v.shape}")
+        if not np.all(np.isfinite(v.astype(np.float64))):
+            raise ValueError(f"{name} must be finite, got {v.tolist()}")
+    wide = np.result_type(a.dtype, b.dtype, np.float32)
+    delta = b.astype(wide) - a.astype(wide)
+    return _decompose_delta(jnp.asarray(delta, jnp.float32), jnp.float32(a[2]))
+
+
+@jax.jit
+def _decompose_delta(delta: jax.Array, theta_prev: jax.Array) -> jax.Array:
+    """:func:`decompose` from the pose difference ``[3]`` and the previous heading."""
+    delta = jnp.asarray(delta, jnp.float32)
+    theta_prev = jnp.asarray(theta_prev, jnp.float32)
+    dx, dy = delta[0], delta[1]
+    dth = _wrap(delta[2])
     rho = jnp.hypot(dx, dy)
-    alpha = jnp.where(rho > 0, _wrap(jnp.arctan2(dy, dx) - prev[2]), 0.0)
+    alpha = jnp.where(rho > 0, _wrap(jnp.arctan2(dy, dx) - theta_prev), 0.0)
     beta = _wrap(dth - alpha)
     ra, rb = _wrap(alpha + jnp.pi), _wrap(beta + jnp.pi)
     rev = (rho > 0) & (jnp.abs(ra) + jnp.abs(rb) < jnp.abs(alpha) + jnp.abs(beta))

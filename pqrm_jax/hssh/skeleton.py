@@ -9,7 +9,8 @@ Steps (B §6.1.1): drop skeleton cells over unknown space; keep cells reachable 
 through free space; ``c`` = the skeleton cell closest to the robot; crawl from ``c``, stopping
 at *exits* (skeleton cells on the grid border or next to unknown cells); keep the minimum
 spanning tree of the crawled cells and strip every leaf that is not an exit (with at most one
-exit, ``c`` is kept as a terminal too: the dead-end case); recompute ``c`` on the tree.
+way out, ``c`` is kept as a terminal too: the dead-end case; exits through one opening of the
+border or into one unknown region are one way out); recompute ``c`` on the tree.
 """
 
 from __future__ import annotations
@@ -66,6 +67,56 @@ def skeleton_graph(skeleton: np.ndarray) -> nx.Graph:
             ((int(a), int(b)), (int(c), int(d)), wt)
             for a, b, c, d in zip(rows[ok], cols[ok], r2[ok], c2[ok], strict=True))
     return g
+
+
+def _ways_out(exits: list[tuple[int, int]], open_: np.ndarray, unknown: np.ndarray) -> int:
+    """Number of distinct ways out among ``exits``: exits on one run of ``open_`` cells along
+    the border ring (the ring is closed through the corners) or next to one 8-connected
+    unknown region count once. A wide corridor that leaves the grid at a corner meets the
+    border in two exits (on two sides, or in two adjacent cells); counted as two, a dead end's
+    own branch was stripped as a non-terminal leaf and the place read as enclosed (issue 26).
+
+    >>> open_ = np.zeros((5, 5), bool); open_[3:, 3:] = True      # an opening at a corner
+    >>> _ways_out([(4, 3), (3, 4)], open_, np.zeros((5, 5), bool))
+    1
+    """
+    if len(exits) <= 1:
+        return len(exits)
+    h, w = open_.shape
+    ring = ([(0, j) for j in range(w)] + [(i, w - 1) for i in range(1, h)]
+            + [(h - 1, j) for j in range(w - 2, -1, -1)] + [(i, 0) for i in range(h - 2, 0, -1)])
+    vals = [bool(open_[c]) for c in ring]
+    run: dict = {}
+    if all(vals):
+        run = dict.fromkeys(ring, 0)
+    else:
+        start, label = vals.index(False), -1
+        for k in range(len(ring)):
+            idx = (start + k) % len(ring)
+            if vals[idx]:
+                if not vals[idx - 1]:
+                    label += 1
+                run[ring[idx]] = label
+    unk_lab, _ = ndimage.label(unknown, structure=np.ones((3, 3), int))
+    parent = list(range(len(exits)))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    first: dict = {}
+    for k, (r, c) in enumerate(exits):
+        keys = [("border", run[(r, c)])] if (r, c) in run else []
+        win = unk_lab[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2]
+        keys.extend(("unknown", int(x)) for x in np.unique(win[win > 0]))
+        for key in keys:
+            if key in first:
+                parent[find(k)] = find(first[key])
+            else:
+                first[key] = k
+    return len({find(k) for k in range(len(exits))})
 
 
 def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.ndarray,
@@ -138,7 +189,10 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     # at most one exit: the dead-end case)
     comp = csgraph.breadth_first_order(mst, ci, directed=False, return_predecessors=False)
     exit_idx = sorted(int(k) for k in comp[is_exit[comp]])
-    terminals = exit_idx if len(exit_idx) > 1 else sorted(set(exit_idx) | {ci})
+    n_ways = _ways_out(list(zip(rows[exit_idx].tolist(), cols[exit_idx].tolist(), strict=True)),
+                       np.asarray(free_space, bool) | np.asarray(unknown, bool),
+                       np.asarray(unknown, bool))  # exits counted as ways out (issue 26)
+    terminals = exit_idx if n_ways > 1 else sorted(set(exit_idx) | {ci})
     # stripping every non-terminal leaf until none is left leaves the smallest subtree that
     # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
     # paths to the root (one walk up the BFS predecessors, each node visited once)

@@ -52,17 +52,66 @@ def clockwise_angle(vec: Sequence[float]) -> float:
     return math.degrees(math.atan2(dc, -dr)) % 360.0
 
 
+_PARALLEL = 1e-12
+"""Ray and segment count as parallel when ``|sin|`` of their angle is below this
+(dimensionless: the test is the same in every unit)."""
+
+_ON_SEGMENT = 1e-9
+"""Relative slack of the segment parameter ``s`` in [0, 1] (a fraction of the segment)."""
+
+
 def _ray_hits(origin, direction, a, b) -> bool:
-    """Does the ray ``origin + t direction`` (t >= 0) meet segment a-b?"""
+    """Does the ray ``origin + t direction`` (t >= 0) meet segment a-b?
+
+    Scale-free: the parallel test compares ``|d x e|`` with ``|d| |e|`` and the end slack
+    is a fraction of the segment, so multiplying every length by any factor (or moving the
+    origin) gives the same answer."""
     d = np.asarray(direction, float)
-    e = np.asarray(b, float) - np.asarray(a, float)
-    w = np.asarray(a, float) - np.asarray(origin, float)
+    a = np.asarray(a, float)
+    e = np.asarray(b, float) - a
+    w = a - np.asarray(origin, float)
     den = d[0] * (-e[1]) - d[1] * (-e[0])
-    if abs(den) < 1e-12:
+    norm = math.hypot(*d) * math.hypot(*e)
+    if not norm > 0 or abs(den) <= _PARALLEL * norm:
         return False
     t = (w[0] * (-e[1]) - w[1] * (-e[0])) / den
     s = (d[0] * w[1] - d[1] * w[0]) / den
-    return bool(t >= 0 and -1e-9 <= s <= 1 + 1e-9)
+    return bool(t >= 0 and -_ON_SEGMENT <= s <= 1 + _ON_SEGMENT)
+
+
+def _check_gateways(ends, outward, centre=None):
+    """Validated float arrays ``[G, 2, 2]``, ``[G, 2]`` (unit) and ``[2]``; ``ValueError`` names
+    the argument for a wrong shape, a non-finite value, a zero-length gateway or a zero
+    normal."""
+    e = np.asarray(ends, float)
+    o = np.asarray(outward, float)
+    if e.size % 4 or o.size % 2:
+        raise ValueError(f"ends must be [G, 2, 2] and outward [G, 2], got shapes {e.shape}, "
+                         f"{o.shape}")
+    e, o = e.reshape(-1, 2, 2), o.reshape(-1, 2)
+    if len(e) != len(o):
+        raise ValueError(f"ends ({len(e)} gateways) and outward ({len(o)}) differ in length")
+    if not np.all(np.isfinite(e)):
+        raise ValueError(f"ends must be finite, got non-finite segment ends in gateways "
+                         f"{np.nonzero(~np.isfinite(e).all(axis=(1, 2)))[0].tolist()}")
+    if not np.all(np.isfinite(o)):
+        raise ValueError(f"outward must be finite, got non-finite normals in gateways "
+                         f"{np.nonzero(~np.isfinite(o).all(axis=1))[0].tolist()}")
+    n = np.hypot(o[:, 0], o[:, 1])
+    if np.any(n == 0):
+        raise ValueError(f"outward normals must be nonzero, got zero normals in gateways "
+                         f"{np.nonzero(n == 0)[0].tolist()}")
+    length = np.hypot(*(e[:, 1] - e[:, 0]).T)
+    if np.any(length == 0):
+        raise ValueError(f"ends must span a segment, got zero-length gateways "
+                         f"{np.nonzero(length == 0)[0].tolist()}")
+    o = o / n[:, None]
+    if centre is None:
+        return e, o, None
+    c = np.asarray(centre, float)
+    if c.shape != (2,) or not np.all(np.isfinite(c)):
+        raise ValueError(f"centre must be a finite [2] point, got {c.tolist()}")
+    return e, o, c
 
 
 def path_continuity(ends_a, out_a, ends_b, out_b) -> bool:
@@ -76,10 +125,18 @@ def path_continuity(ends_a, out_a, ends_b, out_b) -> bool:
     >>> path_continuity(a, np.array([-1.0, 0.0]), b, np.array([1.0, 0.0]))
     True
     """
-    ma = np.mean(ends_a, axis=0)
-    mb = np.mean(ends_b, axis=0)
-    return bool(_ray_hits(ma, -np.asarray(out_a), ends_b[0], ends_b[1])
-                and _ray_hits(mb, -np.asarray(out_b), ends_a[0], ends_a[1]))
+    ends, outs, _ = _check_gateways(np.stack([np.asarray(ends_a, float),
+                                              np.asarray(ends_b, float)]),
+                                    np.stack([np.asarray(out_a, float),
+                                              np.asarray(out_b, float)]))
+    return _continuity(ends[0], outs[0], ends[1], outs[1])
+
+
+def _continuity(ends_a, out_a, ends_b, out_b) -> bool:
+    ref = ends_a[0]  # differences first: coordinates relative to one gateway end
+    ea, eb = ends_a - ref, ends_b - ref
+    ma, mb = ea.mean(axis=0), eb.mean(axis=0)
+    return bool(_ray_hits(ma, -out_a, eb[0], eb[1]) and _ray_hits(mb, -out_b, ea[0], ea[1]))
 
 
 def build_star(ends: np.ndarray, outward: np.ndarray, centre: np.ndarray) -> list[StarEntry]:
@@ -98,15 +155,16 @@ def build_star(ends: np.ndarray, outward: np.ndarray, centre: np.ndarray) -> lis
     >>> [(e.path, e.direction, e.traversable) for e in s]
     [(0, 1, True), (0, -1, True)]
     """
-    ends = np.asarray(ends, float).reshape(-1, 2, 2)
-    outward = np.asarray(outward, float).reshape(-1, 2)
-    centre = np.asarray(centre, float)
+    ends, outward, centre = _check_gateways(ends, outward, centre)
+    ends = ends - centre  # differences first: every position relative to the place centre
+    centre = np.zeros(2)
     g = len(ends)
     mids = ends.mean(axis=1)
+    halves = 0.5 * np.hypot(*(ends[:, 1] - ends[:, 0]).T)
     cands = []
     for i in range(g):
         for j in range(i + 1, g):
-            if path_continuity(ends[i], outward[i], ends[j], outward[j]):
+            if _continuity(ends[i], outward[i], ends[j], outward[j]):
                 cands.append((float(np.dot(outward[i], outward[j])), i, j))
     partner = [-1] * g
     for _, i, j in sorted(cands):
@@ -115,10 +173,12 @@ def build_star(ends: np.ndarray, outward: np.ndarray, centre: np.ndarray) -> lis
     raw = []  # (angle, traversable, gateway, group)
     for i in range(g):
         rel = mids[i] - centre
-        ang = clockwise_angle(rel if np.hypot(*rel) > 1e-9 else outward[i])
+        # a midpoint within 1e-9 gateway half-lengths of the centre has no direction of its
+        # own: use the outward normal (scale-free)
+        ang = clockwise_angle(rel if np.hypot(*rel) > 1e-9 * halves[i] else outward[i])
         raw.append((ang, True, i, min(i, partner[i]) if partner[i] >= 0 else i))
         if partner[i] < 0:
-            reach = max(float(np.hypot(*rel)), 1.0)
+            reach = max(float(np.hypot(*rel)), float(halves[i]))
             far = mids[i] - 2.0 * reach * outward[i]
             raw.append((clockwise_angle(far - centre), False, -1, i))
     raw.sort(key=lambda t: (round(t[0], 9), not t[1]))

@@ -26,8 +26,14 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from pqrm_jax.hssh.cellular import CellularMaps, cellular_stages
+from pqrm_jax.hssh.cellular import (
+    CellularMaps,
+    cellular_stages,
+    check_m_cap,
+    check_robot_radius,
+)
 from pqrm_jax.hssh.gateways import (
+    SIDE_CONE,
     SIDE_SLACK,
     Core,
     Gateway,
@@ -167,16 +173,10 @@ def _check_robot(cell, shape) -> tuple[int, int]:
     return r, c
 
 
-def _check_radius(robot_radius) -> float:
-    r = float(robot_radius)
-    if not math.isfinite(r) or r < 0:
-        raise ValueError(f"robot_radius must be finite and >= 0, got {robot_radius!r}")
-    return r
-
-
 def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np.ndarray,
                        dist2: np.ndarray, skeleton: np.ndarray, robot_cell: tuple[int, int],
-                       method: str = "anchor", side_slack: float = SIDE_SLACK) -> LocalTopology:
+                       method: str = "anchor", side_slack: float = SIDE_SLACK,
+                       side_cone: float = SIDE_CONE) -> LocalTopology:
     """Host graph stages for one grid's :class:`~pqrm_jax.hssh.cellular.CellularMaps` slice.
 
     Args:
@@ -206,7 +206,8 @@ def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np
         return LocalTopology(*empty, 0, (), "enclosed", (), pr, None, ())
     cr = core(pr.tree, pr.closest, dist2)
     branches = search_spaces(pr.tree, pr.closest, cr, dist2)
-    gws = find_gateways(branches, dist2, occupied, method=method, side_slack=side_slack)
+    gws = find_gateways(branches, dist2, occupied, method=method, side_slack=side_slack,
+                        side_cone=side_cone)
     ends = np.array([g.ends for g in gws], float).reshape(-1, 2, 2)
     outward = np.array([g.outward for g in gws], float).reshape(-1, 2)
     entries = build_star(ends, outward, cr.centre)
@@ -223,7 +224,8 @@ def _unstack(maps: CellularMaps, i: int) -> dict:
 
 def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 0.0,
                          unknown=None, method: str = "anchor", m_cap: float | None = None,
-                         side_slack: float = SIDE_SLACK) -> list[LocalTopology]:
+                         side_slack: float = SIDE_SLACK,
+                         side_cone: float = SIDE_CONE) -> list[LocalTopology]:
     """Local topology of a stack of equal-size grids ``[B, H, W]`` (B ch. 5--6).
 
     The cellular stages run once, batched, in JAX; the graph stages per grid on the host.
@@ -237,6 +239,8 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
         method: ``"anchor"`` (B §6.3.2) or ``"constriction"`` (B §6.2).
         m_cap: EVG cap ``M`` in cells (default ``min(H, W) / 5``, B §6.3.1).
         side_slack: side-obstacle search slack (:data:`~pqrm_jax.hssh.gateways.SIDE_SLACK`).
+        side_cone: side-obstacle cone half-angle, degrees
+            (:data:`~pqrm_jax.hssh.gateways.SIDE_CONE`; 90 = B's half-plane rule).
 
     Returns:
         list of :class:`LocalTopology`.
@@ -245,7 +249,9 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
     if occ.ndim != 3:
         raise ValueError(f"grids must be a stack [B, H, W], got shape {occ.shape}")
     _check_stack(occ)
-    radius = _check_radius(robot_radius)
+    radius = check_robot_radius(robot_radius, occ.shape[1:])
+    if m_cap is not None:
+        check_m_cap(m_cap)
     unk = np.zeros_like(occ) if unknown is None else np.asarray(unknown)
     if unk.dtype != np.bool_ or unk.shape != occ.shape:
         raise ValueError(f"unknown must be bool with shape {occ.shape}, got "
@@ -267,7 +273,7 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
     for i, rc in enumerate(cells):
         try:
             out.append(topology_from_maps(**_unstack(maps, i), robot_cell=rc, method=method,
-                                          side_slack=side_slack))
+                                          side_slack=side_slack, side_cone=side_cone))
         except ValueError as e:
             raise ValueError(f"grid {i}: {e}") from None
     return out
@@ -275,7 +281,8 @@ def local_topology_batch(grids, robot_cells: Sequence, *, robot_radius: float = 
 
 def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0,
                    unknown=None, method: str = "anchor", m_cap: float | None = None,
-                   side_slack: float = SIDE_SLACK) -> LocalTopology:
+                   side_slack: float = SIDE_SLACK,
+                   side_cone: float = SIDE_CONE) -> LocalTopology:
     """Gateways, star and place kind of one grid (B ch. 5--6).
 
     Args:
@@ -286,6 +293,7 @@ def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0
         method: ``"anchor"`` or ``"constriction"``.
         m_cap: EVG cap ``M`` in cells (default ``min(H, W) / 5``).
         side_slack: side-obstacle search slack (see :data:`~pqrm_jax.hssh.gateways.SIDE_SLACK`).
+        side_cone: side-obstacle cone half-angle (see :data:`~pqrm_jax.hssh.gateways.SIDE_CONE`).
 
     Returns:
         :class:`LocalTopology`.
@@ -303,4 +311,4 @@ def local_topology(grid, robot_cell: Sequence[int], *, robot_radius: float = 0.0
     unk = None if unknown is None else np.asarray(unknown)[None]
     return local_topology_batch(g[None], [robot_cell], robot_radius=robot_radius,
                                 unknown=unk, method=method, m_cap=m_cap,
-                                side_slack=side_slack)[0]
+                                side_slack=side_slack, side_cone=side_cone)[0]

@@ -82,6 +82,11 @@ class SimParams(NamedTuple):
     n_beams: lidar beams (full circle); ``range_widths`` lidar range in ``w``.
     sigma_v: relative sd of the executed speed; ``sigma_w`` heading-rate sd per ``w`` travelled.
     arrive_tol: distance to the core centre (in ``w``) at which the view is read.
+    dead_end_wall: a dead end's view is read once its end wall is this close ahead (in ``w``;
+        the dead end's place, the end of the corridor's centre line, lies ``w / 2`` before the
+        wall). A dead end has no skeleton junction, so its core centre is the rover's own
+        cell wherever the rover stands; without this rule the place was recorded where the
+        end wall first came into view (up to ``lpm_widths / 2`` away, issue 26).
     rereads: nudged re-reads of a place view whose gateways cross.
     max_checks: topology checks per travel before :class:`SimulationError`.
     """
@@ -100,6 +105,7 @@ class SimParams(NamedTuple):
     sigma_v: float = 0.02
     sigma_w: float = 0.02
     arrive_tol: float = 0.1
+    dead_end_wall: float = 0.5
     rereads: int = 4
     max_checks: int = 60
 
@@ -294,6 +300,23 @@ class _Rover:
     def odom(self):
         return np.asarray(self.s.odom_pose, float)
 
+    def wall_ahead(self, direction) -> float:
+        """Distance (world units) from the rover along ``direction`` (odometry frame, unit) to
+        the first occupied or unknown LPM cell (the LPM border when none)."""
+        occ, unk = hssh.lpm_classify(self.s.lpm, self.lpm_p)
+        blocked = np.asarray(occ | unk)
+        n, r = self.lpm_p.size, float(self.lpm_p.resolution)
+        o = np.asarray(self.s.lpm.origin, float) + np.asarray(self.s.lpm.origin_lo, float)
+        t = np.arange(1, 2 * n) * (0.5 * r)
+        pts = self.odom()[:2][None, :] + t[:, None] * np.asarray(direction, float)[None, :]
+        j = np.floor((pts[:, 0] - o[0]) / r).astype(int)
+        i = np.floor((pts[:, 1] - o[1]) / r).astype(int)
+        inside = (i >= 0) & (i < n) & (j >= 0) & (j < n)
+        stop = ~inside
+        stop[inside] = blocked[i[inside], j[inside]]
+        k = int(np.argmax(stop)) if stop.any() else len(t) - 1
+        return float(t[k])
+
     def true(self):
         return np.asarray(self.s.true_pose, float)
 
@@ -484,6 +507,16 @@ def _approach(rv: _Rover, line, travel_dir, leave_from=None) -> _Arrival:
     for _ in range(p.max_checks):
         away = leave_from is None or np.hypot(*(rv.odom()[:2] - leave_from)) > leave
         lt = rv.topology()
+        if (away and lt is not None and lt.kind == "dead_end" and lt.core is not None
+                and len(lt.outward) == 1):
+            # a dead end: its core centre is the rover's own cell, so drive on towards the
+            # end wall (away from the one gateway) until it is dead_end_wall widths ahead
+            ahead = -rv.vec_to_odom(lt.outward[0])
+            ahead = ahead / np.hypot(*ahead)
+            gap = rv.wall_ahead(ahead) - p.dead_end_wall * w
+            if gap > p.arrive_tol * w:
+                rv.drive(rv.odom()[:2] + gap * ahead, zero, 0.0, p.check_every)
+                continue
         if (away and lt is not None and lt.kind in ("place", "dead_end")
                 and lt.core is not None):
             c = rv.to_odom(lt.core.centre)

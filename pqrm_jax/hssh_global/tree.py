@@ -264,17 +264,23 @@ def is_true_map(h: MapHypothesis, experience: Experience) -> bool:
     return True
 
 
-def preference_order(leaves: list, layout_cost=None) -> list[int]:
-    """Indices of leaves, most preferred first: fewest places, then lowest layout cost.
+def preference_order(leaves: list, layout_cost=None, supported=None) -> list[int]:
+    """Indices of leaves, most preferred first: fewest places, then lowest layout cost (B).
 
     Args:
         leaves: consistent leaves.
         layout_cost: optional ``[len(leaves)]`` costs (e.g. from
             :func:`~pqrm_jax.hssh_global.layout.score_hypotheses`); NaN ranks last.
+        supported: optional bool ``[len(leaves)]`` from the declared geometric test
+            (:func:`~pqrm_jax.hssh_global.layout.layout_supported`, beyond B): maps the layout
+            cannot support are demoted behind every supported one (kept, not discarded).
     """
     cost = np.zeros(len(leaves)) if layout_cost is None else np.asarray(layout_cost, float)
     cost = np.where(np.isnan(cost), np.inf, cost)
-    return sorted(range(len(leaves)), key=lambda i: (leaves[i].n_places, cost[i]))
+    ok = np.ones(len(leaves), bool) if supported is None else np.asarray(supported, bool)
+    if ok.shape != (len(leaves),):
+        raise ValueError(f"supported must be [{len(leaves)}], got shape {ok.shape}")
+    return sorted(range(len(leaves)), key=lambda i: (not ok[i], leaves[i].n_places, cost[i]))
 
 
 def minimal_models(leaves: list) -> list[int]:

@@ -88,8 +88,22 @@ class Experience(NamedTuple):
     true_arrivals: np.ndarray
 
 
+def _check_scale(scale) -> float:
+    try:
+        v = float(scale)
+    except (TypeError, ValueError):
+        raise ValueError(f"scale must be a finite number > 0, got {scale!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"scale must be finite and > 0, got {scale!r}")
+    return v
+
+
 def world_from_lattice(open_edges: set, scale: float = 1.0) -> CorridorWorld:
-    """Builds a world from lattice corridors ``{((x, y), (x', y')), ...}`` (unit steps)."""
+    """Builds a world from lattice corridors ``{((x, y), (x', y')), ...}`` (unit steps).
+
+    ``scale`` (the lattice spacing) must be finite and > 0, else ``ValueError``.
+    """
+    _check_scale(scale)
     nbrs: dict = {}
     for a, b in open_edges:
         if abs(a[0] - b[0]) + abs(a[1] - b[1]) != 1:
@@ -154,6 +168,7 @@ def grid_world(nx_: int, ny: int, loop_prob: float = 0.4, seed: int = 0,
     """
     if nx_ < 2 or ny < 2:
         raise ValueError("grid_world needs at least a 2x2 lattice")
+    _check_scale(scale)
     rng = np.random.default_rng(seed)
     lat = nx.grid_2d_graph(nx_, ny)
     for a, b in lat.edges:

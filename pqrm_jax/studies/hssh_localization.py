@@ -52,6 +52,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--kld", action="store_true",
                    help="also run the five algorithms with KLD-sampling (extra rows; the "
                         "full-block units stay as they are)")
+    p.add_argument("--equal-budget", action="store_true",
+                   help="also run the KLD filters at an equal particle budget (implies --kld): "
+                        "at each step every method scores at most the fewest particles any "
+                        "of PF, shrink, grow, shrink-and-grow scored there with KLD")
     from . import distributed, protocol
 
     protocol.add_fresh(p)
@@ -82,12 +86,15 @@ def _kld_params(cfg: dict):
                      bin_size=tuple(k["bin_size"]), n_min=k["n_min"])
 
 
-def run_unit(run: int, model: str, cfg: dict, kld: bool = False) -> dict:
+def run_unit(run: int, model: str, cfg: dict, kld: bool = False,
+             budget: list | None = None) -> dict:
     """Best likelihoods ``[5, J]`` of the five methods for one run and one action model.
 
     With ``kld`` every proposal is cut by KLD-sampling (``cfg["kld"]``, Fox 2003) and the
     unit also holds the particles scored per step (``"<method>_n"``) and the settings
-    (``"kld"``); the draws are the same keys as the unit without it.
+    (``"kld"``); the draws are the same keys as the unit without it. With ``budget`` (one
+    int per step, with ``kld``) each method scores at most that many particles per step
+    (:func:`~pqrm_jax.hssh.localization.localize_with_count`'s ``budget``).
     """
     import jax
     import jax.numpy as jnp
@@ -128,20 +135,34 @@ def run_unit(run: int, model: str, cfg: dict, kld: bool = False) -> dict:
     steps = jnp.arange(1, cfg["steps"] + 1)
     pkeys = jax.vmap(lambda j: jax.random.fold_in(jax.random.fold_in(base, 5000 + run), j))(steps)
     step_scans = jax.tree.map(lambda x: x[1:], scans)
+    cap = (jnp.full(cfg["steps"], cfg["blocks"] * cfg["block"], jnp.int32) if budget is None
+           else jnp.asarray(budget, jnp.int32))
     for meth in METHODS:
-        f = jax.vmap(lambda k, pr, po, o, z, meth=meth: localize_with_count(
-            k, pr, po, o, z, d2, jnp.zeros(2), res, c, method=meth, params=params)[1:])
-        lik, n = f(pkeys, true[:-1], odom[:-1], odom[1:], step_scans)
+        f = jax.vmap(lambda k, pr, po, o, z, b, meth=meth: localize_with_count(
+            k, pr, po, o, z, d2, jnp.zeros(2), res, c, method=meth, params=params,
+            budget=None if budget is None else b)[1:])
+        lik, n = f(pkeys, true[:-1], odom[:-1], odom[1:], step_scans, cap)
         out[meth] = np.asarray(lik).tolist()
         if kld:
             out[f"{meth}_n"] = np.asarray(n).tolist()
     if kld:
         out["kld"] = cfg["kld"]
+    if budget is not None:
+        out["budget"] = [int(x) for x in budget]
     return out
 
 
-def _unit_name(run: int, model: str, kld: bool = False) -> str:
-    return f"units/run{run}_{model}{'_kld' if kld else ''}.json"
+BUDGETED = ("pf", "shrink", "grow", "shrink_and_grow")
+
+
+def equal_budget(kunit: dict) -> list[int]:
+    """Per step, the fewest particles any of :data:`BUDGETED` scored with KLD (raw's single
+    odometry particle is not a filter)."""
+    return np.min(np.array([kunit[f"{m}_n"] for m in BUDGETED]), axis=0).astype(int).tolist()
+
+
+def _unit_name(run: int, model: str, kld: bool = False, eq: bool = False) -> str:
+    return f"units/run{run}_{model}{'_kld' if kld else ''}{'_eq' if eq else ''}.json"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -171,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     protocol.fresh_start(args, out, NAME, cluster, legacy=())
     distributed.agree(cluster, cfg, f"{NAME} config")
     # the five published algorithms as B ran them (full blocks), then the same with KLD
+    args.kld = args.kld or args.equal_budget
     units = [(r, m, k) for k in ((False, True) if args.kld else (False,))
              for r in range(2) for m in MODELS]
 
@@ -215,7 +237,23 @@ def main(argv: list[str] | None = None) -> int:
             raise StudyError(f"{NAME}: a unit did not read back as written")
         data = {(r, m): v for (r, m, k), v in both.items() if not k}
         kdata = {(r, m): v for (r, m, k), v in both.items() if k} or None
-        _report(data, cfg, out, kdata)
+        edata = None
+        if args.equal_budget:  # process 0 alone (the budgets come from the stored KLD units)
+            edata = {}
+            for r in range(2):
+                for m in MODELS:
+                    budget = equal_budget(kdata[(r, m)])
+                    name = _unit_name(r, m, True, True)
+
+                    def ok(u, budget=budget):
+                        return check_kld(u) and u.get("budget") == budget
+
+                    rec = st.read_json(name, METHODS + ("budget", "kld"), ok)
+                    if rec is None:
+                        rec = run_unit(r, m, cfg, kld=True, budget=budget)
+                        st.write_json(name, rec)
+                    edata[(r, m)] = rec
+        _report(data, cfg, out, kdata, edata)
         st.write_results_csv(
             [(f"run{r}_{m}_{meth}", "mean_best_likelihood", float(np.mean(data[(r, m)][meth])))
              for r in range(2) for m in MODELS for meth in METHODS]
@@ -304,7 +342,8 @@ def kld_effect(data: dict, kdata: dict, model: str) -> list[tuple[str, float, fl
     return rows
 
 
-def _report(data, cfg, out: Path, kdata: dict | None = None) -> None:
+def _report(data, cfg, out: Path, kdata: dict | None = None,
+            edata: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -347,6 +386,26 @@ def _report(data, cfg, out: Path, kdata: dict | None = None) -> None:
         lines += ["Published orderings with KLD-sampling on:", "",
                   "| ordering (B) | holds here (KLD) | numbers |", "|---|---|---|"]
         for text, verdict, nums in orderings(kdata):
+            lines.append(f"| {text} | {verdict} | {nums} |")
+    if edata:
+        lines += ["", "## KLD at an equal particle budget (`--equal-budget`, issue 26)", "",
+                  "KLD cuts each proposal separately, so shrink scores about twice PF's "
+                  "particles and shrink-and-grow more again. Here every filter keeps KLD but "
+                  "scores at most, per step, the fewest particles any of PF, shrink, grow and "
+                  "shrink-and-grow scored there with KLD (the first in draw order; refits use "
+                  "only those). Same keys and log.", "",
+                  "| model | mean budget | " + " | ".join(f"{m} (particles)" for m in BUDGETED)
+                  + " |", "|---" * (len(BUDGETED) + 2) + "|"]
+        for model in MODELS:
+            b = np.concatenate([edata[(r, model)]["budget"] for r in range(2)])
+            def both(key, model=model):
+                return np.mean(np.concatenate([edata[(r, model)][key] for r in range(2)]))
+
+            cells = [f"{both(m):.4f} ({both(m + '_n'):.1f})" for m in BUDGETED]
+            lines.append(f"| {model} | {b.mean():.1f} | " + " | ".join(cells) + " |")
+        lines += ["", "Published orderings, KLD at an equal budget:", "",
+                  "| ordering (B) | holds here (equal budget) | numbers |", "|---|---|---|"]
+        for text, verdict, nums in orderings(edata):
             lines.append(f"| {text} | {verdict} | {nums} |")
     lines += ["", "Mechanisms: grow and shrink-and-grow stop at the first stage with a particle "
               f"above the threshold ({cfg['threshold']}, x{cfg['anneal']} per stage), so grow "

@@ -74,6 +74,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=4,
                    help="area samples per cell and axis when drawing the +")
     p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    p.add_argument("--shapes", action="store_true",
+                   help="run the family of other shapes instead of the + (T, L, straight "
+                        "corridor, dead end: sizes 39-299, rotations 0-45°, noise 0-10 %%, robot "
+                        "off the centre; pqrm_jax.hssh.shapes) and write shapes_report.md")
+    p.add_argument("--shapes-per-kind", type=int, default=60,
+                   help="random cases per shape with --shapes")
     p.add_argument("--chunk-cells", type=int, default=None,
                    help="cells per compiled chunk of the cellular stages (default: sized from "
                         "the device memory, on CPU at most the cache-sized default; a resume "
@@ -91,7 +97,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _config(args) -> dict:
-    from ..hssh.gateways import SIDE_SLACK
+    from ..hssh.gateways import SIDE_CONE, SIDE_SLACK
 
     grid = REDUCED if args.reduced else {"rotations": ROTATIONS, "sizes": SIZES, "noise": NOISE}
     return {
@@ -102,6 +108,9 @@ def _config(args) -> dict:
         "robot_radius": 0.0, "robot_cell": "image centre (side // 2, side // 2)",
         "arm_width_fraction": 1 / 3, "supersample": args.supersample,
         "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK, "method": args.method,
+        # side obstacles within +-side_cone degrees of the branch normal (issue 26: B's
+        # half-plane rule, 90, lays gateways across wide grid-aligned T and L junctions)
+        "side_cone": SIDE_CONE,
         "seed": args.seed,
         "success": "4 gateways, star isomorphic to the + star (B §5.1)",
     }
@@ -162,7 +171,8 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
         try:
             lt = topology_from_maps(maps.occupied[i], maps.unknown[i], maps.free_space[i],
                                     maps.dist2[i], maps.skeleton[i], rc, method=cfg["method"],
-                                    side_slack=cfg["side_slack"])
+                                    side_slack=cfg["side_slack"],
+                                    side_cone=cfg.get("side_cone", 90.0))
         except ValueError as e:
             rec.update(success=False, gateways=0, paths=0, kind="error", reason=str(e))
         else:
@@ -295,11 +305,132 @@ def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
             st.write_json(_unit_name(*todo[j]), {"records": recs})
 
 
+SHAPE_SIZES = [s for s in SIZES if 39 <= s <= 299]
+
+
+def _shapes_config(args) -> dict:
+    from ..hssh.gateways import SIDE_CONE, SIDE_SLACK
+
+    if args.shapes_per_kind < 1:
+        raise SystemExit("--shapes-per-kind must be >= 1")
+    return {"corpus": "shapes", "per_kind": args.shapes_per_kind, "seed": args.seed,
+            # sides drawn in 39..299 are rounded to the + corpus sizes (shared compiles)
+            "sizes": SHAPE_SIZES, "rotations": [0.0, 45.0], "noise": [0.0, 0.10],
+            "widths": [0.22, 0.36], "supersample": args.supersample, "method": args.method,
+            "robot_radius": 0.0, "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK,
+            "side_cone": SIDE_CONE,
+            "success": "gateway count, star and place kind of pqrm_jax.hssh.shapes.EXPECTED"}
+
+
+def shape_unit(side: int, cases: list, cfg: dict) -> list[dict]:
+    """All shape cases of one size: cellular stages batched, graph stages per image."""
+    import jax.numpy as jnp
+
+    from ..hssh import cellular_stages, topology_from_maps
+    from ..hssh.shapes import shape_check, shape_image
+
+    imgs = [shape_image(c, cfg["supersample"]) for c in cases]
+    occ = np.stack([o for o, _ in imgs])
+    maps = cellular_stages(jnp.asarray(occ), jnp.zeros(occ.shape, bool),
+                           robot_radius=cfg["robot_radius"],
+                           m_cap=cfg["evg_cap_fraction"] * side)
+    maps = type(maps)(*(np.asarray(x) for x in maps))
+    recs = []
+    for i, (c, (_, rc)) in enumerate(zip(cases, imgs, strict=True)):
+        rec = dict(c._asdict())
+        try:
+            lt = topology_from_maps(maps.occupied[i], maps.unknown[i], maps.free_space[i],
+                                    maps.dist2[i], maps.skeleton[i], rc, method=cfg["method"],
+                                    side_slack=cfg["side_slack"], side_cone=cfg["side_cone"])
+        except ValueError as e:
+            rec.update(success=False, reason=f"error: {e}", found="error", gateways=0)
+        else:
+            why = shape_check(lt, c.kind)
+            rec.update(success=not why, reason=why, found=lt.kind, gateways=len(lt.gateways))
+        recs.append(rec)
+    return recs
+
+
+def _shapes_main(args, out: Path) -> int:
+    from tqdm import tqdm
+
+    from ..hssh.shapes import shape_cases
+
+    cfg = _shapes_config(args)
+    cases = shape_cases(cfg["per_kind"], seed=cfg["seed"], sizes=(39, 299),
+                        rotations=tuple(cfg["rotations"]), noise=tuple(cfg["noise"]),
+                        widths=tuple(cfg["widths"]))
+    sizes = np.array(cfg["sizes"])
+    cases = [c._replace(side=int(sizes[np.argmin(np.abs(sizes - c.side))])) for c in cases]
+    by_side: dict = {}
+    for c in cases:
+        by_side.setdefault(c.side, []).append(c)
+    with Store.open(out, NAME + "-shapes", cfg) as st:
+        t0 = time.perf_counter()
+        rows = []
+        for side in tqdm(sorted(by_side), desc="hssh-plus --shapes", unit="size"):
+            name = f"shapes/s{side:03d}.json"
+            unit = st.read_json(name, ("records",))
+            if unit is None:
+                unit = {"records": shape_unit(side, by_side[side], cfg)}
+                st.write_json(name, unit)
+            rows.extend(unit["records"])
+        wall = time.perf_counter() - t0
+        atomic_write_text(out / "shapes_report.md", shapes_report(rows, cfg, wall))
+        atomic_write_json(out / "shapes_summary.json", shapes_summary(rows))
+    print(f"wrote {out / 'shapes_report.md'}")
+    return 0
+
+
+def shapes_summary(rows: list[dict]) -> dict:
+    """Success counts per shape, overall and by noise (0 %, 1-5 %, 6-10 %) and rotation."""
+    out = {}
+    for kind in sorted({r["kind"] for r in rows}):
+        rk = [r for r in rows if r["kind"] == kind]
+        d = {"all": [sum(r["success"] for r in rk), len(rk)]}
+        for name, lo, hi in (("noise 0", -1, 0.001), ("noise 1-5 %", 0.001, 0.051),
+                             ("noise 6-10 %", 0.051, 1.0)):
+            sel = [r for r in rk if lo < r["noise"] <= hi]
+            d[name] = [sum(r["success"] for r in sel), len(sel)]
+        for name, lo, hi in (("rot 0-5", -1, 5.5), ("rot 6-39", 5.5, 39.5),
+                             ("rot 40-45", 39.5, 46)):
+            sel = [r for r in rk if lo < r["rotation"] <= hi]
+            d[name] = [sum(r["success"] for r in sel), len(sel)]
+        out[kind] = d
+    return out
+
+
+def shapes_report(rows: list[dict], cfg: dict, wall: float) -> str:
+    s = shapes_summary(rows)
+    cols = ["all", "noise 0", "noise 1-5 %", "noise 6-10 %", "rot 0-5", "rot 6-39",
+            "rot 40-45"]
+    lines = ["# hssh-plus --shapes: T, L, straight corridor, dead end", "",
+             f"{cfg['per_kind']} random cases per shape (seed {cfg['seed']}): sizes "
+             f"{cfg['sizes'][0]}-{cfg['sizes'][-1]}, rotations 0-45°, noise 0-10 %, corridor "
+             f"width {cfg['widths'][0]}-{cfg['widths'][1]} of the side, robot off the centre "
+             "(pqrm_jax.hssh.shapes). Success: the gateway count, star and place kind of "
+             "`EXPECTED`.", "",
+             "| shape | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for kind, d in s.items():
+        cells = [f"{k}/{n}" if n else "-" for k, n in (d[c] for c in cols)]
+        lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+    fails = [r for r in rows if not r["success"]]
+    lines += ["", f"Failures ({len(fails)}):", ""]
+    for r in fails:
+        lines.append(f"- {r['kind']} side {r['side']}, {r['rotation']:g}°, noise "
+                     f"{r['noise']:.2f}, width {r['width']}, robot ({r['along']}, "
+                     f"{r['across']}): {r['reason']}")
+    lines += ["", f"Wall time of this run: {wall:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     from . import distributed
 
     args = _parser().parse_args(argv or [])
     out = Path(args.out)
+    if args.shapes:
+        return _shapes_main(args, out)
     cfg = _config(args)
     sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
     rots = _pick(args.rotations, cfg["corpus_rotations"], float)
