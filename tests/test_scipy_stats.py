@@ -100,7 +100,11 @@ def test_neighbor_distance_equals_the_replaced_bfs(q, p, seed, sym):
 
 
 def test_neighbor_distance_of_every_shipped_calculus_is_unchanged():
-    for name in calculi.names():
+    # shipped calculi only: other tests may register a SERGE calculus (no tables) in this
+    # process, so calculi.names() depends on the test order
+    shipped = [name for name in calculi.names() if calculi.is_builtin(name)]
+    assert len(shipped) >= 9
+    for name in shipped:
         t = calculi.get(name).tables
         got = neighbor_distance(t.adjacency)
         assert got.dtype == np.int32
