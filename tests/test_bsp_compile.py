@@ -5,13 +5,11 @@ must not trace or compile again."""
 
 from __future__ import annotations
 
-import contextlib
-import logging
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_count import count_compiles
 
 from pqrm_jax import calculi
 from pqrm_jax.bsp import env as E
@@ -23,31 +21,6 @@ from pqrm_jax.bsp import planner as P
 PARAMS = M.ModelParams(samples=600, pool=1 << 18, seed=3)
 
 
-class _Collect(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.messages: list[str] = []
-
-    def emit(self, record):
-        self.messages.append(record.getMessage())
-
-
-@contextlib.contextmanager
-def count_compiles():
-    """Collect the names of the programs JAX compiles inside the block."""
-    handler = _Collect()
-    logger = logging.getLogger("jax")
-    old = logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    compiled: list[str] = []
-    try:
-        with jax.log_compiles(True):
-            yield compiled
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
-        compiled += [m for m in handler.messages if m.startswith("Compiling ")]
 
 
 @pytest.fixture(scope="module")

@@ -9,45 +9,16 @@ performance bug that no result test sees. Compilations are counted from JAX's ow
 
 from __future__ import annotations
 
-import contextlib
-import logging
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_count import count_compiles
 
 from pqrm_jax import calculi, pqrm, qrm, sim
 from pqrm_jax import serge as sg
 from pqrm_jax.tables import feasibility
 from pqrm_jax.tables import problems as pb
-
-
-class _Collect(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.messages: list[str] = []
-
-    def emit(self, record):
-        self.messages.append(record.getMessage())
-
-
-@contextlib.contextmanager
-def count_compiles():
-    """Collect the names of the programs JAX compiles inside the block."""
-    handler = _Collect()
-    logger = logging.getLogger("jax")
-    old = logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    compiled: list[str] = []
-    try:
-        with jax.log_compiles(True):
-            yield compiled
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
-        compiled += [m for m in handler.messages if m.startswith("Compiling ")]
 
 
 def test_counter_sees_a_compile():

@@ -7,45 +7,16 @@ drives every setting and block of a world through it.
 
 from __future__ import annotations
 
-import contextlib
-import logging
-
 import jax
 import jax.numpy as jnp
 import numpy as np
+from compile_count import count_compiles
 
 from pqrm_jax import sim
 from pqrm_jax.qlink import elements as qel
 from pqrm_jax.qlink import guarantees as gu
 from pqrm_jax.qlink import linkgraph as lg
 from pqrm_jax.qlink import navigate as nav
-
-
-class _Collect(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.messages: list[str] = []
-
-    def emit(self, record):
-        self.messages.append(record.getMessage())
-
-
-@contextlib.contextmanager
-def count_compiles():
-    """Collect the names of the programs JAX compiles inside the block."""
-    handler = _Collect()
-    logger = logging.getLogger("jax")
-    old = logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    compiled: list[str] = []
-    try:
-        with jax.log_compiles(True):
-            yield compiled
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
-        compiled += [m for m in handler.messages if m.startswith("Compiling ")]
 
 
 def test_navigate_pairs_compiles_once_per_shape():
