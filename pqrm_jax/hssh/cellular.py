@@ -51,6 +51,7 @@ __all__ = [
     "evg_skeleton",
     "cellular_stages",
     "check_m_cap",
+    "check_positive_finite",
     "check_robot_radius",
 ]
 
@@ -361,19 +362,41 @@ def _bleed_and_distance(occupied, radius, cap):
     return occupied, dist2
 
 
+def check_positive_finite(name: str, value, unit: str = "") -> float:
+    """``value`` as a float; ``ValueError`` naming ``name`` unless it is finite and > 0.
+
+    Args:
+        name: the argument's name, for the message.
+        value: the host scalar to check.
+        unit: its unit, for the message (e.g. ``"cells"``).
+
+    Returns:
+        ``float(value)``.
+
+    Raises:
+        ValueError: ``value`` is not a number, NaN, ±inf or ≤ 0.
+
+    >>> check_positive_finite("scale", 2)
+    2.0
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        of = f" of {unit}" if unit else ""
+        raise ValueError(f"{name} must be a finite number{of} > 0, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0{' ' + unit if unit else ''}, "
+                         f"got {value!r}")
+    return v
+
+
 def check_m_cap(m_cap) -> float:
     """``m_cap`` as a float; ``ValueError`` naming it unless finite and > 0 (cells).
 
     >>> check_m_cap(12)
     12.0
     """
-    try:
-        m = float(m_cap)
-    except (TypeError, ValueError):
-        raise ValueError(f"m_cap must be a finite number of cells > 0, got {m_cap!r}") from None
-    if not (math.isfinite(m) and m > 0):
-        raise ValueError(f"m_cap must be finite and > 0 cells, got {m_cap!r}")
-    return m
+    return check_positive_finite("m_cap", m_cap, "cells")
 
 
 def check_robot_radius(robot_radius, shape) -> float:

@@ -31,6 +31,8 @@ from typing import NamedTuple
 import networkx as nx
 import numpy as np
 
+from pqrm_jax.hssh.cellular import check_positive_finite
+
 from .star import Star
 
 _DIRS = ((0, 1), (1, 0), (0, -1), (-1, 0))  # N, E, S, W: clockwise
@@ -89,13 +91,7 @@ class Experience(NamedTuple):
 
 
 def _check_scale(scale) -> float:
-    try:
-        v = float(scale)
-    except (TypeError, ValueError):
-        raise ValueError(f"scale must be a finite number > 0, got {scale!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"scale must be finite and > 0, got {scale!r}")
-    return v
+    return check_positive_finite("scale", scale)
 
 
 def world_from_lattice(open_edges: set, scale: float = 1.0) -> CorridorWorld:
