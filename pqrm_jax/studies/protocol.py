@@ -59,7 +59,7 @@ from typing import Any, NamedTuple
 __all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "add_fresh",
            "apply_preset", "fresh_start",
            "check_argv_finite", "claims_summary", "claims_table", "config_json",
-           "default_out", "finite_float", "fraction", "main_for", "nonneg_float",
+           "default_out", "figure", "finite_float", "fraction", "main_for", "nonneg_float",
            "nonneg_int", "parser", "positive_float", "positive_int", "summary_for",
            "verdict_in"]
 
@@ -274,6 +274,31 @@ def claims_table(claims: Iterable[Claim]) -> list[str]:
         iv = "–" if c.interval is None else f"[{_cell(c.interval[0])}, {_cell(c.interval[1])}]"
         lines.append(f"| {c.name} | {c.published} | {_cell(c.measured)} | {iv} | {c.verdict} |")
     return lines
+
+
+def figure(path: str, caption: str) -> list[str]:
+    """Markdown lines that embed a report figure with its caption, the same in every report.
+
+    Args:
+        path: the figure's file name, relative to the report.
+        caption: one or two sentences saying what the figure shows (axes, marks, what to
+            compare); must not be empty.
+
+    Returns:
+        ``["![caption](path)", "", "*caption*", ""]``: the caption is the image's alt text and is
+        printed below it.
+
+    Raises:
+        ValueError: when ``caption`` is empty.
+
+    Example:
+        >>> figure("fig.png", "Error rate against noise.")
+        ['![Error rate against noise.](fig.png)', '', '*Error rate against noise.*', '']
+    """
+    caption = " ".join(caption.split())
+    if not caption:
+        raise ValueError(f"figure: caption of {path!r} is empty")
+    return [f"![{caption}]({path})", "", f"*{caption}*", ""]
 
 
 def claims_summary(claims: Iterable[Claim]) -> dict[str, str]:
