@@ -7,10 +7,11 @@ The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
 ``configure``, ``run_study``, ``report``, ``claims``; the common flags; ``--sweep``). Each
 (fraction, σ) cell is one unit: it is appended to ``cells.jsonl`` in the store as soon as it is
 computed, so a killed run keeps its finished cells and a re-run computes only the others. At
-the end ``results.json`` (every cell), the tidy ``results.csv`` and ``report.md`` (the claims
-table) are written; ``--json`` also writes ``results.json``'s content to another path. As N
-processes on ``jax.distributed`` (the cluster flags; :mod:`pqrm_jax.studies.distributed`) the
-cells are split over the processes and process 0 writes them.
+the end ``results.json`` (every cell), the tidy ``results.csv``, ``heldout.png`` and
+``report.md`` (the claims table and the captioned figure) are written; ``--json`` also
+writes ``results.json``'s content to another path. As N processes on ``jax.distributed``
+(the cluster flags; :mod:`pqrm_jax.studies.distributed`) the cells are split over the
+processes and process 0 writes them.
 """
 
 from __future__ import annotations
