@@ -184,7 +184,7 @@ def draw_link_graph(landmarks, elements, graph, *, planned=None, driven=None,
             ax.plot(*d[0], "g^", ms=8, zorder=6)
             ax.plot(*d[-1], "gs", ms=7, zorder=6)
     _landmarks(ax, lm)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=7, frameon=False)
     ax.set_title(title or f"Link Graph: {len(ids)} elements, {len(src)} edges "
                  f"(β = {graph.beta})", fontsize=10)
     return ax
@@ -271,7 +271,7 @@ def draw_topological_map(hypothesis, layout=None, *, ax: Axes | None = None,
     ax.autoscale_view()
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=7, frameon=False)
     ax.set_title(title or f"topological map: {m} places, {g.number_of_edges()} corridors",
                  fontsize=10)
     return ax
