@@ -104,11 +104,6 @@ def config_for(a) -> dict:
     return cfg
 
 
-def _relax_padded(hg, leaves, odometry, cfg):
-    """All leaves relaxed by :func:`pqrm_jax.hssh_global.layout.relax_many` (bucketed shapes)."""
-    return hg.relax_many(leaves, odometry, cfg["sigma_xy"], cfg["sigma_theta"])
-
-
 def run_world(cfg: dict, i: int) -> dict:
     from .. import hssh_global as hg
 
@@ -125,7 +120,7 @@ def run_world(cfg: dict, i: int) -> dict:
     leaves = log.leaves
     lmax = max(len(s) for s in w.stars)
     truth = [k for k, h in enumerate(leaves) if hg.is_true_map(h, e)]
-    prob, chi, cost = _relax_padded(hg, leaves, e.odometry, cfg)
+    prob, chi, cost = hg.relax_many(leaves, e.odometry, cfg["sigma_xy"], cfg["sigma_theta"])
     order = hg.preference_order(leaves, np.asarray(cost))
     best = leaves[order[0]]
     minimal = hg.minimal_models(leaves)
@@ -174,7 +169,7 @@ def run_office(cfg: dict, s: int) -> dict:
     log = hg.build_tree(e, max_leaves=cfg["max_leaves"])
     minimal = hg.minimal_models(log.leaves)
     truth = [k for k, h in enumerate(log.leaves) if hg.is_true_map(h, e)]
-    _, _, cost = _relax_padded(hg, log.leaves, e.odometry, cfg)
+    _, _, cost = hg.relax_many(log.leaves, e.odometry, cfg["sigma_xy"], cfg["sigma_theta"])
     best = hg.preference_order(log.leaves, cost)[0]
     sup = hg.layout_supported(cost, log.leaves, len(e.odometry), cfg["geo_alpha"])
     best_geo = hg.preference_order(log.leaves, cost, sup)[0]
