@@ -70,6 +70,9 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
                 "accuracy_per_rotation.png"):
         assert (tmp_path / fig).stat().st_size > 0
     assert cfg["layout"] == {"chunk_cells": 49 * 49}
+    cs = study.claims(tmp_path)           # a partial corpus: nothing checked, nothing failed
+    assert cs and all(c.verdict.startswith("not checked") for c in cs)
+    assert "](accuracy_size_noise.png)" in report
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before

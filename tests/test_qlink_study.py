@@ -33,6 +33,12 @@ def test_reduced_study(tmp_path):
     report = (out / "report.md").read_text()
     assert "Table 4.1" in report and "Fig. 4.6" in report and "β = 1" in report
     assert (out / "fig4_7_length_vs_elements.png").exists()
+    cs = mod.claims(out)          # Table 4.1 at the primary beta, one claim per setting
+    assert [c.name for c in cs] == ["Table 4.1 failure rate, R (β = 2)",
+                                    "Table 4.1 failure rate, 0.8R (β = 2)",
+                                    "Table 4.1 failure rate, occ 0.5 m (β = 2)"]
+    assert cs[0].verdict == "match" and cs[0].measured == 0.0
+    assert "## Claims" in report and "| Table 4.1 failure rate, R (β = 2) |" in report
     # resume: nothing is recomputed, the rows are identical
     before = (out / "trials.csv").read_text()
     assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0
