@@ -306,8 +306,9 @@ def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, clust
 
     The user's ``--chunk``, else the stored one, else sized from the memory: a probe
     of one grid of the largest side bounds a grid's bytes (its fixed part counted for every
-    grid), :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of
-    such grids (at most the noise levels of a unit) within the budget; on CPU at most
+    grid), the one chunk sizer :func:`~pqrm_jax.studies.chunking.auto` takes the largest
+    power of two of such grids (at most the noise levels of a unit) within the budget (without
+    memory figures: :data:`~pqrm_jax.hssh.cellular.CHUNK_CELLS`); on CPU at most
     :data:`~pqrm_jax.hssh.cellular.CHUNK_CELLS`, where the caches, not the memory, bound the
     chunk (measured, see that module). A chunk that does not fit is refused naming
     ``--chunk``.
@@ -323,8 +324,9 @@ def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, clust
     n = len(cfg["noise_levels"])
 
     def size() -> int:
-        grids = chunking.fit(per_grid, budget, total=n, option="--chunk")
-        if grids is None:
+        grids = chunking.auto(lambda: per_grid, total=n, option="--chunk",
+                              memory_bytes=memory_bytes, fallback=0)
+        if not grids:  # no memory figures
             return CHUNK_CELLS
         cells = grids * side * side
         if jax.local_devices()[0].platform == "cpu":

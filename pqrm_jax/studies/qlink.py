@@ -526,31 +526,29 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     One lane's bytes are bounded by the navigation pool compiled for one lane and its
     :data:`QUEUE_PER_LANE` queued trials on this world's map (XLA's memory analysis, the
     map's fixed part counted for every lane; the last setting, with occluders when there
-    are any); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two
-    that fits, capped at the pairs, and on CPU at :data:`CPU_CHUNK`. A device too small for
-    one lane is refused naming ``--chunk``.
+    are any); the one chunk sizer :func:`~pqrm_jax.studies.chunking.auto` takes the largest
+    power of two that fits, capped at the pairs, and on CPU at :data:`CPU_CHUNK` (also the
+    chunk without memory figures). A device too small for one lane is refused naming
+    ``--chunk``.
     """
     from pqrm_jax.qlink import navigate as nav
 
     from . import chunking
 
-    name, frac, occ = settings(cfg)[-1]
-    params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
-                                       pairs[:1])
-    q = QUEUE_PER_LANE
-    trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
-                        np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
-                        np.ones(q, np.int32))
-    compiled = nav.navigate(trials, nav.NavMap(lm, el, plans=plans), params, model, chunk=1,
-                            compile_only=True)
-    nbytes = chunking.program_bytes(compiled)
-    budget = chunking.budget(memory_bytes)
-    lanes = chunking.fit(nbytes, budget, total=len(pairs), option="--chunk", cpu_cap=CPU_CHUNK)
-    if lanes is None:
-        return CPU_CHUNK
-    print(f"{NAME}: world {w}: --chunk {lanes} pool lanes sized from the memory "
-          f"({nbytes / 2**20:.1f} MiB per lane, {budget / 2**20:.0f} MiB available)")
-    return lanes
+    def probe() -> int | None:
+        name, frac, occ = settings(cfg)[-1]
+        params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
+                                           pairs[:1])
+        q = QUEUE_PER_LANE
+        trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
+                            np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
+                            np.ones(q, np.int32))
+        return chunking.program_bytes(nav.navigate(trials, nav.NavMap(lm, el, plans=plans),
+                                                   params, model, chunk=1, compile_only=True))
+
+    return chunking.auto(probe, total=len(pairs), option="--chunk", memory_bytes=memory_bytes,
+                         cpu_cap=CPU_CHUNK, fallback=CPU_CHUNK, say=f"{NAME}: world {w}",
+                         unit="pool lanes")
 
 
 ABLATIONS = {
