@@ -107,6 +107,11 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
                        "--chunk", str(2 * 49 * 49)]) == 0
     assert [untimed(u.read_text()) for u in sorted((wide / "units").glob("*.json"))] == \
         [untimed(before[u.name]) for u in units]
+    # measured times live apart (times/): two runs write byte-identical units
+    assert [u.read_text() for u in sorted((wide / "units").glob("*.json"))] == \
+        [(tmp_path / "units" / u.name).read_text() for u in units]
+    assert all(len(json.loads((wide / "times" / u.name).read_text())["seconds"]) == 2
+               for u in units)
     # a device without room for one grid, or for the chunk given: refused, nothing written
     small = ["--reduced", "--sizes", "49", "--out", str(tmp_path / "small")]
     cfg = study._stored(study.configure(small)[0])

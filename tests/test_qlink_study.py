@@ -20,6 +20,10 @@ def test_reduced_study(tmp_path):
     assert set(rows[0]) == set(mod.FIELDS)
     cfg = json.loads((out / "config.json").read_text())
     assert set(mod.REASONS) <= set(cfg["reasons"])          # every knob has a reason
+    info = json.loads((out / "world_00.json").read_text())     # measured times live apart
+    assert "map_s" not in info and "setting_s" not in info
+    assert {"map_s", "setting_s"} <= set(json.loads((out / "world_00.times.json").read_text()))
+    assert json.loads((out / "times.json").read_text())["wall_s"] >= 0
     w = np.load(out / "world_00.npz")
     assert w["positions"].shape == (50, 2) and w["element_ids"].shape[1] == 3
     base = [r for r in rows if r["beta"] == "2" and r["setting"] == "R" and r["reachable"] == "1"]

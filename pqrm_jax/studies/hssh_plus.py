@@ -26,7 +26,8 @@ tests. The run ends with ``report.md`` (measured vs published) and figures.
 Multi-process (:mod:`pqrm_jax.studies.distributed`, ``--coordinator HOST:PORT --processes K
 --process-id P`` or the environment / Slurm): process ``P`` computes the units ``i = P mod
 K`` of process 0's to-do list, process 0 alone reads and writes the store; the records equal a
-one-process run's (the measured ``seconds`` aside).
+one-process run's byte for byte (each image's measured ``seconds`` live apart, in
+``times/``).
 """
 
 from __future__ import annotations
@@ -266,8 +267,9 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
     return recs
 
 
-UNIT_FIELDS = ("side", "rotation", "noise", "success", "gateways", "paths", "kind", "reason",
-               "seconds")
+UNIT_FIELDS = ("side", "rotation", "noise", "success", "gateways", "paths", "kind", "reason")
+"""Fields every stored record has. The measured ``seconds`` of each image live apart, in
+``times/`` (a unit written before that kept them in its records, and is still read)."""
 
 
 def unit_ok(unit: dict, noise_levels: list) -> bool:
@@ -347,6 +349,11 @@ def _unit_name(side: int, rot: float) -> str:
     return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
 
 
+def _times_name(side: int, rot: float) -> str:
+    """The measured seconds per image of a unit (apart from its records)."""
+    return "times/" + _unit_name(side, rot).split("/", 1)[1]
+
+
 def _shared_todo(todo: list | None, cluster) -> list:
     """Process 0's list of (size, rotation) units to compute, on every process."""
     from . import distributed
@@ -366,9 +373,10 @@ def _shared_todo(todo: list | None, cluster) -> list:
 def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
     """Run the units; with ``K`` processes :func:`distributed.map_units` splits them (unit
     ``i`` on process ``i mod K``, rounds of ``K``, errors exchanged: a unit that fails on one
-    process ends every process with its message) and process 0 alone writes them. Units are
-    deterministic, so the stored records equal a one-process run's (except the measured
-    ``seconds``)."""
+    process ends every process with its message) and process 0 alone writes them: the
+    records to ``units/``, their measured ``seconds`` apart to ``times/`` (so two runs write
+    byte-identical units). Units are deterministic, so the stored records equal a
+    one-process run's."""
     from tqdm import tqdm
 
     from . import distributed
@@ -378,7 +386,11 @@ def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
                         unit="unit", disable=quiet or not cluster.is_main):
         if cluster.is_main:
             # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(*todo[j]), {"records": recs})
+            secs = [r.get("seconds") for r in recs]
+            st.write_json(_times_name(*todo[j]), {"seconds": secs})
+            st.write_json(_unit_name(*todo[j]),
+                          {"records": [{k: v for k, v in r.items() if k != "seconds"}
+                                       for r in recs]})
 
 
 SHAPE_SIZES = [s for s in SIZES if 39 <= s <= 299]
@@ -536,14 +548,29 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
 _LEGACY = ("units", "units/*", "config.json", "report.md", "summary.json", "*.png")
 
 
-def _rows(st) -> list[dict]:
-    """The records of every stored unit (a corrupt one is set aside)."""
+def _rows(st, times: bool = False) -> list[dict]:
+    """The records of every stored unit (a corrupt one is set aside); with ``times`` each
+    with its measured ``seconds`` (NaN when not stored)."""
+    import json
+
     rows = []
     for path in sorted((st.out / "units").glob("s*_r*.json")):
         unit = st.read_json(f"units/{path.name}", ("records",),
                             lambda u: unit_ok(u, st.config["noise_levels"]))
-        if unit is not None:
-            rows.extend(unit["records"])
+        if unit is None:
+            continue
+        recs = unit["records"]
+        if times:
+            try:
+                secs = json.loads((st.out / "times" / path.name).read_text())["seconds"]
+            except (OSError, ValueError, KeyError, TypeError):
+                secs = []
+            if not isinstance(secs, list) or len(secs) != len(recs):
+                secs = [float("nan")] * len(recs)
+            recs = [dict(r, seconds=r.get("seconds", t if isinstance(t, (int, float))
+                                          else float("nan")))
+                    for r, t in zip(recs, secs, strict=True)]
+        rows.extend(recs)
     return rows
 
 
@@ -552,7 +579,7 @@ def _load(out: Path) -> tuple[dict, list[dict]]:
     from .store import StudyError
 
     with Store.open(out, NAME, None, legacy=_LEGACY) as st:
-        cfg, rows = st.config, _rows(st)
+        cfg, rows = st.config, _rows(st, times=True)
     if not rows:
         raise StudyError(f"{out} holds no {NAME} units; run the study first")
     return cfg, rows
@@ -641,7 +668,7 @@ def summarise(rows: list[dict], cfg: dict) -> dict:
                         "big_low_noise": (k1, n1), "mid": (k2, n2)})
     s["per_rotation"] = per_rot
     s["n_images"] = len(rows)
-    s["seconds"] = float(sum(r["seconds"] for r in rows))
+    s["seconds"] = float(np.nansum([r.get("seconds", np.nan) for r in rows]))
     return s
 
 

@@ -227,7 +227,10 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
 
 
 WORLD_ARRAYS = ("positions", "element_ids", "element_probs", "betas", "detection")
-WORLD_INFO = ("elements", "mapped_landmarks", "pairs", "map_s", "detection", "setting_s")
+WORLD_INFO = ("elements", "mapped_landmarks", "pairs", "detection")
+WORLD_TIMES = ("map_s", "setting_s")
+"""Measured times of a world (:func:`compute_world`'s info): stored apart, in
+``world_XX.times.json``, so two runs write byte-identical ``world_XX.json``."""
 
 
 def trials_name(w: int, beta: int, name: str) -> str:
@@ -403,7 +406,8 @@ def _read_all(st: Store, cfg: Config) -> tuple[list[dict], dict]:
             for b, nm in _units_of(cfg)}
         if info is None or any(v is None for v in got.values()):
             raise StudyError(f"{NAME}: world {w} did not read back as written")
-        summary[w] = info
+        times = st.read_json(f"world_{w:02d}.times.json") or {}
+        summary[w] = dict(info, **{k: times[k] for k in WORLD_TIMES if k in times})
         units.update(got)
     return [r for name in sorted(units) for r in units[name]], summary
 
@@ -724,7 +728,9 @@ def _write_world(st: Store, w: int, res: dict) -> None:
                      compressed=False)
     for f, rows in res["trials"].items():
         st.write_csv(f, FIELDS, rows)
-    st.write_json(f"world_{w:02d}.json", res["info"])
+    info = res["info"]
+    st.write_json(f"world_{w:02d}.times.json", {k: info[k] for k in WORLD_TIMES if k in info})
+    st.write_json(f"world_{w:02d}.json", {k: v for k, v in info.items() if k not in WORLD_TIMES})
 
 
 def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
