@@ -335,9 +335,6 @@ KEY_NOT_FIRST = {
     "bsp.plan": "issue 25 (Lane bundle) rewrites the bsp signatures",
     "bsp.run_lane": "issue 25 (Lane bundle) rewrites the bsp signatures",
     "bsp.initial_belief": "to convert (issue 28 left the bsp signatures to issue 25)",
-    "serge.initial_cells": "to convert: key third",
-    "serge.serge": "to convert: keyword-only key",
-    "serge.serge_sequential": "to convert: keyword-only key",
 }
 
 
