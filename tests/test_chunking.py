@@ -61,3 +61,29 @@ def test_qlink_pool_sized_from_memory_stored_and_changing_no_trial(tmp_path, cap
     with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
         qlink.main([*args, "--out", str(tmp_path / "small"), "--chunk", "auto",
                     "--memory-bytes", "1000"])
+
+
+def test_auto_is_the_one_sizer_whole_then_probe_then_fallback():
+    """``chunking.auto`` (the sizer padgett-mc and qbsp call): the whole program when it fits
+    in FRACTION of the budget (the probe is then never compiled), else the probe's bytes per
+    lane through ``fit``, else the fallback without memory figures; a device too small for
+    one lane is refused naming the option."""
+    mib = 1 << 20
+    calls = []
+
+    def probe():
+        calls.append(1)
+        return 2 * mib  # a probe of 2 lanes per device: 1 MiB per lane
+
+    kw = dict(total=1000, option="--chunk", per_probe=2, memory_bytes=100 * mib)
+    assert chunking.auto(probe, whole=lambda: 50 * mib, **kw) == 1000 and not calls
+    assert chunking.auto(probe, whole=lambda: 50 * mib + 1, **kw) == 32 and calls
+    assert chunking.auto(probe, whole=lambda: None, **kw) == 32
+    assert chunking.auto(probe, **kw, devices=4) == 4 * 32
+    assert chunking.auto(probe, **dict(kw, total=10), devices=4, whole=lambda: 1) == 12
+    assert chunking.auto(probe, **kw, even=True) == 32  # 1000 / 32: 32 calls of 32 (31.25)
+    assert chunking.auto(probe, **dict(kw, total=40), even=True) == 20  # 2 calls of 20
+    assert chunking.auto(lambda: None, **kw) == chunking.FALLBACK_CHUNK
+    assert chunking.auto(lambda: 0, **kw, fallback=7) == 7
+    with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
+        chunking.auto(lambda: 1 << 30, total=4, option="--chunk", memory_bytes=100 * mib)

@@ -128,10 +128,10 @@ def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp
     probe, _ = padgett_mc.chunk_program(dataclasses.replace(cfg, chunk_runs=1), 1)
     one = chunking.program_bytes(probe)  # bounds one run's bytes (1 device here)
     assert one and one > 0
-    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=10**12) == 4  # capped at the runs
+    assert padgett_mc.auto_chunk(cfg, memory_bytes=10**12) == 4  # capped at the runs
     # room for 2.5 runs in FRACTION of the memory: the largest power of two that fits, 2
     small = int(2.5 * one / chunking.FRACTION)
-    assert padgett_mc.auto_chunk_runs(cfg, memory_bytes=small) == 2
+    assert padgett_mc.auto_chunk(cfg, memory_bytes=small) == 2
     out = tmp_path / "mc"
     padgett_mc.run_study(cfg, out, quiet=True, memory_bytes=small)
     assert json.loads((out / "config.json").read_text())["layout"]["chunk"] == 2

@@ -22,9 +22,14 @@ sizes the call from what the device can hold instead of a constant tuned for one
    user's, else the one stored in ``out/config.json`` (a resume keeps its layout whatever the
    free memory is now), else a new one sized by the study (``size()``, on process 0 only).
 
-Studies using it (docs/studies.md): padgett-mc (``--chunk-runs``: runs per call), qbsp
+:func:`auto` is the one chunk sizer every study calls (steps 1–3 with the study's probe
+program, the CPU cap, the evening-out and the :data:`FALLBACK_CHUNK` when the machine gives
+no memory figures); the split of the chunks over processes is
+:func:`~pqrm_jax.studies.distributed.map_chunks`.
+
+Studies using it (docs/studies.md): padgett-mc (``--chunk``: runs per call), qbsp
 (``--chunk``: environments per call, four lanes each), qlink (``--chunk``: pool lanes of the
-navigation executive) and hssh-plus (``--chunk-grids``: grids per cellular call).
+navigation executive) and hssh-plus (cells per cellular call).
 
 The budget can be passed explicitly (``memory_bytes``) for tests and for users who share a
 device; nothing here mocks JAX.
@@ -48,12 +53,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FRACTION", "available_bytes", "budget", "check_fits", "fit", "pick_chunk",
-           "program_bytes", "balance", "resolve", "stored_chunk"]
+__all__ = ["FALLBACK_CHUNK", "FRACTION", "auto", "available_bytes", "budget", "check_fits",
+           "fit", "pick_chunk", "program_bytes", "balance", "resolve", "stored_chunk"]
 
 #: share of a device's available memory one chunk may use: XLA's own runtime buffers, the
 #: host-side copies of the results and other processes on the machine need the rest
 FRACTION = 0.5
+
+#: lanes per call when neither the device nor the OS reports its memory (:func:`auto`)
+FALLBACK_CHUNK = 250
 
 
 def _host_available() -> int | None:
@@ -186,6 +194,75 @@ def fit(per_lane_bytes: float | None, budget_bytes: int | None, *, total: int,
         if jax.local_devices()[0].platform == "cpu":
             chunk = min(chunk, cpu_cap)
     return balance(chunk, total, devices) if even else chunk
+
+
+def auto(probe: Callable[[], int | None], *, total: int, option: str, devices: int = 1,
+         per_probe: float = 1, memory_bytes: int | None = None, cpu_cap: int | None = None,
+         even: bool = False, fallback: int = FALLBACK_CHUNK,
+         whole: Callable[[], int | None] | None = None, say: str | None = None,
+         unit: str = "lanes") -> int:
+    """The chunk (lanes per compiled call) sized from the device memory: the one chunk sizer.
+
+    1. ``whole`` (optional): the bytes of the program of all ``total`` lanes in one call
+       (rounded up to ``devices``) — the program the study then runs, so in the usual case
+       nothing else is compiled; taken when it needs at most :data:`FRACTION` of the budget;
+    2. else ``probe()``: the bytes of a probe program of ``per_probe`` lanes per device (its
+       fixed part then counted for every lane: ``n`` lanes need at most ``n / per_probe``
+       times it); :func:`fit` takes the largest power of two per device that fits (at most
+       ``cpu_cap`` on a CPU backend, evened out over ``total`` if ``even``);
+    3. without memory figures (the backend gives no analysis, or neither the device nor the
+       OS reports its memory): ``fallback``.
+
+    Args:
+        probe: bytes of the probe program on one device (None: no analysis), called at most
+            once (not when ``whole`` fits).
+        total: the lanes there are.
+        option: the command-line option that sets the chunk by hand (named in errors).
+        devices: devices one call is sharded over.
+        per_probe: lanes per device of the probe program.
+        memory_bytes: the budget per device (None: what the device reports, :func:`budget`).
+        cpu_cap, even: as for :func:`fit`.
+        fallback: the chunk without memory figures.
+        whole: bytes of the program of every lane in one call (None: not tried).
+        say: a prefix (the study's name) to print the sized chunk with; None prints nothing.
+        unit: what one lane is, for that line (``"environments"``).
+
+    Returns:
+        Lanes per call, a multiple of ``devices``.
+
+    Raises:
+        StudyError: not even one lane per device fits (names ``option``).
+
+    >>> auto(lambda: 1 << 20, total=1000, option="--chunk", memory_bytes=100 << 20)
+    32
+    >>> auto(lambda: 1 << 20, total=1000, option="--chunk", memory_bytes=100 << 20,
+    ...      whole=lambda: 40 << 20)  # all 1000 in one call fit in half of 100 MiB
+    1000
+    >>> auto(lambda: None, total=1000, option="--chunk", fallback=128)
+    128
+    >>> auto(lambda: 3 << 20, total=1000, option="--chunk", memory_bytes=100 << 20,
+    ...      per_probe=3, say="demo", unit="runs")
+    demo: --chunk 32 runs per call, sized from the memory (1.0 MiB per run and device, \
+100 MiB available)
+    32
+    """
+    budget_bytes = budget(memory_bytes)
+    if whole is not None and budget_bytes is not None:
+        nbytes = whole()
+        if nbytes is not None and nbytes <= FRACTION * budget_bytes:
+            return -(-total // devices) * devices
+    nbytes = probe()
+    per_lane = nbytes / per_probe if nbytes else None
+    chunk = fit(per_lane, budget_bytes, total=total, devices=devices, option=option,
+                cpu_cap=cpu_cap, even=even)
+    if chunk is None:
+        return fallback
+    if say is not None:
+        one = unit[:-1] if unit.endswith("s") else unit
+        print(f"{say}: {option} {chunk} {unit} per call, sized from the memory "
+              f"({per_lane / 2**20:.1f} MiB per {one} and device, "
+              f"{budget_bytes / 2**20:.0f} MiB available)")
+    return chunk
 
 
 def check_fits(nbytes: int | None, budget_bytes: int | None, *, option: str, what: str,

@@ -11,6 +11,12 @@ processes write one file. A study adopts it in a few lines::
     parts = distributed.gather(local_results, cluster)  # [num_processes, ...] everywhere
     if cluster.is_main: ...write...
 
+A study whose work is an array split (chunks of runs whose results are numpy arrays of one
+shape per chunk) uses :func:`map_chunks`, which does the share, the padding to equal shapes,
+the gather and the reordering in one call::
+
+    results = distributed.map_chunks(compute_chunk, n_chunks, cluster)  # every process
+
 A study whose units are independent records (one file or line each) uses the two
 higher-level helpers instead, which keep its per-unit resume::
 
@@ -64,8 +70,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 __all__ = ["Cluster", "DistributedError", "add_arguments", "agree", "broadcast", "current",
-           "decide", "finish", "gather", "initialize", "initialize_from", "map_units",
-           "share"]
+           "decide", "finish", "gather", "initialize", "initialize_from", "map_chunks",
+           "map_units", "share"]
 
 _ADDRESS = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):(\d{1,5})$")
 
@@ -580,3 +586,78 @@ def map_units(fn: Callable[[Any], Any], items: Sequence[Any], cluster: Cluster, 
                 raise DistributedError(f"process {q} failed on item {start + q}: {msg}")
         for q in range(min(k, len(items) - start)):
             yield start + q, _decode(every[q, :head[q, 1]].tobytes(), codec)
+
+
+def _raise_failures(cluster: Cluster, failure: BaseException | None, what: str) -> None:
+    """Every process learns whether any process failed: the failing one raises its own
+    error, the others a :class:`DistributedError` naming the first failing process."""
+    data = b"" if failure is None else f"{type(failure).__name__}: {failure}".encode()[:2000]
+    head = gather(np.array([failure is None, len(data)], np.int32), cluster)  # [N, 2]
+    if head[:, 0].all():
+        return
+    buf = np.zeros(max(int(head[:, 1].max()), 1), np.uint8)
+    buf[:len(data)] = np.frombuffer(data, np.uint8)
+    every = gather(buf, cluster)  # [N, width]: every process takes part before raising
+    if failure is not None:
+        raise failure
+    q = int(np.flatnonzero(head[:, 0] == 0)[0])
+    msg = every[q, :head[q, 1]].tobytes().decode(errors="replace")
+    raise DistributedError(f"process {q} failed on {what}: {msg}")
+
+
+def map_chunks(fn: Callable[[int], Any], n: int, cluster: Cluster, *,
+               done: Callable[[int, Any], None] | None = None) -> list[Any]:
+    """``[fn(0), ..., fn(n - 1)]`` on every process, each item computed by one process.
+
+    The one work splitter for array work (padgett-mc's chunks of runs, qbsp's chunks of
+    environments and its calibration environments): ``fn(i)`` returns a pytree of numpy
+    arrays whose shapes are the same for every ``i`` (a padded chunk). Process ``p`` of ``K``
+    computes the items ``i ≡ p (mod K)`` (:func:`share`), padded to ``ceil(n / K)`` items by
+    repeating its last one (computed, then dropped) so that every process gathers equal
+    shapes, and the results are gathered once and put back in item order; each item is
+    computed whole on one process, so the results are a one-process run's, bit for bit.
+    An error in ``fn`` on any process is raised on every process (the failing one raises it,
+    the others a :class:`DistributedError` naming it) instead of leaving them waiting in the
+    gather. With one process nothing is padded or exchanged: ``fn``'s own results.
+
+    Args:
+        fn: item index → pytree of numpy arrays (equal shapes and dtypes for every item).
+        n: the number of items (the same on every process).
+        cluster: the processes (:func:`initialize`).
+        done: called as ``done(i, result)`` on the computing process after each of its own
+            items (not the padding), in its order: a progress bar, or a one-process run's
+            write-as-you-go.
+
+    Returns:
+        The ``n`` results in item order (gathered leaves are numpy arrays).
+
+    >>> map_chunks(lambda i: np.full(2, i), 3, Cluster(0, 1, None))
+    [array([0, 0]), array([1, 1]), array([2, 2])]
+    """
+    if not cluster.distributed:
+        out = []
+        for i in range(n):
+            out.append(fn(i))
+            if done is not None:
+                done(i, out[-1])
+        return out
+    if n == 0:
+        return []
+    import jax
+
+    k = cluster.num_processes
+    mine = share(n, cluster)
+    per = -(-n // k)
+    todo = mine + [mine[-1] if mine else 0] * (per - len(mine))
+    parts, failure = [], None
+    try:
+        for j, i in enumerate(todo):
+            parts.append(jax.tree_util.tree_map(np.asarray, fn(i)))
+            if done is not None and j < len(mine):
+                done(i, parts[-1])
+    except Exception as exc:  # noqa: BLE001  (raised on every process below)
+        failure = exc
+    _raise_failures(cluster, failure, "its share of the chunks")
+    stacked = jax.tree_util.tree_map(lambda *xs: np.stack(xs), *parts)
+    every = gather(stacked, cluster)  # leaves [K, per, ...]
+    return [jax.tree_util.tree_map(lambda x, i=i: x[i % k, i // k], every) for i in range(n)]

@@ -63,7 +63,7 @@ class Config:
     max_range: float = 60.0
     representations: tuple[str, ...] = REPS
     seed: int = 0
-    #: runs per compiled call; None sizes it from the device's memory (:func:`auto_chunk_runs`)
+    #: runs per compiled call; None sizes it from the device's memory (:func:`auto_chunk`)
     chunk_runs: int | None = None
     max_error_points: int = 4000
 
@@ -281,7 +281,6 @@ def compiled_runner(cfg: Config, *, dense: bool = False):
 
 
 PROBE_LANES = 1  # runs per device of the program whose size bounds one run's memory
-FALLBACK_CHUNK = 250  # runs per call when neither the device nor the OS reports its memory
 _AOT: dict = {}
 
 
@@ -320,35 +319,34 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
     return compiled, sharding
 
 
-def auto_chunk_runs(cfg: Config, *, memory_bytes: int | None = None) -> int:
+def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
     """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
 
-    First the program of every run in one call (``cfg.runs`` rounded up to the devices) is
-    compiled — the program the study then runs, so in the usual case nothing else is
-    compiled — and taken when XLA's memory analysis puts it within
-    :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget. Otherwise one run's bytes are
-    bounded by the compiled program of :data:`PROBE_LANES` run per device (its fixed part
-    counted for every run, so ``n`` runs need at most ``n`` times it), and
-    :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of runs per
-    device that fits. Without memory figures (no device statistics, no OS figure) it falls
-    back to :data:`FALLBACK_CHUNK`.
+    :func:`~pqrm_jax.studies.chunking.auto` with this study's programs: first the program of
+    every run in one call (``cfg.runs`` rounded up to the devices) — the program the study
+    then runs, so in the usual case nothing else is compiled — is taken when it fits;
+    otherwise one run's bytes are bounded by the compiled program of :data:`PROBE_LANES` run
+    per device and the largest power of two of runs per device that fits is taken. Without
+    memory figures: :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK`.
     """
     from . import chunking
 
     ndev = len(jax.local_devices())
     whole = -(-cfg.runs // ndev) * ndev
-    budget = chunking.budget(memory_bytes)
-    full = dataclasses.replace(cfg, chunk_runs=whole)
-    nbytes = chunking.program_bytes(_compiled_chunk(full, whole)[0])
-    if nbytes is not None and budget is not None and nbytes <= chunking.FRACTION * budget:
-        return whole
     per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
-    probe = dataclasses.replace(cfg, chunk_runs=per_device * ndev)
-    compiled, _ = chunk_program(probe, per_device * ndev, memory_bytes=memory_bytes)
-    nbytes = chunking.program_bytes(compiled)
-    chunk = chunking.fit(nbytes and nbytes / per_device, budget,
-                         total=cfg.runs, devices=ndev, option="--chunk-runs")
-    return FALLBACK_CHUNK if chunk is None else chunk
+
+    def full() -> int | None:
+        return chunking.program_bytes(
+            _compiled_chunk(dataclasses.replace(cfg, chunk_runs=whole), whole)[0])
+
+    def probe() -> int | None:
+        lanes = per_device * ndev
+        compiled, _ = chunk_program(dataclasses.replace(cfg, chunk_runs=lanes), lanes,
+                                    memory_bytes=memory_bytes)
+        return chunking.program_bytes(compiled)
+
+    return chunking.auto(probe, total=cfg.runs, devices=ndev, per_probe=per_device,
+                         memory_bytes=memory_bytes, whole=full, option="--chunk-runs")
 
 
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
@@ -359,7 +357,7 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
     chunks ``c`` with ``c % K == p`` — each chunk exactly as a one-process run computes it
     (same runs, padding, per-device batch and compiled program) — and the chunks are gathered
     on every process, so the result is bit-identical to a one-process run. ``chunk_runs=None``
-    sizes the chunks from the device memory (:func:`auto_chunk_runs`; ``memory_bytes``
+    sizes the chunks from the device memory (:func:`auto_chunk`; ``memory_bytes``
     overrides what the device reports); a chunk that does not fit fails before it runs, with
     a message naming ``--chunk-runs``.
     """
@@ -367,18 +365,13 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
 
     cluster = cluster or distributed.Cluster(0, 1, None)
     if cfg.chunk_runs is None:
-        cfg = dataclasses.replace(cfg, chunk_runs=auto_chunk_runs(cfg,
-                                                                  memory_bytes=memory_bytes))
+        cfg = dataclasses.replace(cfg, chunk_runs=auto_chunk(cfg, memory_bytes=memory_bytes))
     chunk = layout(cfg)["chunk"]
     batched, sharding = chunk_program(cfg, chunk, dense=dense, memory_bytes=memory_bytes)
     base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
     starts = list(range(0, cfg.runs, chunk))
-    mine = distributed.share(len(starts), cluster)
-    per_process = -(-len(starts) // cluster.num_processes)
-    # equal shapes for the gather: pad with a repeat of a chunk (computed, then dropped)
-    todo = mine + [mine[-1] if mine else 0] * (per_process - len(mine))
-    parts = []
-    for n_done, c in enumerate(todo):
+
+    def compute(c: int):
         start = starts[c]
         idx = np.arange(start, start + chunk)
         idx = np.minimum(idx, cfg.runs - 1)  # pad the last chunk by repeating a run
@@ -391,16 +384,14 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
             if oom is None:
                 raise
             raise oom from exc
-        parts.append(jax.tree_util.tree_map(np.asarray, res))
-        if progress is not None and n_done < len(mine):
-            progress.update(min(chunk, cfg.runs - start) * cluster.num_processes)
-    if cluster.distributed:
-        stacked = jax.tree_util.tree_map(lambda *xs: np.stack(xs), *parts)
-        every = distributed.gather(stacked, cluster)  # leaves [K, per_process, chunk, ...]
-        parts = [jax.tree_util.tree_map(lambda x, c=c: x[c % cluster.num_processes,
-                                                         c // cluster.num_processes], every)
-                 for c in range(len(starts))]
-    out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts[:len(starts)])
+        return jax.tree_util.tree_map(np.asarray, res)
+
+    def done(c: int, _) -> None:
+        if progress is not None:
+            progress.update(min(chunk, cfg.runs - starts[c]) * cluster.num_processes)
+
+    parts = distributed.map_chunks(compute, len(starts), cluster, done=done)
+    out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
     return jax.tree_util.tree_map(lambda x: x[:cfg.runs], out)
 
 
@@ -498,7 +489,7 @@ def layout(cfg: Config) -> dict:
     another layout is refused instead of mixing bits).
     """
     if cfg.chunk_runs is None:
-        raise ValueError("layout needs an explicit chunk_runs (see auto_chunk_runs)")
+        raise ValueError("layout needs an explicit chunk_runs (see auto_chunk)")
     ndev = len(jax.local_devices())  # per process: the split over processes is bit-neutral
     chunk = max(ndev, int(math.ceil(min(cfg.chunk_runs, cfg.runs) / ndev)) * ndev)
     return {"chunk": chunk, "devices": ndev}
@@ -526,14 +517,14 @@ def resolve_chunk(cfg: Config, out: Path, *, fresh: bool = False, cluster=None,
 
     Given by the user: kept. Else process 0 reuses the chunk stored in ``out`` (a resume
     keeps its layout, hence its float bits, whatever the free memory is now) or sizes a new
-    one from the device memory (:func:`auto_chunk_runs`), and broadcasts it
+    one from the device memory (:func:`auto_chunk`), and broadcasts it
     (:func:`~pqrm_jax.studies.chunking.resolve`).
     """
     from . import chunking
 
     if cfg.chunk_runs is not None:
         return cfg
-    chunk = chunking.resolve(None, out, lambda: auto_chunk_runs(cfg, memory_bytes=memory_bytes),
+    chunk = chunking.resolve(None, out, lambda: auto_chunk(cfg, memory_bytes=memory_bytes),
                              fresh=fresh, cluster=cluster)
     return dataclasses.replace(cfg, chunk_runs=chunk)
 
@@ -737,6 +728,6 @@ if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk_runs",
+__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk",
            "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
            "load_results", "main", "boundary_distance"]

@@ -201,24 +201,24 @@ def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, d
 
     cluster = cluster or distributed.Cluster(0, 1, None)
     n, grid = cfg["calib_envs"], cfg["eps_grid"]
-    mine = distributed.share(n, cluster)
-    per = -(-n // cluster.num_processes)
-    todo = mine + [mine[-1] if mine else 0] * (per - len(mine))
-    ok = np.zeros((per, len(grid)), np.int8)
-    for r, e in enumerate(tqdm(todo, desc="qbsp calibration", disable=not progress)):
+    bar = tqdm(total=n, desc="qbsp calibration", disable=not progress)
+
+    def plan_exists(e: int) -> np.ndarray:  # [grid] int8: a plan exists at each eps
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
         b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
                              samples=cfg["initial_measurement_samples"],
                              scale_model=cfg["scale_model"])
+        ok = np.zeros(len(grid), np.int8)
         for c, x in enumerate(grid):
             fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
                                jnp.asarray(env.goal), float(x))
-            ok[r, c] = bool(G.plan_exists(fg, b.frame))
-    if cluster.distributed:
-        every = distributed.gather(ok, cluster)  # [K, per, grid]
-        ok = np.stack([every[e % cluster.num_processes, e // cluster.num_processes]
-                       for e in range(n)])
+            ok[c] = bool(G.plan_exists(fg, b.frame))
+        return ok
+
+    ok = np.stack(distributed.map_chunks(plan_exists, n, cluster,
+                                         done=lambda e, _: bar.update(cluster.num_processes)))
+    bar.close()
     rates = {str(x): float(np.mean(ok[:n, c])) for c, x in enumerate(grid)}
     best = min(cfg["eps_grid"], key=lambda x: abs(rates[str(x)] - PUBLISHED["exists_with"]))
     return float(best), rates
@@ -363,17 +363,14 @@ def chunk_program(cfg: dict, models, D1, lanes, pp, ep):
     return _AOT[key]
 
 
-FALLBACK_CHUNK = 250  # environments per call when neither the device nor the OS gives memory
-
-
 def auto_chunk(cfg: dict, models, D1, memory_bytes: int | None = None) -> int:
     """Environments per call sized from the device memory (docs/studies.md §qbsp).
 
-    One environment's bytes (its four lanes) per device are bounded by the compiled program
-    of one environment (XLA's memory analysis, its fixed part counted for every
-    environment); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of
-    two per device that fits, capped at ``cfg["envs"]``, and the chunks are then evened out
-    (:func:`~pqrm_jax.studies.chunking.balance`). Without memory figures: :data:`FALLBACK_CHUNK`.
+    :func:`~pqrm_jax.studies.chunking.auto` with the compiled program of one environment as
+    the probe (its four lanes split over the devices; XLA's memory analysis, its fixed part
+    counted for every environment): the largest power of two per device that fits, capped at
+    ``cfg["envs"]``, the calls then evened out (:func:`~pqrm_jax.studies.chunking.balance`).
+    Without memory figures: :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK`.
     """
     import copy
 
@@ -381,22 +378,18 @@ def auto_chunk(cfg: dict, models, D1, memory_bytes: int | None = None) -> int:
 
     from . import chunking
 
-    probe = copy.deepcopy(cfg)
-    probe["chunk"] = 1
-    probe["execution"].setdefault("eps_obs", 0.01)  # static, shapes do not depend on it
-    env = make_env(probe, probe["seed"], 0, probe["size"])
-    lanes, pp, ep = _chunk_lanes(probe, models, [env], [0])
-    nbytes = chunking.program_bytes(chunk_program(probe, models, D1, lanes, pp, ep))
-    budget = chunking.budget(memory_bytes)
-    per_env = (nbytes or 0) * lane_devices(len(COMBO_ORDER))  # 4 lanes split over d devices
-    chunk = chunking.fit(per_env, budget, total=cfg["envs"], devices=len(jax.local_devices()),
-                         option="--chunk", even=True)
-    if chunk is None:
-        return FALLBACK_CHUNK
-    print(f"{NAME}: --chunk {chunk} environments per call, sized from the memory "
-          f"({per_env / 2**20:.1f} MiB per environment and device, "
-          f"{budget / 2**20:.0f} MiB available)")
-    return chunk
+    def probe() -> int | None:
+        one = copy.deepcopy(cfg)
+        one["chunk"] = 1
+        one["execution"].setdefault("eps_obs", 0.01)  # static, shapes do not depend on it
+        env = make_env(one, one["seed"], 0, one["size"])
+        lanes, pp, ep = _chunk_lanes(one, models, [env], [0])
+        nbytes = chunking.program_bytes(chunk_program(one, models, D1, lanes, pp, ep))
+        return nbytes and nbytes * lane_devices(len(COMBO_ORDER))  # 4 lanes over d devices
+
+    return chunking.auto(probe, total=cfg["envs"], devices=len(jax.local_devices()),
+                         option="--chunk", memory_bytes=memory_bytes, even=True, say=NAME,
+                         unit="environments")
 
 
 def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
@@ -983,32 +976,25 @@ def main(argv: list[str]) -> int:
         work = [ids for s0 in range(0, n_env, chunk)
                 if (ids := [i for i in range(s0, min(s0 + chunk, n_env)) if left[i]])]
         t0 = time.perf_counter()
-        mine = distributed.share(len(work), cluster)
-        per_process = -(-len(work) // cluster.num_processes)
-        # equal shapes for the gather: pad with a repeat of a work item (computed, dropped)
-        todo = mine + [mine[-1] if mine else 0] * (per_process - len(mine)) if work else []
         bar = tqdm(total=sum(map(len, work)), desc="qbsp lanes", unit="env",
                    disable=not progress)
-        parts = []
-        for n_done, w in enumerate(todo):
-            parts.append(run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w],
-                                          a.memory_bytes))
-            if n_done < len(mine):
-                bar.update(len(work[w]) * cluster.num_processes)
+
+        def compute(w: int):
+            return run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w],
+                                    a.memory_bytes)
+
+        def done(w: int, res) -> None:
+            bar.update(len(work[w]) * cluster.num_processes)
             if not cluster.distributed and main_:  # write as we go (resume unit)
-                _store_rows(st, work[w], chunk_rows(*parts[-1], [envs[i] for i in work[w]],
+                _store_rows(st, work[w], chunk_rows(*res, [envs[i] for i in work[w]],
                                                     work[w]), have)
+
+        results = distributed.map_chunks(compute, len(work), cluster, done=done)
         bar.close()
-        if cluster.distributed and work:
-            stacked = jax_tree_stack(parts)
-            every = distributed.gather(stacked, cluster)  # leaves [K, per_process, ...]
-            if main_:
-                K = cluster.num_processes
-                for w, ids in enumerate(work):
-                    part = [np.asarray(x)[w % K, w // K] for x in every]
-                    out, dt = tuple(part[:-1]), float(part[-1])
-                    _store_rows(st, ids, chunk_rows(out, dt, [envs[i] for i in ids], ids),
-                                have)
+        if cluster.distributed and main_:
+            for ids, (out, dt) in zip(work, results, strict=True):
+                _store_rows(st, ids, chunk_rows(out, float(dt), [envs[i] for i in ids], ids),
+                            have)
         t_lanes = time.perf_counter() - t0
         if not main_:
             return 0
@@ -1045,13 +1031,6 @@ def main(argv: list[str]) -> int:
         figures(st, cfg, rows, envs, res)
         print(report(st, cfg, res, timing))
     return 0
-
-
-def jax_tree_stack(parts: list) -> list[np.ndarray]:
-    """The work items of this process as a flat list of stacked arrays ``[items, ...]``:
-    the Outcome fields, then the lane seconds."""
-    return [np.stack([np.asarray(p[0][f]) for p in parts]) for f in range(len(parts[0][0]))] \
-        + [np.asarray([p[1] for p in parts], np.float64)]
 
 
 def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict) -> None:
