@@ -26,8 +26,8 @@ COMMON = ("--out", "--fresh", "--report-only", "--seed", "--no-progress", "--tin
 
 #: studies not yet on the protocol (their modules are being changed by other issues); each
 #: lacks some of COMMON until converted — the test says which, and turns green when done
-NOT_YET = {"hssh-localization", "hssh-maps", "hssh-plus", "mars-yard", "mcclelland-mc",
-           "padgett-mc", "qbsp", "qlink", "qlink-invivo"}
+NOT_YET = {"mars-yard", "mcclelland-mc",
+           "padgett-mc", "qbsp"}
 
 
 def _run(argv, capsys):
@@ -105,6 +105,13 @@ BAD = [
     ("qlink", ["--memory-bytes", "1"], "--memory-bytes"),
     ("hssh-localization", ["--steps", "0"], "--steps"),
     ("hssh-localization", ["--steps", "-5"], "--steps"),
+    ("qlink", ["--chunk", "-1"], "--chunk"),
+    ("qlink-invivo", ["--seed", "-2"], "--seed"),
+    ("hssh-maps", ["--worlds", "0"], "--worlds"),
+    ("hssh-plus", ["--memory-bytes", "1"], "--memory-bytes"),
+    ("hssh-plus", ["--supersample", "0"], "--supersample"),
+    ("hssh-plus", ["--sizes", "30"], "--sizes"),
+    ("hssh-plus", ["--chunk", "-4"], "--chunk"),
 ]
 
 
