@@ -82,12 +82,17 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
                 "the published 0 % rules out for the thesis's simulation; occluders add their "
                 "failures on top of that row (one occluded look at an arc's end decides).")
     else:
-        mech = ("Mechanisms: failures at R′ < R come from elements whose members are more than "
-                "2R′ apart (the circle of radius R′ about the link cannot bring a second member "
-                "into view) and from links outside R′ of every quarter arc; at R′ = R the "
-                "geometry of P §4.3.4 guarantees success without noise, and the few failures "
-                "there are caused by the navigation noise on the measured references (measured "
-                "by ablation: none with σ_nav = 0, docs/qlink.md §results). Partial occlusion by "
+        mech = ("Mechanisms (measured, docs/qlink.md §results, scripts/qlink_08r_mechanism.py): "
+                "from 0.8R down about half of the failed transitions search for a link (or the "
+                "goal) farther than R + R′ from the references' midpoint, out of reach of the "
+                "quarter arcs of radius R (members of an element may be up to 2R apart, "
+                "P §4.4.1); most of the rest, and nearly all at 0.9R, are circle searches about "
+                "the noisily measured link. The 0.8R rate follows the share of such wide "
+                "elements on the planned paths, which the mapping trajectory sets (P leaves it "
+                "open; lanes closer than R apart raise it). At "
+                "R′ = R the geometry of P §4.3.4 guarantees success without noise, and the few "
+                "failures there are caused by the navigation noise on the measured references "
+                "(measured by ablation: none with σ_nav = 0). Partial occlusion by "
                 "discs of ≤ 0.7 m hides a landmark only when another lies almost on the same "
                 "bearing, which is rare at this density, and a robot that senses every step "
                 "soon sees it again, so the occlusion rows stay far below the published 2–16 %.")
