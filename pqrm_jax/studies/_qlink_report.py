@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
+from .protocol import figure
 from .store import atomic_savefig, atomic_write_text
 
 
@@ -126,7 +127,10 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
     fig.tight_layout()
     atomic_savefig(fig, out / "fig4_6_path_elements.png", dpi=120)
     plt.close(fig)
-    lines += ["", "![Fig. 4.6](fig4_6_path_elements.png)", ""]
+    lines += [""] + figure(
+        "fig4_6_path_elements.png",
+        "Fig. 4.6: number of map elements |P| on the planned path of every start/goal pair "
+        "(histogram over all worlds, one panel per element size β).")
     # ---- Fig. 4.7
     lines += ["## Fig. 4.7 — mean trajectory length vs |P| (successful paths)", "",
               f"Bound (P Prop. 2): (2π+1)R|P| = {(2 * math.pi + 1) * cfg.map_range:.1f} m × |P|.",
@@ -172,12 +176,18 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
               "bound is \"1000m longer than the executed trajectories\" (≈ 1.6 km executed). "
               "Ours follows the thesis's own \"typically … π/2 R … and at worst another R\" "
               "per transition, so it is well below 1.6 km at large |P| (a scale mismatch we "
-              "cannot resolve from the text).", "",
-              "![Fig. 4.7](fig4_7_length_vs_elements.png)", ""]
+              "cannot resolve from the text).", ""] + figure(
+        "fig4_7_length_vs_elements.png",
+        "Fig. 4.7: mean driven length of the successful paths against |P|, one curve per "
+        "trial setting (log scale), with the dashed bound (2π+1)R|P| of P Prop. 2.")
     if examples:
         lines += [f"## Example trajectories (world {worlds[0]}, re-driven with the same keys)",
                   ""] + [f"- {e}" for e in examples] + [
-                  "", "![examples](example_trajectories.png)", ""]
+                  ""] + figure(
+        "example_trajectories.png",
+        "Example trials of the first world re-driven with the same keys (panel title: trial "
+        "setting, outcome, |P|): landmarks (dots), the rover's driven path (blue), start "
+        "landmark (green triangle) and goal landmark (red star); axes in metres.")
     lines += ["## Worlds", ""]
     for w, info in summary.items():
         lines.append(f"- world {w}: {info}")
