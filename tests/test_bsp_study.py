@@ -86,9 +86,7 @@ def test_tiny_study(tmp_path, request, capsys):
 def test_corrupt_model_cache_fails_the_study(tmp_path):
     from pqrm_jax.bsp import models as M
 
-    args = qbsp.argparse.Namespace(tiny=True, reduced=False, envs=None, depth=None,
-                                   chunk=None, samples=None, seed=2022, eps=0.35, size=2.5)
-    key = M.ModelParams(**qbsp.config_for(args)["models"]).key()
+    key = M.ModelParams(**qbsp.config_for(qbsp.configure(["--tiny"])[0])["models"]).key()
     cache = tmp_path / "models"
     cache.mkdir()
     (cache / f"bsp-edc-{key}.npz").write_bytes(b"PK\x03\x04 torn")

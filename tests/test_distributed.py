@@ -218,7 +218,7 @@ def test_slurm_environment_is_detected_and_a_unit_failure_reaches_every_process(
 def test_cli_two_processes_equal_one_full_representations(tmp_path):
     """The real command line, all six representations, 2 processes vs 1."""
     args = ["study", "padgett-mc", "--runs", "8", "--levels", "2", "--samples", "16",
-            "--landmarks", "5", "--chunk-runs", "4", "--quiet"]
+            "--landmarks", "5", "--chunk", "4", "--quiet"]
     py = [sys.executable, "-m", "pqrm_jax.cli"]
     (r1,) = _launch([[*py, *args, "--out", str(tmp_path / "one")]], timeout=600)
     port = str(free_port())
@@ -339,7 +339,7 @@ out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60)
 cfg = M.Config(landmarks=10, n=6, images=30, nav_pairs=4, nav_steps=100, traverses=3,
                snapshots=(1, 30))
-M.run_study(cfg, Path(out), no_progress=True, cluster=cluster)
+M.run_study(cfg, Path(out), quiet=True, cluster=cluster)
 """
 
 
@@ -369,7 +369,7 @@ from pqrm_jax.studies import distributed, mcclelland_mc as M
 out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=5)
 cfg = M.Config(runs=4, images=5, ns=(6, 8), timed_runs=0, exact_sample=0)
-M.run_study(cfg, Path(out), progress=False, cluster=cluster)
+M.run_study(cfg, Path(out), quiet=True, cluster=cluster)
 print("done", cluster.process_id)
 """
 

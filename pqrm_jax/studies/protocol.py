@@ -40,10 +40,12 @@ The common flags (:func:`parser`), the same meaning in every study:
 >>> positive_int("3"), finite_float("-1e30"), fraction("0.5")
 (3, -1e+30, 0.5)
 >>> c = Claim("lab error < 3 %", "< 3 %", 0.021, (0.0, 0.03), "match")
->>> print("\\n".join(claims_table([c])))
+>>> d = Claim("distance < 1 below σ_N = 1", "< 1", "max 1.2", "all < 1", "mismatch")
+>>> print("\\n".join(claims_table([c, d])))
 | claim | published | measured | interval | verdict |
 |---|---|---|---|---|
 | lab error < 3 % | < 3 % | 0.021 | [0, 0.03] | match |
+| distance < 1 below σ_N = 1 | < 1 | max 1.2 | all < 1 | mismatch |
 """
 
 from __future__ import annotations
@@ -239,8 +241,9 @@ class Claim(NamedTuple):
         name: the claim in a few words.
         published: the published value or statement (text).
         measured: the measured value (a number or text).
-        interval: the interval the measured value must lie in to match (``(lo, hi)``;
-            ``None`` when the verdict is not an interval test).
+        interval: the interval the measured value must lie in to match (``(lo, hi)``), or
+            the criterion in words when it is not an interval (``"all < 1"``); ``None``
+            when the verdict is not a test of the measured value.
         verdict: ``"match"``, ``"mismatch"`` or ``"not checked"`` (may carry a note after a
             colon: ``"mismatch: only 2 of 5 seeds"``).
     """
@@ -248,7 +251,7 @@ class Claim(NamedTuple):
     name: str
     published: str
     measured: Any
-    interval: tuple[float, float] | None
+    interval: tuple[float, float] | str | None
     verdict: str
 
 
@@ -271,7 +274,8 @@ def claims_table(claims: Iterable[Claim]) -> list[str]:
     """The markdown table of claims (one line per claim), the same in every study report."""
     lines = ["| claim | published | measured | interval | verdict |", "|---|---|---|---|---|"]
     for c in claims:
-        iv = "–" if c.interval is None else f"[{_cell(c.interval[0])}, {_cell(c.interval[1])}]"
+        iv = ("–" if c.interval is None else c.interval if isinstance(c.interval, str)
+              else f"[{_cell(c.interval[0])}, {_cell(c.interval[1])}]")
         lines.append(f"| {c.name} | {c.published} | {_cell(c.measured)} | {iv} | {c.verdict} |")
     return lines
 
