@@ -35,7 +35,7 @@ HELP = "Mars-Yard-like traverse (M§VIII.C, Figs. 10-11) + RNG navigation (M§VI
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
+class Config(protocol.StudyConfig):
     """Every result-changing setting of the study (each knob's reason in :data:`REASONS`)."""
 
     landmarks: int = 30
@@ -51,9 +51,6 @@ class Config:
     #: default of the float32 bearings (qrm.camera.default_tolerance; docs/qrm.md §camera)
     bearing_tol: float | None = None
 
-    def to_json(self) -> dict:
-        """The JSON form stored in ``config.json`` (with :data:`REASONS`, not guarded)."""
-        return protocol.config_json(self)
 
 
 REASONS = {

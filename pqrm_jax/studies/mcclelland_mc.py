@@ -32,7 +32,7 @@ HELP = "McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7): n nearest of 30 
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
+class Config(protocol.StudyConfig):
     """Every result-changing setting of the study (each knob's reason in :data:`REASONS`)."""
 
     runs: int = 100
@@ -50,9 +50,6 @@ class Config:
     #: simulated camera, so the true state is never dropped (docs/qrm.md §camera)
     bearing_tol: float | None = None
 
-    def to_json(self) -> dict:
-        """The JSON form stored in ``config.json`` (with :data:`REASONS`, not guarded)."""
-        return protocol.config_json(self)
 
 
 REASONS = {

@@ -4,7 +4,8 @@ A study module that follows it defines
 
 * ``NAME``, ``HELP``;
 * ``Config`` — a frozen dataclass of every result-changing setting (fields may be the
-  library's Params), with ``to_json()`` (:func:`config_json` does it for plain dataclasses);
+  library's Params), with ``to_json()`` (a plain one derives from :class:`StudyConfig`,
+  whose ``to_json`` is :func:`config_json`);
 * ``PRESETS`` — ``{"tiny": {...}, "reduced": {...}, "full": {}}``: field overrides of
   ``Config()`` chosen with ``--tiny`` / ``--reduced`` (``full`` is the default);
 * ``configure(argv, overrides=None) -> (Config, argparse.Namespace)`` — its parser is
@@ -58,7 +59,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple
 
-__all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "add_fresh",
+__all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "StudyConfig",
+           "add_fresh",
            "apply_preset", "fresh_start",
            "check_argv_finite", "claims_summary", "claims_table", "config_json",
            "default_out", "figure", "finite_float", "fraction", "main_for", "nonneg_float",
@@ -209,6 +211,23 @@ def config_json(cfg: Any) -> dict:
         return v
 
     return {f.name: conv(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+
+
+class StudyConfig:
+    """Base of a study's ``Config`` dataclass: ``to_json()`` is :func:`config_json` (one
+    definition instead of a delegate in every study).
+
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Config(StudyConfig):
+    ...     runs: int = 2
+    ...     ns: tuple[int, ...] = (6, 9)
+    >>> Config().to_json()
+    {'runs': 2, 'ns': [6, 9]}
+    """
+
+    def to_json(self) -> dict:
+        """The JSON form stored in ``config.json`` (:func:`config_json`)."""
+        return config_json(self)
 
 
 def fresh_start(args: argparse.Namespace, out: str | Path, name: str, cluster=None, *,
