@@ -38,6 +38,9 @@ def test_tiny_study(tmp_path, request, capsys):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["eps_fixed"] == 0.35 and "decisions" in cfg and cfg["precision"] == "float32"
     assert cfg["layout"]["chunk"] == 4
+    # measured times live apart: timing.json, not results.json
+    assert set(json.loads((out / "results.json").read_text())) == {"results"}
+    assert json.loads((out / "timing.json").read_text())["total_s"] >= 0
     assert json.loads((out / "study.json").read_text())["study"] == "qbsp"
     tidy = list(csv.DictReader(open(out / "results.csv")))
     assert tidy[0].keys() == {"study", "unit", "metric", "value"}
@@ -125,8 +128,8 @@ def test_results_independent_of_device_count(tmp_path, request):
     subprocess.run([sys.executable, "-c", code, "--tiny", "--out", str(tmp_path / "four"),
                     "--no-progress", "--eps", "0.35", "--envs", "4", "--chunk", "4",
                     "--models-dir", models], check=True, env=env)
-    res = json.loads((tmp_path / "four" / "results.json").read_text())
-    assert res["timing"]["devices"] == 4
+    timing = json.loads((tmp_path / "four" / "timing.json").read_text())
+    assert timing["devices"] == 4
     ra = list(csv.DictReader(open(tmp_path / "one" / "tests.csv")))
     rb = list(csv.DictReader(open(tmp_path / "four" / "tests.csv")))
     floats = ("executed_cost", "cost1", "cost2", "root_value")
@@ -166,7 +169,7 @@ def test_two_processes_equal_one(tmp_path, request):
     for f in ("tests.csv", "calibration.json", "sweep.json", "environments.jsonl"):
         assert (one / f).read_text() == (two / f).read_text(), f
     assert sorted(p.name for p in one.iterdir()) == sorted(p.name for p in two.iterdir())
-    timing = json.loads((two / "results.json").read_text())["timing"]
+    timing = json.loads((two / "timing.json").read_text())
     assert timing["processes"] == 2 and timing["devices_per_process"] == 1
 
 

@@ -327,7 +327,7 @@ def test_mcclelland_mc_two_processes_equal_one(tmp_path):
     one, two = _one_vs_two(tmp_path, ["study", "mcclelland-mc", "--reduced", "--runs", "3",
                                       "--images", "5", "--ns", "6", "--exact-sample", "0",
                                       "--no-progress"])
-    assert _same_study_files(one, two) == 7  # 3 runs, config, marker, summary, results.csv
+    assert _same_study_files(one, two) == 8  # 3 runs, config, marker, summary, timing, results.csv
     assert (two / "report.md").exists()
 
 

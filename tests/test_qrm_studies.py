@@ -32,6 +32,12 @@ def test_mcclelland_mc_report_and_resume(tmp_path):
                for s in summary.values())
     assert "Exact sets (z3 oracle" in (a / "report.md").read_text()
     assert summary["8"]["removed_pct_final"] > summary["6"]["removed_pct_final"]
+    # measured times live apart: timing.json, never summary.json or results.csv
+    timing = json.loads((a / "timing.json").read_text())["per_n"]
+    assert timing["6"]["run_wall_s_mean"] > 0 and "peak_slope" in json.loads(
+        (a / "timing.json").read_text())
+    assert not any("wall" in k or "time" in k for s in summary.values() for k in s)
+    assert "wall" not in (a / "results.csv").read_text()
     full = _runs(a)
     assert set(full) == {f"n{n}_r{r}.npz" for n in (6, 8) for r in (0, 1)}
     # resume: only the missing run is recomputed

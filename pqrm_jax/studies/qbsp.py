@@ -31,14 +31,14 @@ refuses a second process on the same ``--out``, ``study.json`` marks the directo
 study, every file is written atomically): ``config.json`` (every parameter and decision, the
 precision and the lane layout), ``calibration.json`` (the chosen ``eps_obs`` and the grid
 rates), ``environments.jsonl`` (landmarks, initial-belief triplets, target, frame, start),
-``chunks/env*.json`` (one checked record per environment, the resume unit: a torn or garbage
-one is named in a warning, set aside and recomputed alone), ``tests.csv`` (one row per test),
-``results.json``, the tidy ``results.csv`` (``study, unit, metric, value``: one row per test ×
-number and the Table 4.1 summary), ``report.md`` (published vs measured with 95 % intervals and
-match/mismatch), figures ``*.png``. Discrete outcomes do not depend on ``--chunk`` or the device
-count, but float costs may differ at rounding, so both are part of the stored config (a resume
-with another layout is refused). A model or table cache that cannot be read fails the study
-with a :class:`~pqrm_jax.studies.store.StudyError`.
+``chunks/env*.json`` (one checked record per environment, the resume unit: a torn or garbage one
+is named in a warning, set aside and recomputed alone), ``tests.csv`` (one row per test),
+``results.json``, ``timing.json`` (the measured times), the tidy ``results.csv`` (``study, unit,
+metric, value``: one row per test × number and the Table 4.1 summary), ``report.md`` (published
+vs measured with 95 % intervals and match/mismatch), figures ``*.png``. Discrete outcomes do not
+depend on ``--chunk`` or the device count, but float costs may differ at rounding, so both are
+part of the stored config (a resume with another layout is refused). A model or table cache that
+cannot be read fails the study with a :class:`~pqrm_jax.studies.store.StudyError`.
 
 As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
 environment or Slurm; :mod:`pqrm_jax.studies.distributed`) process ``p`` computes the
@@ -757,12 +757,43 @@ def report_text(st: Store, cfg: dict, res: dict, timing: dict) -> str:
               f"grid rates (with compositions, calibration seed): {cfg['calibration']['rates']}",
               "", "## Time", "", f"{json.dumps(timing)}", "",
               "Verdict = the published value lies inside our 95 % interval (Wilson for shares, "
-              "bootstrap for ratios). Figures: fig45_plan_exists.png, cost_hist.png, "
-              "plan_exists_vs_n.png, plan_exists_vs_eps.png, "
-              "plan_exists_vs_size_and_depth.png, fig46_*.png."]
+              "bootstrap for ratios).", "", "## Figures", ""]
+    for name, caption in FIGURES.items():
+        if st.path(name).exists():
+            lines += protocol.figure(name, caption)
     text = "\n".join(lines) + "\n"
     st.write_text("report.md", text)
     return text
+
+
+#: the report's figures (drawn by :func:`figures` when there is something to draw) and what
+#: each shows
+FIGURES = {
+    "fig45_plan_exists.png": "Z Fig. 4.5: share of environments where a plan exists without "
+                             "and with compositions (bars, measured) against Table 4.1 "
+                             "(black marks, published).",
+    "cost_hist.png": "Executed cost of the tests that reached the goal, without (grey) and "
+                     "with (blue) compositions, for cost 1 (left) and cost 2 (right).",
+    "plan_exists_vs_n.png": "Share of environments where a plan exists against the number of "
+                            "landmarks, without (grey) and with (blue) compositions.",
+    "plan_exists_vs_size_and_depth.png": "Plan exists on the sweep seed against the "
+                                         "environment size S/R (left, frame graph) and "
+                                         "against the planner depth L (right, tree root "
+                                         "below λ), without (grey) and with (blue) "
+                                         "compositions.",
+    "plan_exists_vs_eps.png": "Calibration: plan exists with compositions on the calibration "
+                              "seed against the observability threshold eps_obs (dots) and "
+                              "the published 81.6 % (dotted); the study takes the closest.",
+    "fig46a_only_with.png": "Z Fig. 4.6a analogue: the first environment where only the "
+                            "planner with compositions reaches the goal (cost 1); left "
+                            "without, right with compositions: landmarks (letters), "
+                            "initial-belief triplets (grey), goal triplet (green), starting "
+                            "frame (orange), executed path with its frames (red).",
+    "fig46b_shorter_with.png": "Z Fig. 4.6b analogue: the first environment where both reach "
+                               "the goal and the path with compositions is cheaper (cost 2); "
+                               "drawn as Fig. 4.6a (goal green, starting frame orange, "
+                               "executed path red).",
+}
 
 
 def figures(st: Store, cfg: dict, rows: list[dict], envs: list, res: dict) -> None:
@@ -990,7 +1021,8 @@ def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
     progress = main_ and not quiet
     ctx = (Store.open(out, NAME, cfg, selection=("envs",),
                       legacy=("config.json", "calibration.json", "environments.jsonl",
-                              "chunks", "tests.csv", "results.json", "report.md", "*.png"))
+                              "chunks", "tests.csv", "results.json", "timing.json",
+                              "report.md", "*.png"))
            if main_ else contextlib.nullcontext(None))
     with ctx as st:
         cfg = st.config if main_ else json.loads(json.dumps(cfg))
@@ -1079,8 +1111,9 @@ def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
                   "processes": cluster.num_processes,
                   "devices_per_process": len(jax.local_devices()),
                   "devices": len(jax.devices())}
-        st.write_text("results.json", json.dumps({"results": res, "timing": timing},
-                                                 indent=1, default=float))
+        # measured times apart from the results (two identical runs: identical results.json)
+        st.write_text("results.json", json.dumps({"results": res}, indent=1, default=float))
+        st.write_json("timing.json", timing)
         st.write_results_csv(results_table(rows, res))
         _render(st, cfg, rows, envs, res, timing, print_report=not quiet)
     return 0
@@ -1100,13 +1133,14 @@ def _stored(out: Path) -> tuple[dict, dict, dict]:
 
     cfg = read_json(out / "config.json", ("envs", "execution"), quarantine=False)
     cal = read_json(out / "calibration.json", CALIBRATION_FIELDS, quarantine=False)
-    doc = read_json(out / "results.json", ("results", "timing"), quarantine=False)
+    doc = read_json(out / "results.json", ("results",), quarantine=False)
     if cfg is None or cal is None or doc is None:
         raise StudyError(f"{out} holds no finished {NAME} study (config.json, "
                          "calibration.json and results.json); run the study first")
     cfg["execution"]["eps_obs"] = cal["eps_obs"]
     cfg["calibration"] = cal
-    return cfg, doc["results"], doc["timing"]
+    timing = read_json(out / "timing.json", (), quarantine=False) or doc.get("timing", {})
+    return cfg, doc["results"], timing
 
 
 def report(out: Path) -> Path:
