@@ -48,6 +48,14 @@ def test_tiny_study(tmp_path, request, capsys):
     rep = (out / "report.md").read_text()
     assert "0.684" in rep and "0.816" in rep and "ratio" in rep
     assert (out / "fig45_plan_exists.png").exists()
+    assert "![Z Fig. 4.5: share of environments" in rep  # figures embedded with captions
+    # --report-only: the same report and claims again from the store alone
+    assert qbsp.main(["--report-only", "--out", str(out)]) == 0
+    assert (out / "report.md").read_text() == rep
+    cs = qbsp.claims(out)
+    assert [c.name for c in cs][:2] == ["plan exists, without compositions",
+                                        "plan exists, with compositions"]
+    assert all(c.verdict.split(":")[0] in ("match", "mismatch", "not checked") for c in cs)
     before = (out / "tests.csv").read_text()
     # resume: nothing recomputed, same rows, the stored chunk kept (a 1000-byte device could
     # not size one: no probe runs); a different configuration is refused

@@ -681,7 +681,7 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
 
 def _verdict(pub: float, lo: float, hi: float) -> str:
     if not np.isfinite(lo):
-        return "n/a (too few tests)"
+        return f"{protocol.NOT_CHECKED}: too few tests"
     return "match" if lo <= pub <= hi else "mismatch"
 
 
