@@ -61,6 +61,9 @@ def test_mars_yard_reduced(tmp_path):
         assert (tmp_path / f).exists(), f
     tr = json.loads((tmp_path / "traverse_0.json").read_text())
     assert tr["truth_kept"] is True
+    # the measured wall time lives apart from the stored row (identical runs: identical rows)
+    assert "wall_s" not in tr
+    assert json.loads((tmp_path / "traverse_0.times.json").read_text())["wall_s"] > 0
     removed = np.asarray(tr["removed_pct"])
     assert np.all(np.diff(removed) >= -1e-6) and removed[-1] > removed[0]
     with pytest.raises(StoreError, match="different config"):  # the full preset

@@ -230,7 +230,7 @@ def _plots(out: Path, cfg: Config, tr: dict, nav: dict):
 
 LEGACY = ("config.json", "traverse_*.json", "report.md", "*.png", "study.json", "results.csv",
           "*.corrupt")
-_ROW_FIELDS = ("traverse", "wall_s", "removed_pct", "constrained_pct", "not_adjacent_pct",
+_ROW_FIELDS = ("traverse", "removed_pct", "constrained_pct", "not_adjacent_pct",
                "rng_cost", "truth_kept", "nav_estimated", "nav_true")
 
 
@@ -244,7 +244,8 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
     store and lists the traverses left, the processes compute them in rounds
     (:func:`.distributed.map_units`; traverse 0, recomputed for the figures, always falls to
     process 0) and process 0 writes the rows and figures. The rows equal a
-    one-process run's bit for bit except the measured ``wall_s``.
+    one-process run's bit for bit; the measured ``wall_s`` is stored apart
+    (``traverse_I.times.json``).
     """
     from tqdm.auto import tqdm
 
@@ -275,14 +276,19 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
             row, tr, nav = _traverse(cfg, i)
             if i == 0 and st is not None:  # map_units gives item 0 to process 0
                 _plots(st.out, cfg, tr, nav)
-            return row
+            return {"row": row, "wall_s": tr["wall"]}
 
         new = distributed.map_units(compute, todo, cluster, codec="json")
-        for k, row in tqdm(new, total=len(todo), desc=NAME,
+        for k, rec in tqdm(new, total=len(todo), desc=NAME,
                            disable=quiet or not cluster.is_main):
             if st is not None:
-                st.write_json(f"traverse_{todo[k]}.json", row, indent=None)
-                stored[todo[k]] = row
+                i = todo[k]
+                st.write_json(f"traverse_{i}.json", rec["row"], indent=None)
+                # the measured time apart from the results (identical runs: identical rows)
+                st.write_json(f"traverse_{i}.times.json", {"traverse": i,
+                                                           "wall_s": rec["wall_s"]},
+                              indent=None)
+                stored[i] = rec["row"]
         if st is None:
             return []
         rows = [stored[i] for i in range(cfg.traverses)]
@@ -298,7 +304,7 @@ def _traverse(cfg: Config, i: int) -> tuple[dict, dict, dict]:
     """Traverse ``i``'s stored row, with its traverse and navigation results (for figures)."""
     tr = run_traverse(cfg, i)
     nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
-    row = {"traverse": i, "wall_s": tr["wall"],
+    row = {"traverse": i,
            "removed_pct": tr["met"]["removed_pct"].tolist(),
            "constrained_pct": tr["met"]["constrained_pct"].tolist(),
            "not_adjacent_pct": tr["met"]["not_adjacent_pct"].tolist(),
@@ -330,7 +336,11 @@ def _rows(out: Path, cfg: Config) -> list[dict]:
     missing = [i for i, r in enumerate(rows) if r is None]
     if missing:
         raise StudyError(f"{out}: traverses {missing} are not stored; run the study first")
-    return rows
+    # with the measured wall time (``traverse_I.times.json``; older rows held it themselves)
+    times = [read_json(Path(out) / f"traverse_{i}.times.json", ("wall_s",), quarantine=False)
+             for i in range(cfg.traverses)]
+    return [dict(r, wall_s=t["wall_s"] if t else r.get("wall_s", float("nan")))
+            for r, t in zip(rows, times, strict=True)]
 
 
 def _claims(rows: list[dict]) -> list[protocol.Claim]:
