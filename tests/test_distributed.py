@@ -327,7 +327,8 @@ def test_mcclelland_mc_two_processes_equal_one(tmp_path):
     one, two = _one_vs_two(tmp_path, ["study", "mcclelland-mc", "--reduced", "--runs", "3",
                                       "--images", "5", "--ns", "6", "--exact-sample", "0",
                                       "--no-progress"])
-    assert _same_study_files(one, two) == 8  # 3 runs, config, marker, summary, timing, results.csv
+    # 3 runs + their times, config, marker, summary, timing, results.csv
+    assert _same_study_files(one, two) == 11
     assert (two / "report.md").exists()
 
 
@@ -386,7 +387,7 @@ def test_mcclelland_mc_killed_process_then_resume(tmp_path):
     written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
     assert 1 <= len(written) < 8
     _driver_one_and_two(one, two, _MCC_DRIVER)
-    assert _same_study_files(one, two) == 10  # 8 runs, config, marker
+    assert _same_study_files(one, two) == 18  # 8 runs + their times, config, marker
 
 
 _UNITS_DRIVER = """

@@ -40,6 +40,8 @@ def test_mcclelland_mc_report_and_resume(tmp_path):
     assert "wall" not in (a / "results.csv").read_text()
     full = _runs(a)
     assert set(full) == {f"n{n}_r{r}.npz" for n in (6, 8) for r in (0, 1)}
+    assert not any("wall" in r or "update_time" in r for r in full.values())
+    assert {p.name for p in (a / "times").glob("*.npz")} == set(full)  # the times apart
     # resume: only the missing run is recomputed
     kept = a / "runs" / "n6_r0.npz"
     mtime = kept.stat().st_mtime_ns

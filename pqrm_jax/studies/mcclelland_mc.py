@@ -151,8 +151,8 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
     calls this with the same ``cfg``: differing configs are refused on every process, process
     0 alone opens the store and lists the units left, the processes compute them in rounds
     (process p the p-th unit of each round, :func:`.distributed.map_units`) and process 0
-    writes each one; the stored runs are those of one process bit for bit, except the
-    measured times ``wall`` and ``update_time``.
+    writes each one; the stored runs are those of one process bit for bit (the measured
+    ``wall`` and ``update_time`` are stored apart, in ``times/``).
     """
     from tqdm.auto import tqdm
 
@@ -179,18 +179,27 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
                            disable=quiet or not cluster.is_main):
             if st is not None:
                 n, r = todo[i]
-                st.write_npz(f"runs/n{n}_r{r}.npz", rec, compressed=False)  # atomic
+                # the measured times apart (identical runs: identical run records); the
+                # run record last, as the unit's "done" mark
+                times = {k: rec[k] for k in TIMED if k in rec}
+                st.write_npz(f"times/n{n}_r{r}.npz", times, compressed=False)
+                st.write_npz(f"runs/n{n}_r{r}.npz",
+                             {k: v for k, v in rec.items() if k not in times},
+                             compressed=False)  # atomic
     finally:
         if st is not None:
             st.close()
 
 
 LEGACY = ("config.json", "runs", "report.md", "fig7.png", "summary.json", "study.json",
-          "results.csv", "timing.json")
+          "results.csv", "timing.json", "times")
 #: the summary's measured times (``timing.json``, not ``summary.json`` or ``results.csv``)
 TIMES = ("*_s", "*_s_mean", "update_time_*")
 RUN_FIELDS = ("removed_pct", "constrained_pct", "not_adjacent_pct", "rng_cost", "first_open",
-              "first_proven", "truth_kept", "inconsistent", "wall")
+              "first_proven", "truth_kept", "inconsistent")
+#: a run's measured times, stored apart in ``times/n{n}_r{run}.npz`` (older versions kept them
+#: in the run record, which is still read)
+TIMED = ("wall", "update_time")
 
 
 def run_unit(cfg: Config, n: int, r: int) -> dict[str, np.ndarray]:
@@ -242,8 +251,14 @@ def load(out: Path, cfg: Config) -> dict:
 
     res = {}
     for n in cfg.ns:
-        recs = [read_npz(out / "runs" / f"n{n}_r{r}.npz", RUN_FIELDS) for r in range(cfg.runs)]
-        recs = [x for x in recs if x is not None]
+        recs = []
+        for r in range(cfg.runs):
+            rec = read_npz(out / "runs" / f"n{n}_r{r}.npz", RUN_FIELDS)
+            if rec is None:
+                continue
+            rec |= read_npz(out / "times" / f"n{n}_r{r}.npz", ("wall",)) or {}
+            rec.setdefault("wall", np.asarray(np.nan))  # a times file lost: no time
+            recs.append(rec)
         if not recs:
             continue
         res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0]
