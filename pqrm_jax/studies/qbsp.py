@@ -1132,7 +1132,10 @@ def _stored(out: Path) -> tuple[dict, dict, dict]:
     from .store import read_json
 
     cfg = read_json(out / "config.json", ("envs", "execution"), quarantine=False)
-    cal = read_json(out / "calibration.json", CALIBRATION_FIELDS, quarantine=False)
+    if cfg is not None and cfg.get("eps_fixed") is not None:  # --eps: nothing calibrated
+        cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": cfg["eps_fixed"]}
+    else:
+        cal = read_json(out / "calibration.json", CALIBRATION_FIELDS, quarantine=False)
     doc = read_json(out / "results.json", ("results",), quarantine=False)
     if cfg is None or cal is None or doc is None:
         raise StudyError(f"{out} holds no finished {NAME} study (config.json, "
