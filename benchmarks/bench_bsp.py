@@ -125,15 +125,16 @@ def _ref_expand_one(models, D1, trip, scale, fg: G.FrameGraph, goal, key, level,
 
 
 @partial(jax.jit, static_argnames=("pp",))
-def reference_plan(models, D1, trip, scale, fg: G.FrameGraph, goal, frame, robot, key,
-         pp: P.PlannerParams = P.DEFAULT, cost=None) -> P.Plan:
+def reference_plan(key, models, D1, trip, scale, fg: G.FrameGraph, goal, frame, robot,
+                   pp: P.PlannerParams = P.DEFAULT, cost=None) -> P.Plan:
     """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
 
     Args:
+        key: PRNG key of the session.
         models: offline tables. D1: (Q, Q) neighbour distance (eq. 4.29).
         trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
         fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
-        frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
+        frame: (2,) current frame. robot: (Q,) robot belief.
         pp: static settings. cost: optional traced 1 or 2 overriding ``pp.cost``.
     """
     if pp.depth < 1:
@@ -174,7 +175,7 @@ def _instances(models, n_env: int):
     for e in range(n_env):
         rng = np.random.default_rng([1, e])
         env = E.generate(rng, int(rng.integers(8, 13)), 2.5)
-        b = E.initial_belief(models, env, jax.random.key(e), compositions=True, samples=64)
+        b = E.initial_belief(jax.random.key(e), models, env, compositions=True, samples=64)
         goal = jnp.asarray(env.goal, jnp.int32)
         fgs.append(G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, 0.2))
         bels.append(b)
@@ -187,13 +188,13 @@ def bench(models, D1, bels, fgs, goals, pp, chunks, reps: int = 3) -> dict:
     n_env = len(bels)
     keys = jax.random.split(jax.random.key(0), n_env)
     key_list = [keys[e] for e in range(n_env)]
-    args = [(bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame, bels[e].robot,
-             key_list[e]) for e in range(n_env)]
+    args = [(key_list[e], bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
+             bels[e].robot) for e in range(n_env)]
     stack = lambda xs: jax.tree.map(lambda *x: jnp.stack(x), *xs)  # noqa: E731
     xs = stack(args)
 
     def one(a):
-        return P.plan(models, D1, *a, pp)
+        return P.plan(a[0], models, D1, *a[1:], pp)
 
     def run_loop():
         return [one(a) for a in args]
@@ -224,15 +225,15 @@ def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
     the plans agree (first actions; root values relative to the reference's)."""
     n = len(bels)
     keys = jax.random.split(jax.random.key(0), n)
-    args = [(bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame, bels[e].robot,
-             keys[e]) for e in range(n)]
+    args = [(keys[e], bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
+             bels[e].robot) for e in range(n)]
     out = {}
     planners = (("reference", reference_plan, pp), ("new_joint_sampler", P.plan,
                                                      pp._replace(sampler="joint")),
                 ("new", P.plan, pp))
     for name, f, p in planners:
-        jax.block_until_ready(f(models, D1, *args[0], p))  # compile
-        t, o = best_of(lambda f=f, p=p: [f(models, D1, *a, p) for a in args], reps)
+        jax.block_until_ready(f(args[0][0], models, D1, *args[0][1:], p))  # compile
+        t, o = best_of(lambda f=f, p=p: [f(a[0], models, D1, *a[1:], p) for a in args], reps)
         out[name] = {"ms_per_plan": 1e3 * t / n,
                      "actions": [int(x.action) for x in o],
                      "values": [float(x.value) for x in o]}
@@ -241,7 +242,7 @@ def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
     rel = np.abs(nv - rv) / np.maximum(np.abs(rv), 1e-9)
     ca = {}
     for name, f, p in planners:
-        c = f.lower(models, D1, *args[0], p).compile().cost_analysis()
+        c = f.lower(args[0][0], models, D1, *args[0][1:], p).compile().cost_analysis()
         c = c[0] if isinstance(c, list) else (c or {})
         ca[name] = {"flops": c.get("flops"), "bytes_accessed": c.get("bytes accessed")}
     return {"envs": n, "ms_per_plan_reference": out["reference"]["ms_per_plan"],
@@ -266,9 +267,9 @@ def overheads(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
     cost analysis of one compiled plan."""
     n = len(bels)
     key = jax.random.key(0)
-    args = [(models, D1, bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
-             bels[e].robot, key) for e in range(n)]
-    nothing = jax.jit(lambda *a: a[6].sum())
+    args = [(key, models, D1, bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
+             bels[e].robot) for e in range(n)]
+    nothing = jax.jit(lambda *a: a[7].sum())
     jax.block_until_ready(nothing(*args[0]))
     t, _ = best_of(lambda: [nothing(*a) for a in args], reps)
     ca = P.plan.lower(*args[0], pp).compile().cost_analysis()

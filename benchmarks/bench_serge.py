@@ -46,43 +46,43 @@ def main(argv=None) -> int:
     sc = scenes.lab()
     grid = Grid.covering(np.concatenate(sc.points), (96, 96))
     t0 = time.perf_counter()
-    prob = initial_cells(sc.beliefs(), grid)
+    prob = initial_cells(jax.random.PRNGKey(0), sc.beliefs(), grid)
     t_init = time.perf_counter() - t0
     t_trials = args.trials or 100 * sc.k + 1
     s_trials = min(args.seq_trials or t_trials, t_trials)
     key = jax.random.PRNGKey(0)
 
     # warm-up (compilation) of both programs
-    serge(prob, args.mu, args.sigma, key=key, trials=t_trials)
-    serge_sequential(prob, args.mu, args.sigma, key=key, trials=2)
-    serge_sequential(prob, args.mu, args.sigma, key=key, trials=2, branch=True)
-    t_batched, rb = best_of(lambda: serge(prob, args.mu, args.sigma, key=key, trials=t_trials))
+    serge(key, prob, args.mu, args.sigma, trials=t_trials)
+    serge_sequential(key, prob, args.mu, args.sigma, trials=2)
+    serge_sequential(key, prob, args.mu, args.sigma, trials=2, branch=True)
+    t_batched, rb = best_of(lambda: serge(key, prob, args.mu, args.sigma, trials=t_trials))
     t0 = time.perf_counter()
-    rs = serge_sequential(prob, args.mu, args.sigma, key=key, trials=s_trials)
+    rs = serge_sequential(key, prob, args.mu, args.sigma, trials=s_trials)
     t_seq = (time.perf_counter() - t0) * t_trials / s_trials
     t0 = time.perf_counter()
-    serge_sequential(prob, args.mu, args.sigma, key=key, trials=s_trials, branch=True)
+    serge_sequential(key, prob, args.mu, args.sigma, trials=s_trials, branch=True)
     t_seq_cond = (time.perf_counter() - t0) * t_trials / s_trials
     steps = float(np.sum(rb.iterations))
     # same keys ⇒ same trials: check the measured ones agree (chunking changes the keys
     # only when T exceeds the chunk size, so compare on a small batched run)
-    small = serge(prob, args.mu, args.sigma, key=key, trials=min(s_trials, 256))
-    small_seq = serge_sequential(prob, args.mu, args.sigma, key=key, trials=min(s_trials, 256))
+    small = serge(key, prob, args.mu, args.sigma, trials=min(s_trials, 256))
+    small_seq = serge_sequential(key, prob, args.mu, args.sigma, trials=min(s_trials, 256))
     agree = bool(np.allclose(small.trial_log_psi, small_seq.trial_log_psi, atol=1e-4))
     # the plain NumPy reference (the team's usual reference), on R trials scaled to T, and
     # the same R trials batched (same keys) to check it reproduces them
     r_trials = min(args.ref_trials, t_trials)
     # warm-up: the seeds are derived with jax.random (split + bits), compiled per shape
-    serge_reference(prob, args.mu, args.sigma, key=key, trials=r_trials)
+    serge_reference(key, prob, args.mu, args.sigma, trials=r_trials)
     t_ref_meas, rn = best_of(
-        lambda: serge_reference(prob, args.mu, args.sigma, key=key, trials=r_trials))
+        lambda: serge_reference(key, prob, args.mu, args.sigma, trials=r_trials))
     t_ref = t_ref_meas * t_trials / r_trials
-    rb_r = serge(prob, args.mu, args.sigma, key=key, trials=r_trials)
+    rb_r = serge(key, prob, args.mu, args.sigma, trials=r_trials)
     ref_dlp = float(np.max(np.abs(rn.trial_log_psi - rb_r.trial_log_psi)))
     ref_agree = bool(np.array_equal(rn.iterations, rb_r.iterations) and ref_dlp <= 1e-5
                      and np.array_equal(rn.cell_labels, rb_r.cell_labels))
-    relaxed_serge(prob, args.mu, args.sigma, key=key)          # warm-up
-    t_rel, rr = best_of(lambda: relaxed_serge(prob, args.mu, args.sigma, key=key), 2)
+    relaxed_serge(key, prob, args.mu, args.sigma)          # warm-up
+    t_rel, rr = best_of(lambda: relaxed_serge(key, prob, args.mu, args.sigma), 2)
     out = {
         "scene": "lab (55 objects)", "grid": list(grid.shape), "mu": args.mu,
         "sigma": args.sigma, "trials": t_trials, "seq_trials_measured": s_trials,

@@ -275,14 +275,9 @@ def test_no_library_function_of_100_lines():
 #: Faces whose public functions are documented in full (issue 28, item 6); the others follow
 #: as their systems settle (qlink, bsp, hssh, hssh_global, qrm: issues 24-27).
 DOCUMENTED_FACES = ("calculi", "tables", "pqrm", "compositions", "serge", "sim", "triplets",
-                    "protocols", "hssh")
+                    "protocols", "hssh", "bsp", "hssh_global", "qrm")
 #: Functions of those faces whose files another issue is rewriting.
-DOCSTRING_PENDING = {
-    "hssh.left_of": "issue 26 (one HSSH star) rewrites hssh/star.py",
-    "hssh.right_of": "issue 26 (one HSSH star) rewrites hssh/star.py",
-    "hssh.path_continuity": "issue 26 (one HSSH star) rewrites hssh/star.py",
-    "hssh.star_isomorphisms": "issue 26 (one HSSH star) rewrites hssh/star.py",
-}
+DOCSTRING_PENDING: dict[str, str] = {}
 
 
 def docstring_gaps(fn) -> list[str]:
@@ -332,18 +327,13 @@ KEY_NOT_FIRST = {
     "protocols.run": "step convention: run(estimator, key, state, *obs)",
     "hssh.track_run": "step convention: track_run(tracker, key, ...)",
     "pqrm.update_observed": "step convention: update_observed(mapper, state, key, ...)",
-    "bsp.plan": "issue 25 (Lane bundle) rewrites the bsp signatures",
-    "bsp.run_lane": "issue 25 (Lane bundle) rewrites the bsp signatures",
-    "bsp.initial_belief": "to convert (issue 28 left the bsp signatures to issue 25)",
-    "serge.initial_cells": "to convert: key third",
-    "serge.serge": "to convert: keyword-only key",
-    "serge.serge_sequential": "to convert: keyword-only key",
 }
 
 
 def test_the_prng_key_comes_first():
-    """Planners, executives and samplers take the key first (gymnax, blackjax); new public
-    functions may not add to :data:`KEY_NOT_FIRST`."""
+    """Planners, executives and samplers take the key first (gymnax, blackjax), batched
+    executives their ``keys`` (one per lane) first; new public functions may not add to
+    :data:`KEY_NOT_FIRST`."""
     import inspect
     import types
 
@@ -362,7 +352,74 @@ def test_the_prng_key_comes_first():
                 params = list(inspect.signature(obj).parameters)
             except (TypeError, ValueError):
                 continue
-            keys = [i for i, p in enumerate(params) if p in ("key", "rng_key")]
+            keys = [i for i, p in enumerate(params) if p in ("key", "rng_key", "keys")]
             if keys and keys[0] != 0:
                 found.add(f"{face}.{n}")
     assert found - set(KEY_NOT_FIRST) == set(), found - set(KEY_NOT_FIRST)
+
+
+#: The one HSSH star type and host isomorphism (issue 28): where they are defined.
+STAR_HOME = "hssh/star.py"
+
+
+def star_definitions(source: str, label: str) -> list[str]:
+    """``label:name`` of every class named ``Star``/``*Star`` and every function named
+    ``*isomorphisms`` defined in ``source``."""
+    out = []
+    for n in ast.walk(ast.parse(source, label)):
+        if isinstance(n, ast.ClassDef) and n.name.endswith("Star") or isinstance(
+                n, ast.FunctionDef) and n.name.endswith("isomorphisms"):
+            out.append(f"{label}:{n.name}")
+    return out
+
+
+def test_one_hssh_star_type_and_one_host_isomorphism():
+    """The local and global HSSH levels share one star type and one host isomorphism
+    (``hssh.star``); ``hssh_global`` re-exports the same objects (``match_matrix`` is the
+    batched twin, by another name)."""
+    planted = "class Star:\n    pass\n\ndef isomorphisms(a, b):\n    return []\n"
+    assert star_definitions(planted, "bad.py") == ["bad.py:Star", "bad.py:isomorphisms"]
+    found = [v for p in MODULES for v in star_definitions(p.read_text(),
+                                                          p.relative_to(ROOT).as_posix())]
+    assert found == [f"{STAR_HOME}:Star", f"{STAR_HOME}:star_isomorphisms"], found
+    from pqrm_jax import hssh, hssh_global
+
+    assert hssh_global.Star is hssh.Star
+    assert hssh_global.star_isomorphisms is hssh.star_isomorphisms
+
+
+#: The most positional parameters a public function of a face may take: executives and
+#: trials take named bundles (``bsp.Lane``, issue 28), so long signatures do not come back.
+#: Today's longest is ``hssh.localize_with_count`` (12).
+MAX_POSITIONAL = 12
+
+
+def test_public_signatures_stay_short():
+    import inspect
+    import types
+
+    import pqrm_jax
+
+    long = {}
+    for face in pqrm_jax.SUBPACKAGES:
+        if face in ("cli", "studies"):
+            continue
+        mod = importlib.import_module(f"pqrm_jax.{face}")
+        for n in mod.__all__:
+            obj = getattr(mod, n)
+            if isinstance(obj, types.ModuleType) or inspect.isclass(obj) or not callable(obj):
+                continue
+            try:
+                params = inspect.signature(obj).parameters.values()
+            except (TypeError, ValueError):
+                continue
+            pos = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+            if len(pos) > MAX_POSITIONAL:
+                long[f"{face}.{n}"] = len(pos)
+    assert long == {}, long
+    from pqrm_jax import bsp
+
+    assert list(inspect.signature(bsp.run_lanes).parameters) == [
+        "keys", "models", "D1", "lanes", "pp", "ep"]
+    assert bsp.Lane._fields == ("pos", "lm_mask", "goal", "start", "belief", "ref",
+                                "ref_scale", "cost")

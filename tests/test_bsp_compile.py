@@ -28,7 +28,7 @@ def setup(request):
     mod = M.load_models(PARAMS, directory=request.config.cache.mkdir("bsp-models"))
     D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
     envs = [E.generate(np.random.default_rng([4, e]), 9, 2.5) for e in range(2)]
-    bels = [E.initial_belief(mod, env, jax.random.key(e), compositions=True, samples=64)
+    bels = [E.initial_belief(jax.random.key(e), mod, env, compositions=True, samples=64)
             for e, env in enumerate(envs)]
     return mod, D1, envs, bels
 
@@ -40,10 +40,10 @@ def test_plan_compiles_once(setup):
         goal = jnp.asarray(env.goal, jnp.int32)
         fg = G.frame_graph(mod, b.trip, b.trip_src, b.scale, b.lm_mask, goal, 0.3)
         args.append((b.trip, b.scale, fg, goal, b.frame, b.robot))
-    jax.block_until_ready(P.plan(mod, D1, *args[0], jax.random.key(0),
+    jax.block_until_ready(P.plan(jax.random.key(0), mod, D1, *args[0],
                                  P.PlannerParams(depth=2), 1))
     with count_compiles() as again:
-        jax.block_until_ready(P.plan(mod, D1, *args[1], jax.random.key(1),
+        jax.block_until_ready(P.plan(jax.random.key(1), mod, D1, *args[1],
                                      P.PlannerParams(depth=2), 2))
     assert again == []
 
@@ -55,16 +55,17 @@ def test_run_lanes_compiles_once(setup):
 
     def lanes(env, b, key, cost):
         one = lambda x: jnp.asarray(x)[None]  # noqa: E731
-        return (one(E.padded_positions(env, L)), one(np.arange(L) < len(env.pos)),
-                one(np.asarray(env.goal, np.int32)), one(np.asarray(env.start, np.float32)),
-                jax.tree.map(lambda x: x[None], b), one(np.asarray(env.frame, np.int32)),
-                one(E.reference_scale(mod, env)), jax.random.key(key)[None],
-                jnp.asarray([cost], jnp.int32))
+        return jax.random.key(key)[None], X.Lane(
+            pos=one(E.padded_positions(env, L)), lm_mask=one(np.arange(L) < len(env.pos)),
+            goal=one(np.asarray(env.goal, np.int32)), start=one(np.asarray(env.start, np.float32)),
+            belief=jax.tree.map(lambda x: x[None], b), ref=one(np.asarray(env.frame, np.int32)),
+            ref_scale=one(E.reference_scale(mod, env)), cost=jnp.asarray([cost], jnp.int32))
 
     pp, ep = P.PlannerParams(depth=1), X.ExecParams(t_max=2, eps_obs=0.3)
-    jax.block_until_ready(X.run_lanes(mod, D1, *lanes(envs[0], bels[0], 0, 1), pp, ep))
+    k0, lanes0 = lanes(envs[0], bels[0], 0, 1)
+    jax.block_until_ready(X.run_lanes(k0, mod, D1, lanes0, pp, ep))
+    k1, lanes1 = lanes(envs[1], bels[1], 1, 2)
     with count_compiles() as again:
-        jax.block_until_ready(X.run_lanes(mod, D1, *lanes(envs[1], bels[1], 1, 2),
-                                          P.PlannerParams(depth=1),
+        jax.block_until_ready(X.run_lanes(k1, mod, D1, lanes1, P.PlannerParams(depth=1),
                                           X.ExecParams(t_max=2, eps_obs=0.3)))
     assert again == []

@@ -120,8 +120,8 @@ def test_scale_models(mod, scale_model):
     are never candidates; "belief" (the previous model) keeps the mode's own rows."""
     env = _env()
     key = jax.random.key(3)
-    b0 = E.initial_belief(mod, env, key, compositions=False, scale_model=scale_model)
-    b1 = E.initial_belief(mod, env, key, compositions=True, scale_model=scale_model)
+    b0 = E.initial_belief(key, mod, env, compositions=False, scale_model=scale_model)
+    b1 = E.initial_belief(key, mod, env, compositions=True, scale_model=scale_model)
     s0, s1 = np.asarray(b0.trip_src), np.asarray(b1.trip_src)
     assert np.array_equal(s0 == B.MEASURED, s1 == B.MEASURED)
     assert not np.any(np.asarray(B.in_belief(s0)) & (s0 != B.MEASURED))
@@ -138,7 +138,7 @@ def test_scale_models(mod, scale_model):
     else:
         assert not np.any(s0 == B.SCALE_ONLY)
     with pytest.raises(ValueError, match="scale_model"):
-        E.initial_belief(mod, env, key, compositions=False, scale_model="metric")
+        E.initial_belief(key, mod, env, compositions=False, scale_model="metric")
 
 
 # ------------------------------------------------------------------ bad input (API and CLI)

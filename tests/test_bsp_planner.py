@@ -41,7 +41,7 @@ def fig46_env(rng):
 
 
 def _graph(mod, env, comp, key=0):
-    b = E.initial_belief(mod, env, jax.random.key(key), compositions=comp, L_max=12)
+    b = E.initial_belief(jax.random.key(key), mod, env, compositions=comp, L_max=12)
     fg = G.frame_graph(mod, b.trip, b.trip_src, b.scale, b.lm_mask, jnp.asarray(env.goal))
     return b, fg
 
@@ -69,10 +69,10 @@ def test_fig46a_scenario(mod):
     assert int(fg1.hops[4, 6]) == 2  # EG -> (A E or B E ...) -> AB, then observe ABC
     assert int(b1.ncomp[0, 4, 6]) == 2  # AEG needs two compositions
     pp = P.PlannerParams(depth=1)
-    p0 = P.plan(mod, D1, b0.trip, b0.scale, fg0, jnp.asarray(env.goal), b0.frame, b0.robot,
-                jax.random.key(0), pp)
-    p1 = P.plan(mod, D1, b1.trip, b1.scale, fg1, jnp.asarray(env.goal), b1.frame, b1.robot,
-                jax.random.key(0), pp)
+    p0 = P.plan(jax.random.key(0), mod, D1, b0.trip, b0.scale, fg0, jnp.asarray(env.goal),
+                b0.frame, b0.robot, pp)
+    p1 = P.plan(jax.random.key(0), mod, D1, b1.trip, b1.scale, fg1, jnp.asarray(env.goal),
+                b1.frame, b1.robot, pp)
     assert not bool(p0.exists) and bool(p1.exists)
     # the best first-level branch links out of EG into a frame with A (via a composed triplet)
     best = int(np.argmin(np.asarray(p1.q)))
@@ -98,8 +98,8 @@ def test_pruned_vs_full_tree(mod):
     agree, rel, reg, agree3, rel3, reg3 = [], [], [], [], [], []
     for e, env in enumerate(_small_envs(12)):
         b, fg = _graph(mod, env, True, key=e)
-        args = (mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal), b.frame, b.robot,
-                jax.random.key(e))
+        args = (jax.random.key(e), mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal),
+                b.frame, b.robot)
         full = P.plan(*args, P.PlannerParams(depth=2, n_actions=20, n_beta=6))
         pa = P.plan(*args, P.PlannerParams(depth=2, n_actions=4, n_beta=6))
         pr = P.plan(*args, P.PlannerParams(depth=2, n_actions=4, n_beta=3))
@@ -128,8 +128,8 @@ def test_plan_exists_same_for_both_costs_and_monotone(mod):
         for comp in (False, True):
             b, fg = _graph(mod, env, comp, key=e)
             for cost in (1, 2):
-                p = P.plan(mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal), b.frame, b.robot,
-                           jax.random.key(e), P.PlannerParams(depth=1, cost=cost))
+                p = P.plan(jax.random.key(e), mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal),
+                           b.frame, b.robot, P.PlannerParams(depth=1, cost=cost))
                 ex[comp, cost] = (bool(G.plan_exists(fg, b.frame)), bool(p.exists))
         assert ex[False, 1] == ex[False, 2] and ex[True, 1] == ex[True, 2]
         assert (not ex[False, 1][0]) or ex[True, 1][0]  # without => with
@@ -152,8 +152,8 @@ def test_bad_input(mod):
         E.generate(np.random.default_rng(0), 2, 1.0)
     b, fg = _graph(mod, env, True)
     with pytest.raises(ValueError, match="depth"):
-        P.plan(mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal), b.frame, b.robot,
-               jax.random.key(0), P.PlannerParams(depth=0))
+        P.plan(jax.random.key(0), mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal),
+               b.frame, b.robot, P.PlannerParams(depth=0))
 
 
 def test_generator_properties():
@@ -187,8 +187,8 @@ def test_nothing_seen_branch(mod):
     plans = {}
     for flag in (False, True):
         pp = P.PlannerParams(depth=1, n_actions=20, nothing_seen=flag)
-        plans[flag] = P.plan(mod, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
-                             jax.random.key(0), pp)
+        plans[flag] = P.plan(jax.random.key(0), mod, D1, b.trip, b.scale, fg, goal,
+                             b.frame, b.robot, pp)
     i, j = (int(x) for x in b.frame)
     sf = b.scale[i, j]
     wt = np.asarray(jnp.einsum("b,bax,kxb->ak", sf, mod.T, fg.Ab[i, j]) * fg.obs[i, j][None])

@@ -39,8 +39,9 @@ def test_fit_is_pick_chunk_then_cpu_cap_then_balance():
 def test_qlink_pool_sized_from_memory_stored_and_changing_no_trial(tmp_path, capsys):
     args = ["--reduced", "--max-pairs", "16", "--no-progress"]
     auto, four = tmp_path / "auto", tmp_path / "four"
-    assert qlink.main([*args, "--out", str(auto), "--chunk", "auto"]) == 0
-    assert "world 0: --chunk 16 pool lanes sized from the memory" in capsys.readouterr().out
+    assert qlink.main([*args, "--out", str(auto), "--chunk", "0"]) == 0
+    assert "world 0: --chunk 16 pool lanes per call, sized from the memory" in \
+        capsys.readouterr().out
     assert json.loads((auto / "world_00.json").read_text())["chunk"] == 16  # capped: 16 pairs
     assert qlink.main([*args, "--out", str(four), "--chunk", "4"]) == 0
     assert json.loads((four / "world_00.json").read_text())["chunk"] == 4
@@ -49,18 +50,18 @@ def test_qlink_pool_sized_from_memory_stored_and_changing_no_trial(tmp_path, cap
     for n in names:  # another pool width: the same trials, bit for bit
         assert (auto / "trials" / n).read_text() == (four / "trials" / n).read_text(), n
     assert (auto / "trials.csv").read_text() == (four / "trials.csv").read_text()
-    # a missing trials file is recomputed with the world's stored chunk: a 1000-byte device
+    # a missing trials file is recomputed with the world's stored chunk: a 64 KiB device
     # could not size one, so no probe runs
     gone = auto / "trials" / names[0]
     before = gone.read_text()
     gone.unlink()
-    assert qlink.main([*args, "--out", str(auto), "--chunk", "auto",
-                       "--memory-bytes", "1000"]) == 0
+    assert qlink.main([*args, "--out", str(auto), "--chunk", "0",
+                       "--memory-bytes", "65536"]) == 0
     assert gone.read_text() == before
     # a fresh world on that device is refused naming the option
     with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
-        qlink.main([*args, "--out", str(tmp_path / "small"), "--chunk", "auto",
-                    "--memory-bytes", "1000"])
+        qlink.main([*args, "--out", str(tmp_path / "small"), "--chunk", "0",
+                    "--memory-bytes", "65536"])
 
 
 def test_auto_is_the_one_sizer_whole_then_probe_then_fallback():

@@ -107,11 +107,12 @@ def test_camera_kernel_with_target_map_compiles_once():
 
 def test_serge_compiles_once():
     xy = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
-    prob = sg.initial_cells(sg.GaussianBeliefs(xy, np.tile(np.eye(2) * 0.3, (4, 1, 1))),
+    prob = sg.initial_cells(jax.random.PRNGKey(0),
+                            sg.GaussianBeliefs(xy, np.tile(np.eye(2) * 0.3, (4, 1, 1))),
                             sg.Grid((-5.0, -5.0), (15.0, 15.0), (24, 24)))
-    r0 = sg.serge(prob, mu=2, sigma=1.0, key=jax.random.key(1), trials=16)
+    r0 = sg.serge(jax.random.key(1), prob, mu=2, sigma=1.0, trials=16)
     with count_compiles() as again:
-        r1 = sg.serge(prob, mu=2, sigma=1.5, key=jax.random.key(2), trials=16)
+        r1 = sg.serge(jax.random.key(2), prob, mu=2, sigma=1.5, trials=16)
     assert again == []
     assert r0.n_regions >= 1 and r1.n_regions >= 1
 

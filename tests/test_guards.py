@@ -131,10 +131,11 @@ def test_d23_serge_chunk_and_grid():
     from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells, serge
 
     xy = np.stack(np.meshgrid(np.arange(2.0), np.arange(2.0)), -1).reshape(-1, 2) * 10
-    p = initial_cells(GaussianBeliefs(xy, np.tile(np.eye(2) * 0.2, (4, 1, 1))),
+    p = initial_cells(jax.random.PRNGKey(0),
+                      GaussianBeliefs(xy, np.tile(np.eye(2) * 0.2, (4, 1, 1))),
                       Grid((-5.0, -5.0), (15.0, 15.0), (8, 8)))
     with pytest.raises(ValueError, match="chunk must be"):
-        serge(p, mu=2, sigma=2.0, key=jax.random.PRNGKey(0), trials=4, chunk=0)
+        serge(jax.random.PRNGKey(0), p, mu=2, sigma=2.0, trials=4, chunk=0)
     with pytest.raises(ValueError, match="cells"):
         Grid((0.0, 0.0), (1.0, 1.0), (100_000, 100_000))
 

@@ -16,14 +16,14 @@ KAY = Star.from_entries([(0, 1, 1), (1, 1, 1), (2, 1, 1), (0, -1, 1), (1, -1, 0)
 
 
 def test_star_isomorphisms_match_the_thesis():
-    assert len(hg.isomorphisms(PLUS, PLUS)) == 4          # B §5.1: four between two +
-    assert hg.isomorphisms(TEE, TEE) == [0]
-    assert hg.isomorphisms(ELL, ELL) == [0]
-    assert len(hg.isomorphisms(WYE, WYE)) == 3            # Y of B §5.1 is 3-fold symmetric
-    assert hg.isomorphisms(KAY, KAY) == [0]
-    assert hg.isomorphisms(PLUS, TEE) == [] and hg.isomorphisms(TEE, WYE) == []
+    assert len(hg.star_isomorphisms(PLUS, PLUS)) == 4          # B §5.1: four between two +
+    assert hg.star_isomorphisms(TEE, TEE) == [0]
+    assert hg.star_isomorphisms(ELL, ELL) == [0]
+    assert len(hg.star_isomorphisms(WYE, WYE)) == 3            # Y of B §5.1 is 3-fold symmetric
+    assert hg.star_isomorphisms(KAY, KAY) == [0]
+    assert hg.star_isomorphisms(PLUS, TEE) == [] and hg.star_isomorphisms(TEE, WYE) == []
     for s in range(4):  # listing from another entry is the same local topology
-        assert hg.isomorphisms(TEE, TEE.rotate(s)) == [(-s) % 4]
+        assert hg.star_isomorphisms(TEE, TEE.rotate(s)) == [(-s) % 4]
 
 
 def test_star_rejects_bad_input():
@@ -49,7 +49,7 @@ def test_office_world_has_the_published_counts():
     w = hg.office_world()
     classes = []
     for s in w.stars:
-        if not any(hg.isomorphisms(s, c) for c in classes):
+        if not any(hg.star_isomorphisms(s, c) for c in classes):
             classes.append(s)
     assert (w.n_places, len(hg.global_paths(w)), len(classes)) == (9, 6, 4)
 
@@ -221,7 +221,7 @@ def test_bridge_from_the_local_levels_star():
     out = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)
     entries = local.build_star(ends, out, c)
     (star, arr), bear = hg.view_from_local_star(entries, arrival_gateway=2)  # came up from below
-    assert len(hg.isomorphisms(star, star)) == 4 and star.alpha == (1, 1, 1, 1)
+    assert len(hg.star_isomorphisms(star, star)) == 4 and star.alpha == (1, 1, 1, 1)
     assert entries[star.opp[arr]].gateway == 2
     assert bear[arr] == pytest.approx(0.0)
     # the gateway to the right of a robot heading up leaves at -90° (clockwise)
@@ -234,7 +234,7 @@ def test_bridge_from_the_local_levels_star():
             for b in w.stars:
                 ta = list(zip(a.path, a.dir, map(bool, a.alpha), strict=True))
                 tb = list(zip(b.path, b.dir, map(bool, b.alpha), strict=True))
-                assert hg.isomorphisms(a, b) == local.star_isomorphisms(ta, tb)
+                assert hg.star_isomorphisms(a, b) == local.star_isomorphisms(ta, tb)
 
 
 def test_planarity_filter_keeps_the_true_map_and_refuses_crossing_corridors():

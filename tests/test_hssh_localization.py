@@ -60,6 +60,9 @@ def test_reduced_localization_study(tmp_path):
     assert "Published orderings" in report and "not available" in report
     units = sorted((tmp_path / "units").glob("*.json"))
     assert len(units) == 6 and "KLD-sampling on" not in report
+    cs = study.claims(tmp_path)   # B's orderings as claims, one per published ordering
+    assert len(cs) == 8 and cs[0].name == "shrink beats PF (large)"
+    assert all(c.verdict.split(":")[0] in ("match", "mismatch") for c in cs)
     before = {p.name: p.read_bytes() for p in units}
     # the KLD rows are added beside the stored full-block units, which stay as they are
     assert study.main(["--steps", "8", "--kld", "--out", str(tmp_path)]) == 0

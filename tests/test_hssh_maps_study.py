@@ -47,6 +47,11 @@ def test_reduced_study(tmp_path):
     assert "Simulator-driven worlds" in rep and "re-localisation" in rep
     for f in ("tree_size.png", "layout.png", "navigation.png", "sim_map.png"):
         assert (out / f).stat().st_size > 1000
+    cs = mod.claims(out)                  # the study protocol: claims from the stored records
+    assert [c.verdict for c in cs[:2]] == ["match", "match"]   # truth kept, bounds hold
+    assert "| the true map is never discarded (random worlds) |" in rep
+    for f in ("tree_size.png", "layout.png", "navigation.png", "sim_map.png"):
+        assert f"]({f})" in rep                                 # embedded with a caption
     before = (out / "worlds.jsonl").read_text()
     assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0  # resume: no rerun
     assert (out / "worlds.jsonl").read_text() == before

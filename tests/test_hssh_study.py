@@ -22,7 +22,7 @@ RECORDS = Path(__file__).parent / "data" / "hssh_plus_records.json"
 
 
 def _records(side, rot, argv):
-    got = study.run_unit(side, rot, study._config(study._parser().parse_args(argv)))
+    got = study.run_unit(side, rot, study._stored(study.configure(argv)[0]))
     for r in got:
         r.pop("seconds")
     return got
@@ -51,7 +51,7 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
     grid = study.grid_bytes(49, {"robot_radius": 0.0, "evg_cap_fraction": 0.2})
     room = str(int(1.5 * grid / FRACTION))
     assert study.main(argv + ["--memory-bytes", room]) == 0
-    assert "--chunk-cells 2401 sized from the memory" in capsys.readouterr().out
+    assert "--chunk 2401 sized from the memory" in capsys.readouterr().out
     units = sorted((tmp_path / "units").glob("*.json"))
     assert len(units) == 2                                    # 1 size x 2 rotations
     rows = [r for u in units for r in json.loads(u.read_text())["records"]]
@@ -70,6 +70,9 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
                 "accuracy_per_rotation.png"):
         assert (tmp_path / fig).stat().st_size > 0
     assert cfg["layout"] == {"chunk_cells": 49 * 49}
+    cs = study.claims(tmp_path)           # a partial corpus: nothing checked, nothing failed
+    assert cs and all(c.verdict.startswith("not checked") for c in cs)
+    assert "](accuracy_size_noise.png)" in report
     before = {u.name: u.read_text() for u in units}
     assert study.main(argv) == 0                                        # resume: nothing new
     assert {u.name: u.read_text() for u in sorted((tmp_path / "units").glob("*.json"))} == before
@@ -101,16 +104,24 @@ def test_reduced_corpus_runs_resumes_and_reports(tmp_path, capsys):
     # another chunk width (both noise levels in one chunk): the same records
     wide = tmp_path / "wide"
     assert study.main(["--reduced", "--sizes", "49", "--out", str(wide),
-                       "--chunk-cells", str(2 * 49 * 49)]) == 0
+                       "--chunk", str(2 * 49 * 49)]) == 0
     assert [untimed(u.read_text()) for u in sorted((wide / "units").glob("*.json"))] == \
         [untimed(before[u.name]) for u in units]
+    # measured times live apart (times/): two runs write byte-identical units
+    assert [u.read_text() for u in sorted((wide / "units").glob("*.json"))] == \
+        [(tmp_path / "units" / u.name).read_text() for u in units]
+    assert all(len(json.loads((wide / "times" / u.name).read_text())["seconds"]) == 2
+               for u in units)
     # a device without room for one grid, or for the chunk given: refused, nothing written
     small = ["--reduced", "--sizes", "49", "--out", str(tmp_path / "small")]
-    with pytest.raises(StudyError, match="--chunk-cells cannot go below one lane"):
+    cfg = study._stored(study.configure(small)[0])
+    with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
+        study.chunk_cells(None, tmp_path / "small", [49], cfg, None, memory_bytes=1000)
+    with pytest.raises(SystemExit):     # a budget below 1 MiB is refused by the CLI
         study.main(small + ["--memory-bytes", "1000"])
     with pytest.raises(StudyError, match="a chunk of 2 grids of 49x49 cells .* lower "
-                                         "--chunk-cells"):
-        study.main(small + ["--chunk-cells", str(2 * 49 * 49), "--memory-bytes", room])
+                                         "--chunk"):
+        study.main(small + ["--chunk", str(2 * 49 * 49), "--memory-bytes", room])
     assert not (tmp_path / "small").exists()
 
 

@@ -31,13 +31,14 @@ def test_serge_result_does_not_depend_on_the_number_of_queues(monkeypatch):
     rng = np.random.default_rng(3)
     means = rng.uniform(0, 6, (10, 2))
     covs = np.array([np.diag(rng.uniform(0.2, 1.0, 2)) for _ in range(10)])
-    prob = initial_cells(GaussianBeliefs(means, covs), Grid((-2.0, -2.0), (8.0, 8.0), (40, 40)),
+    prob = initial_cells(jax.random.PRNGKey(0),
+                         GaussianBeliefs(means, covs), Grid((-2.0, -2.0), (8.0, 8.0), (40, 40)),
                          unseparated="attach")
     key = jax.random.PRNGKey(1)
     runs = []
     for q in (1, 3):  # 3 queues: 5 blocks of trials padded to 6
         monkeypatch.setattr(S, "default_queues", lambda q=q: q)
-        runs.append(serge(prob, 5, 2.0, key=key, trials=4 * S.WIDTH + 9))
+        runs.append(serge(key, prob, 5, 2.0, trials=4 * S.WIDTH + 9))
     a, b = runs
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_array_equal(a.trial_log_psi, b.trial_log_psi)

@@ -71,6 +71,15 @@ def test_reduced_invivo_study(study):
     before = (out / "trials.csv").read_text()
     assert mod.main(["--reduced", "--out", str(out)]) == 0      # resume: same rows
     assert (out / "trials.csv").read_text() == before
+    # the study protocol: claims from the stored results, the report rebuilt from them alone
+    cs = mod.claims(out)
+    assert cs and {c.verdict for c in cs} <= {"match", "mismatch", "not checked"}
+    assert cs[0].name == "p_miss = 0: all succeed, 0 re-plans" and cs[0].verdict == "match"
+    text = (out / "report.md").read_text()
+    (out / "report.md").unlink()
+    assert mod.main(["--report-only", "--out", str(out)]) == 0
+    assert (out / "report.md").read_text() == text
+    assert "![" in text and "*The synthetic world" in text      # a captioned figure
 
 
 def test_misses_fail_trials_and_replanning_follows(study):

@@ -20,6 +20,10 @@ def test_reduced_study(tmp_path):
     assert set(rows[0]) == set(mod.FIELDS)
     cfg = json.loads((out / "config.json").read_text())
     assert set(mod.REASONS) <= set(cfg["reasons"])          # every knob has a reason
+    info = json.loads((out / "world_00.json").read_text())     # measured times live apart
+    assert "map_s" not in info and "setting_s" not in info
+    assert {"map_s", "setting_s"} <= set(json.loads((out / "world_00.times.json").read_text()))
+    assert json.loads((out / "times.json").read_text())["wall_s"] >= 0
     w = np.load(out / "world_00.npz")
     assert w["positions"].shape == (50, 2) and w["element_ids"].shape[1] == 3
     base = [r for r in rows if r["beta"] == "2" and r["setting"] == "R" and r["reachable"] == "1"]
@@ -33,6 +37,12 @@ def test_reduced_study(tmp_path):
     report = (out / "report.md").read_text()
     assert "Table 4.1" in report and "Fig. 4.6" in report and "β = 1" in report
     assert (out / "fig4_7_length_vs_elements.png").exists()
+    cs = mod.claims(out)          # Table 4.1 at the primary beta, one claim per setting
+    assert [c.name for c in cs] == ["Table 4.1 failure rate, R (β = 2)",
+                                    "Table 4.1 failure rate, 0.8R (β = 2)",
+                                    "Table 4.1 failure rate, occ 0.5 m (β = 2)"]
+    assert cs[0].verdict == "match" and cs[0].measured == 0.0
+    assert "## Claims" in report and "| Table 4.1 failure rate, R (β = 2) |" in report
     # resume: nothing is recomputed, the rows are identical
     before = (out / "trials.csv").read_text()
     assert mod.main(["--reduced", "--out", str(out), "--no-progress"]) == 0

@@ -30,7 +30,8 @@ def lattice(n=3, spacing=10.0, var=0.2):
 
 @pytest.fixture(scope="module")
 def separated():
-    return initial_cells(lattice(), Grid((-5.0, -5.0), (25.0, 25.0), (30, 30)))
+    return initial_cells(jax.random.PRNGKey(0),
+                         lattice(), Grid((-5.0, -5.0), (25.0, 25.0), (30, 30)))
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,8 @@ def overlapping():
     rng = np.random.default_rng(3)
     means = rng.uniform(0, 6, (10, 2))
     covs = np.array([np.diag(rng.uniform(0.2, 1.0, 2)) for _ in range(10)])
-    return initial_cells(GaussianBeliefs(means, covs), Grid((-2.0, -2.0), (8.0, 8.0), (40, 40)),
+    return initial_cells(jax.random.PRNGKey(0),
+                         GaussianBeliefs(means, covs), Grid((-2.0, -2.0), (8.0, 8.0), (40, 40)),
                          unseparated="attach")
 
 
@@ -66,11 +68,11 @@ def test_initial_cells_are_contiguous_one_per_belief(separated, overlapping):
 
 def test_bad_input_errors(separated):
     with pytest.raises(ValueError, match="mu"):
-        serge(separated, 0, 2.0, key=KEY, trials=2)
+        serge(KEY, separated, 0, 2.0, trials=2)
     with pytest.raises(ValueError, match="mu"):
-        serge(separated, 10, 2.0, key=KEY, trials=2)
+        serge(KEY, separated, 10, 2.0, trials=2)
     with pytest.raises(ValueError, match="sigma"):
-        serge(separated, 3, -1.0, key=KEY, trials=2)
+        serge(KEY, separated, 3, -1.0, trials=2)
     bad = np.zeros((2, 5, 2))
     bad[1, 2, 0] = np.nan
     with pytest.raises(ValueError, match=r"beliefs \[1\].*NaN"):
@@ -84,21 +86,21 @@ def test_bad_input_errors(separated):
                             np.tile(np.eye(2) * 1e-4, (3, 1, 1)))
     coarse = Grid((-1.0, -1.0), (6.0, 6.0), (4, 4))
     with pytest.raises(ValueError, match=r"beliefs \[1\].*too coarse"):
-        initial_cells(close, coarse)
-    p = initial_cells(close, coarse, unseparated="attach")
+        initial_cells(jax.random.PRNGKey(0), close, coarse)
+    p = initial_cells(jax.random.PRNGKey(0), close, coarse, unseparated="attach")
     assert p.n_init == 2 and np.asarray(p.belief_region).tolist() == [0, 0, 1]
 
 
 def test_degenerate_point_mass_belief_is_handled():
     b = GaussianBeliefs(np.array([[0.0, 0.0], [3.0, 0.0]]), np.zeros((2, 2, 2)))
-    p = initial_cells(b, Grid((-1.0, -1.0), (4.0, 1.0), (10, 4)))
+    p = initial_cells(jax.random.PRNGKey(0), b, Grid((-1.0, -1.0), (4.0, 1.0), (10, 4)))
     np.testing.assert_allclose(np.asarray(p.mass), np.eye(2), atol=1e-6)
 
 
 # potential and search -----------------------------------------------------------------------
 @pytest.mark.parametrize("mu", [1, 3, 5, 9])
 def test_well_separated_gives_mu_regions_saliency_one(separated, mu):
-    r = serge(separated, mu, 2.0, key=KEY, trials=16)
+    r = serge(KEY, separated, mu, 2.0, trials=16)
     assert r.n_regions == mu
     assert abs(r.log_psi3) < 1e-5
     assert_contiguous(r.cell_labels, separated.grid.shape)
@@ -110,7 +112,7 @@ def test_well_separated_gives_mu_regions_saliency_one(separated, mu):
 
 @pytest.mark.parametrize("mu,sigma", [(1, 2.0), (4, 2.0), (7, 0.5), (10, 2.0), (6, 0.0)])
 def test_potential_in_log_space_matches_direct_evaluation(overlapping, mu, sigma):
-    r = serge(overlapping, mu, sigma, key=KEY, trials=16)
+    r = serge(KEY, overlapping, mu, sigma, trials=16)
     assert_contiguous(r.cell_labels, overlapping.grid.shape)
     direct = direct_log_potential(overlapping.cell_mass, r.cell_labels, r.belief_labels, mu,
                                   sigma, overlapping.grid.shape)
@@ -132,8 +134,8 @@ def test_direct_potential_is_minus_inf_for_disconnected_map(overlapping):
 
 
 def test_batched_trials_equal_sequential_loop(overlapping):
-    a = serge(overlapping, 4, 2.0, key=KEY, trials=16)
-    b = serge_sequential(overlapping, 4, 2.0, key=KEY, trials=16)
+    a = serge(KEY, overlapping, 4, 2.0, trials=16)
+    b = serge_sequential(KEY, overlapping, 4, 2.0, trials=16)
     np.testing.assert_allclose(a.trial_log_psi, b.trial_log_psi, rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_array_equal(a.cell_labels, b.cell_labels)
@@ -145,8 +147,8 @@ def test_batched_blocks_with_finished_trials_equal_sequential_loop(overlapping):
     from pqrm_jax.serge import search as S
 
     t = 2 * S.WIDTH + 7
-    a = serge(overlapping, 6, 2.0, key=KEY, trials=t)
-    b = serge_sequential(overlapping, 6, 2.0, key=KEY, trials=t)
+    a = serge(KEY, overlapping, 6, 2.0, trials=t)
+    b = serge_sequential(KEY, overlapping, 6, 2.0, trials=t)
     assert len(set(a.iterations.tolist())) > 1
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_allclose(a.trial_log_psi, b.trial_log_psi, rtol=1e-6, atol=1e-6)
@@ -182,8 +184,8 @@ def test_search_bit_set_and_argmax_helpers():
 
 
 def test_larger_sigma_fewer_regions_higher_saliency(overlapping):
-    small = serge(overlapping, 9, 0.5, key=KEY, trials=16)
-    large = serge(overlapping, 9, 8.0, key=KEY, trials=16)
+    small = serge(KEY, overlapping, 9, 0.5, trials=16)
+    large = serge(KEY, overlapping, 9, 8.0, trials=16)
     assert large.n_regions <= small.n_regions
     assert large.log_psi3 >= small.log_psi3 - 1e-6
     assert small.n_regions == 9 or small.n_regions == overlapping.n_init
@@ -268,14 +270,14 @@ def test_projection_makes_slots_contiguous():
 
 
 def test_relaxed_optimiser_gives_valid_competitive_map(overlapping):
-    rr = relaxed_serge(overlapping, 5, 2.0, key=KEY, steps=150, restarts=4, polish_trials=16)
+    rr = relaxed_serge(KEY, overlapping, 5, 2.0, steps=150, restarts=4, polish_trials=16)
     r = rr.result
     assert_contiguous(r.cell_labels, overlapping.grid.shape)
     assert r.log_psi >= rr.projected_log_psi - 1e-5                # polishing never hurts
     direct = direct_log_potential(overlapping.cell_mass, r.cell_labels, r.belief_labels, 5, 2.0,
                                   overlapping.grid.shape)
     np.testing.assert_allclose(r.log_psi, direct, rtol=2e-4, atol=2e-4)
-    plain = serge(overlapping, 5, 2.0, key=KEY, trials=16)
+    plain = serge(KEY, overlapping, 5, 2.0, trials=16)
     assert r.log_psi >= plain.log_psi - 2.0
 
 

@@ -17,15 +17,17 @@ TRIALS = 32
 @pytest.fixture(scope="module")
 def problems():
     xy = np.stack(np.meshgrid(np.arange(3), np.arange(3), indexing="ij"), -1).reshape(-1, 2)
-    lattice = initial_cells(GaussianBeliefs(xy * 10.0, np.tile(np.eye(2) * 0.2, (9, 1, 1))),
+    lattice = initial_cells(jax.random.PRNGKey(0),
+                            GaussianBeliefs(xy * 10.0, np.tile(np.eye(2) * 0.2, (9, 1, 1))),
                             Grid((-5.0, -5.0), (25.0, 25.0), (30, 30)))
     rng = np.random.default_rng(3)
     means = rng.uniform(0, 6, (10, 2))
     covs = np.array([np.diag(rng.uniform(0.2, 1.0, 2)) for _ in range(10)])
-    overlapping = initial_cells(GaussianBeliefs(means, covs),
+    overlapping = initial_cells(jax.random.PRNGKey(0), GaussianBeliefs(means, covs),
                                 Grid((-2.0, -2.0), (8.0, 8.0), (40, 40)), unseparated="attach")
     sc = scenes.hallway(n_triplets=12)
-    hallway = initial_cells(sc.beliefs(), Grid.covering(np.concatenate(sc.points), (32, 32)),
+    hallway = initial_cells(jax.random.PRNGKey(0),
+                            sc.beliefs(), Grid.covering(np.concatenate(sc.points), (32, 32)),
                             unseparated="attach")
     return {"lattice": lattice, "overlapping": overlapping, "hallway": hallway}
 
@@ -46,8 +48,8 @@ def test_reference_reproduces_batched_trials(problems, scene, mu, sigma):
     JAX search reads cached pair gains, so values are not bit-identical). These scenes have
     no decision within float32 rounding of a tie, so the decisions are identical."""
     p = problems[scene]
-    a = serge(p, mu, sigma, key=KEY, trials=TRIALS)
-    b, labs = serge_reference(p, mu, sigma, key=KEY, trials=TRIALS, return_trials=True)
+    a = serge(KEY, p, mu, sigma, trials=TRIALS)
+    b, labs = serge_reference(KEY, p, mu, sigma, trials=TRIALS, return_trials=True)
     np.testing.assert_array_equal(b.iterations, a.iterations)
     np.testing.assert_allclose(b.trial_log_psi, a.trial_log_psi, rtol=1e-6, atol=2e-6)
     assert b.n_regions == a.n_regions
@@ -65,8 +67,8 @@ def test_reference_reproduces_batched_trials(problems, scene, mu, sigma):
 
 def test_other_key_gives_other_trials(problems):
     p = problems["overlapping"]
-    a = serge(p, 4, 2.0, key=KEY, trials=TRIALS)
-    b = serge_reference(p, 4, 2.0, key=jax.random.PRNGKey(1), trials=TRIALS)
+    a = serge(KEY, p, 4, 2.0, trials=TRIALS)
+    b = serge_reference(jax.random.PRNGKey(1), p, 4, 2.0, trials=TRIALS)
     assert not np.array_equal(a.iterations, b.iterations)
 
 
@@ -76,8 +78,8 @@ def test_active_and_start_are_respected(problems):
     act[[1, 4]] = False
     start = np.arange(p.n_init)
     start[np.flatnonzero(np.asarray(p.adj)[0])[0]] = 0              # pre-merge a neighbour of 0
-    a = serge(p, 3, 2.0, key=KEY, trials=TRIALS, active=act, start=start)
-    b = serge_reference(p, 3, 2.0, key=KEY, trials=TRIALS, active=act, start=start)
+    a = serge(KEY, p, 3, 2.0, trials=TRIALS, active=act, start=start)
+    b = serge_reference(KEY, p, 3, 2.0, trials=TRIALS, active=act, start=start)
     np.testing.assert_array_equal(b.iterations, a.iterations)
     np.testing.assert_array_equal(b.region_of_init, a.region_of_init)
     np.testing.assert_allclose(b.trial_log_psi, a.trial_log_psi, rtol=1e-6, atol=2e-6)
@@ -89,4 +91,4 @@ def test_seeds_follow_serge_chunking(problems):
     want = np.asarray(jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(keys))
     np.testing.assert_array_equal(trial_seeds(KEY, t, chunk=16), want)
     with pytest.raises(ValueError, match="trials"):
-        serge_reference(problems["lattice"], 1, key=KEY, trials=0)
+        serge_reference(KEY, problems["lattice"], 1, trials=0)

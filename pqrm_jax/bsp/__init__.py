@@ -29,7 +29,7 @@ from .belief import (
 )
 from .compose import augment, triplet_link_graph
 from .env import Environment, check_environment, generate, initial_belief
-from .execute import ExecParams, Outcome, run_lane, run_lanes
+from .execute import ExecParams, Lane, LaneState, Outcome, run_lane, run_lanes
 from .graph import FrameGraph, frame_graph, plan_exists
 from .models import ModelParams, Models, build_models, load_models, sample_tables, stderr
 from .planner import Plan, PlannerParams, plan
@@ -38,7 +38,7 @@ __all__ = [
     "SCALE_MODELS", "QBelief", "belief_scales", "check_distribution", "in_belief",
     "non_detection", "scale_posteriors", "update", "augment",
     "triplet_link_graph", "Environment", "check_environment", "generate", "initial_belief",
-    "ExecParams", "Outcome", "run_lane", "run_lanes", "FrameGraph", "frame_graph",
-    "plan_exists", "ModelParams", "Models", "build_models", "load_models", "sample_tables",
-    "stderr", "Plan", "PlannerParams", "plan",
+    "ExecParams", "Lane", "LaneState", "Outcome", "run_lane", "run_lanes", "FrameGraph",
+    "frame_graph", "plan_exists", "ModelParams", "Models", "build_models", "load_models",
+    "sample_tables", "stderr", "Plan", "PlannerParams", "plan",
 ]

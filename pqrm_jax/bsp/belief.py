@@ -52,7 +52,14 @@ SCALE_MODELS = ("composed", "belief")
 
 
 def in_belief(trip_src) -> jax.Array:
-    """Rows that are candidates (measured or composed; not ``SCALE_ONLY``), same shape."""
+    """Which rows are candidates: measured or composed, not ``SCALE_ONLY`` (Z §4.2.6, §Z-10).
+
+    Args:
+        trip_src: int8 source codes of triplet rows, any shape (e.g. [L, L, L]).
+
+    Returns:
+        bool array of the same shape.
+    """
     return (trip_src == MEASURED) | (trip_src == COMPOSED)
 
 
@@ -65,14 +72,19 @@ def check_scale_model(scale_model: str) -> str:
 
 def belief_scales(models: Models, trip, trip_src, ref, ref_scale, lm_mask,
                   scale_model: str = "composed") -> jax.Array:
-    """[L, L, nb] frame scales of a belief under ``scale_model`` (docs/bsp.md §Z-10).
+    """[L, L, nb] frame scales of a belief under ``scale_model`` (Z eqs. 4.22–4.24, §Z-10).
 
     Args:
         models: the offline tables (``G2``, ``GA``, ``GB``).
-        trip: [L, L, L, Q] triplet rows. trip_src: [L, L, L] source codes (module docstring).
-        ref: [2] the reference frame; ref_scale: [nb] its known scale.
-        lm_mask: [L] real landmarks.
+        trip: [L, L, L, Q] triplet rows.
+        trip_src: [L, L, L] int8 source codes (module docstring).
+        ref: [2] the reference frame.
+        ref_scale: [nb] its known scale.
+        lm_mask: [L] bool, real landmarks.
         scale_model: ``"composed"`` or ``"belief"`` (:data:`SCALE_MODELS`), static.
+
+    Returns:
+        [L, L, nb] the scale distribution of every frame.
     """
     check_scale_model(scale_model)
     if scale_model == "composed":
@@ -95,7 +107,21 @@ class QBelief(NamedTuple):
 
 
 def check_distribution(name: str, p, axis: int = -1, atol: float = 1e-3) -> np.ndarray:
-    """``ValueError`` unless ``p`` is finite, non-negative and sums to 1 along ``axis``."""
+    """Check that ``p`` is a probability distribution along ``axis`` (host, NumPy).
+
+    Args:
+        name: what ``p`` is, for the error message.
+        p: array of probabilities, any shape.
+        axis: the axis that must sum to 1.
+        atol: tolerance of the sum.
+
+    Returns:
+        ``p`` as a float64 NumPy array.
+
+    Raises:
+        ValueError: naming ``name`` when ``p`` has a NaN or infinite, a negative entry, or does
+            not sum to 1 within ``atol``.
+    """
     p = np.asarray(p, np.float64)
     if not np.all(np.isfinite(p)):
         raise ValueError(f"{name} contains NaN or infinite probabilities")
@@ -110,7 +136,7 @@ def check_distribution(name: str, p, axis: int = -1, atol: float = 1e-3) -> np.n
 
 def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
                      measured=None) -> jax.Array:
-    """(L, L, nb) frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24).
+    """[L, L, nb] frame-scale beliefs from the reference frame (Z eqs. 4.22–4.24).
 
     Decisions: docs/bsp.md §Z-9–Z-10.
 
@@ -125,6 +151,18 @@ def scale_posteriors(models: Models, trip, known, ref, ref_scale, lm_mask,
     composed). Otherwise (docs/bsp.md §Z-10) a pair inside a known triplet gets the uniform
     distribution over the observable bins (an observed triplet has pairwise distances ≤ 2R)
     and any other pair the uniform distribution over all bins.
+
+    Args:
+        models: the offline tables (``G2``, ``GA``, ``GB``).
+        trip: [L, L, L, Q] triplet rows.
+        known: [L, L, L] bool, rows that may serve the scales (measured or composed).
+        ref: [2] the reference frame (a, b).
+        ref_scale: [nb] its known scale.
+        lm_mask: [L] bool, real landmarks.
+        measured: optional [L, L, L] bool, the measured subset of ``known``.
+
+    Returns:
+        [L, L, nb] the scale distribution of every frame (symmetric in the pair).
     """
     if measured is not None:
         s_m, has_m, in_m = _scales(models, trip, measured, ref, ref_scale, lm_mask)
@@ -194,11 +232,22 @@ def new_frame(frame, k, link) -> jax.Array:
 
 @jax.jit
 def update(models: Models, belief: QBelief, action, k, zhat, link) -> tuple[QBelief, jax.Array]:
-    """ψ (Z eq. 4.25): the belief after action, observation of ``frame:k`` with ẑ, and link.
+    """ψ (Z eq. 4.25): the belief after an action, an observation of ``frame:k`` and a link.
 
-    Returns ``(belief', η)``. The triplet row ``frame:k`` becomes the marginal of J
-    (its other orderings and the rest of the map are unchanged; the execution loop updates the
-    map by PQRM). With η = 0 (impossible evidence) see the module docstring.
+    The triplet row ``frame:k`` becomes the marginal of J (its other orderings and the rest of
+    the map are unchanged; the execution loop updates the map by PQRM). With η = 0 (impossible
+    evidence) see the module docstring.
+
+    Args:
+        models: the offline tables.
+        belief: the belief before the step (its frame is the acting frame).
+        action: [] int, the qualitative action "go to state a".
+        k: [] int, the observed third landmark β.
+        zhat: [] int, the measured joint state ẑ = ẑ_x·Q + ẑ_τ.
+        link: [] int, the link option (0: keep the frame, 1: (i, k), 2: (j, k)).
+
+    Returns:
+        ``(belief', η)``: the updated :class:`QBelief` and the [] evidence η.
     """
     i, j = belief.frame[0], belief.frame[1]
     sf = belief.scale[i, j]

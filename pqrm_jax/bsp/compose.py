@@ -38,6 +38,12 @@ def triplet_link_graph(triplets: Iterable[Iterable]) -> nx.Graph:
 
     Two triplets are linked when they share two landmarks
     (:func:`pqrm_jax.triplets.link_adjacency` with β = 2).
+
+    Args:
+        triplets: the triplets, each an iterable of three landmark ids.
+
+    Returns:
+        The undirected graph; every triplet is a node, isolated ones included.
     """
     T = sorted(as_triplet_set(triplets), key=lambda t: sorted(map(str, t)))
     g = nx.Graph()

@@ -119,7 +119,7 @@ def _ids(what: str, ids, count: int | None, n: int) -> tuple:
 
 def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
              R: float = 1.0, max_tries: int = 1000) -> Environment:
-    """One random environment (module docstring).
+    """One random environment of Z §4.3 (module docstring).
 
     Args:
         rng: NumPy generator.
@@ -129,10 +129,23 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
         R: sensing range (positive, finite).
         max_tries: draws before giving up (positive integer).
 
+    Returns:
+        The :class:`Environment` (landmark positions [n, 2], goal, initial frame, start,
+        initial-belief triplets).
+
     Raises:
         ValueError: naming the argument for bad values; RuntimeError when no valid
             environment is found in ``max_tries`` draws (e.g. ``size`` too small for ``n``
             landmarks ``r_min`` apart).
+
+    >>> import networkx as nx, numpy as np
+    >>> env = generate(np.random.default_rng(0), 6, 2.0)
+    >>> len(env.pos), env.goal, env.frame, len(env.triplets)
+    (6, (0, 2, 3), (0, 5), 4)
+    >>> check_environment(env, L_max=12)          # a composable initial belief: accepted
+    >>> from pqrm_jax.bsp import triplet_link_graph
+    >>> nx.is_connected(triplet_link_graph(env.triplets))
+    True
     """
     if not isinstance(n, int | np.integer) or isinstance(n, bool | np.bool_):
         raise ValueError(f"n must be an integer >= 3, got {n!r}")
@@ -169,11 +182,18 @@ def generate(rng: np.random.Generator, n: int, size: float, r_min: float = 0.05,
 
 
 def check_environment(env: Environment, L_max: int) -> None:
-    """``ValueError`` naming the problem (module docstring).
+    """Refuse an environment a test cannot run on (Z §4.3; module docstring).
 
     Refused: fewer than 3 or more than ``L_max`` landmarks, non-finite or coincident
     landmark positions, a non-finite robot start, landmark ids (target, frame, initial-belief
     triplets) that are not integers, repeated or unknown, a non-composable initial belief.
+
+    Args:
+        env: the environment.
+        L_max: the padded landmark count of the study.
+
+    Raises:
+        ValueError: naming the problem.
     """
     pos = np.asarray(env.pos, float)
     n = len(pos)
@@ -206,14 +226,32 @@ def check_environment(env: Environment, L_max: int) -> None:
                          "(Z §4.2.6 assumes a composable M_1)")
 
 
-def initial_belief(models: Models, env: Environment, key, *, compositions: bool,
+def initial_belief(key: jax.Array, models: Models, env: Environment, *, compositions: bool,
                    L_max: int = 12, sigma_z: float = 0.05, samples: int = 256,
                    calculus: str = "edc", scale_model: str = "composed") -> QBelief:
-    """The initial belief of one test (module docstring), padded to ``L_max`` landmarks.
+    """The initial belief of one test (Z §4.3, module docstring), padded to ``L_max`` landmarks.
 
     With ``scale_model="composed"`` (docs/bsp.md §Z-10) the composed rows are computed in both
     modes; without compositions they are marked ``SCALE_ONLY`` (frame scales, not
     candidates), so both modes have the same initial frame scales.
+
+    Args:
+        key: PRNG key of the PQRM measurement samples (initial triplets and robot state).
+        models: the offline tables.
+        env: the environment (checked by :func:`check_environment`).
+        compositions: whether composed triplets are candidates (Z eqs. 4.26–4.28).
+        L_max: padded landmark count L.
+        sigma_z: measurement noise in units of R.
+        samples: PQRM samples per measured row (P eq. 2.9).
+        calculus: the calculus name (EDC in Z).
+        scale_model: ``"composed"`` or ``"belief"`` (docs/bsp.md §Z-10).
+
+    Returns:
+        The :class:`QBelief` (frame [2], robot [Q], trip [L, L, L, Q], trip_src and ncomp
+        [L, L, L], scale [L, L, nb], lm_mask [L], conflicts []).
+
+    Raises:
+        ValueError: for a bad environment or an unknown ``scale_model``.
     """
     check_scale_model(scale_model)
     check_environment(env, L_max)

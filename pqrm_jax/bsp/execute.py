@@ -159,14 +159,77 @@ def map_update(key, models: Models, before: QBelief, after: QBelief, rel, cand, 
                           conflicts=after.conflicts + conflict.sum().astype(jnp.int32))
 
 
-def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref, ref_scale,
-             key, cost, pp: PlannerParams, ep: ExecParams) -> Outcome:
-    """Execute one test (module docstring) with cost ``cost`` (1 or 2, traced); pure and
-    ``vmap``-able over lanes (``pp.cost`` is ignored)."""
+class Lane(NamedTuple):
+    """The inputs of one lane (one test: environment × mode × cost), shapes for L landmarks.
+
+    Batched by :func:`run_lanes` with a leading lane axis on every field.
+    """
+
+    pos: jax.Array  # [L, 2] landmark positions (units of R; padding landmarks far away)
+    lm_mask: jax.Array  # [L] bool: real (not padding) landmarks
+    goal: jax.Array  # [3] int32 the goal triplet's landmark ids
+    start: jax.Array  # [2] the true start position of the robot
+    belief: QBelief  # the initial belief (its mode: with or without compositions)
+    ref: jax.Array  # [2] int32 the reference frame F_1 (its scale is known)
+    ref_scale: jax.Array  # [nb] one-hot scale bin of ``ref``
+    cost: jax.Array  # [] int32 the cost the planner minimises: 1 (eq. 4.29) or 2 (eq. 4.30)
+
+
+def _choose_candidate(fg, frame, cand, goal, cb, lam, rho: float):
+    """Step 4 of the module docstring: among the candidates ``cand`` [L], the landmark ``k``
+    whose best link (frame, (i, k) or (j, k)) has the smallest leaf value (the goal landmark
+    first, ties keep the frame); returns (k, link) as int32 scalars."""
+    L = cand.shape[0]
+    idx = jnp.arange(L)
+    i, j = frame[0], frame[1]
+    isg = fg.goal_obs[i, j] & (idx == goal.sum() - i - j)
+    h_f = leaf_values(fg, frame, cb, lam, rho)
+    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, rho)
+    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, rho)
+    hs = jnp.stack([jnp.full(L, h_f), h_ik, h_jk], -1)  # (L, 3)
+    kval = jnp.where(isg, -1.0, hs.min(-1))
+    kval = jnp.where(cand, kval, jnp.inf)
+    k = jnp.argmin(kval)
+    return k, jnp.argmin(hs[k])
+
+
+def _nondetection_step(models: Models, sf, pred, bel: QBelief, unseen, i, j) -> QBelief:
+    """EXTENSION (docs/bsp.md §non-detection): the negative-information update of the rows
+    (i, j, k) and (j, i, k) of the landmarks ``unseen`` [L] from the robot's predicted state
+    ``pred`` [Q] in a frame of scale ``sf`` [nb]."""
+    rows_ij, bad = non_detection(models, sf, pred, bel.trip[i, j], unseen)
+    # the reversed ordering ji:k is INVERSE of ij:k, an exact permutation P = U[2]
+    # (P = Pᵀ = P⁻¹): update it in the ij order with the same likelihood
+    P = models.U[2]
+    rows_ji, _ = non_detection(models, sf, pred, bel.trip[j, i] @ P, unseen)
+    nd_trip = bel.trip.at[i, j].set(rows_ij).at[j, i].set(rows_ji @ P)
+    return bel._replace(trip=nd_trip, conflicts=bel.conflicts + bad)
+
+
+def run_lane(key: jax.Array, models: Models, D1: jax.Array, lane: Lane, pp: PlannerParams,
+             ep: ExecParams) -> Outcome:
+    """Execute one test (module docstring, Z §4.3 / Fig. 4.6); pure and ``vmap``-able.
+
+    Args:
+        key: PRNG key of the lane (planner sessions, motion and sensor noise, PQRM samples).
+        models: the offline tables (:func:`~pqrm_jax.bsp.models.build_models`).
+        D1: [Q, Q] neighbour distance of cost 1 (eq. 4.29).
+        lane: the lane's inputs (:class:`Lane`); ``lane.cost`` (1 or 2, traced) overrides
+            ``pp.cost``.
+        pp: static planner settings.
+        ep: static execution settings.
+
+    Returns:
+        The lane's :class:`Outcome` (scalars; ``log_*`` with a leading ``[ep.t_max]`` axis).
+
+    Raises:
+        ValueError: if ``ep.on_no_plan`` is not ``"stop"`` or ``"continue"``.
+    """
     if ep.on_no_plan not in ("stop", "continue"):
         raise ValueError(f"ExecParams.on_no_plan must be 'stop' or 'continue', got "
                          f"{ep.on_no_plan!r}")
     calc = calculi.get(ep.calculus)
+    pos, lm_mask, goal, cost = lane.pos, lane.lm_mask, lane.goal, lane.cost
     L = pos.shape[0]
     idx = jnp.arange(L)
     cb = cbar(models, D1, cost)
@@ -174,16 +237,13 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
     sensor = sim.SensorParams(max_range=1.0, sigma=ep.sigma_z)
 
     def step(st: LaneState, t):
-        x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key = st
-        key, kp, km, ko, kq = jax.random.split(key, 5)
+        bel, x = st.belief, st.pos
+        key, kp, km, ko, kq = jax.random.split(st.key, 5)
         fg = frame_graph(models, bel.trip, bel.trip_src, bel.scale, lm_mask, goal, ep.eps_obs)
-        pl = plan(models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, kp, pp, cost)
+        pl = plan(kp, models, D1, bel.trip, bel.scale, fg, goal, bel.frame, bel.robot, pp, cost)
         exists = plan_exists(fg, bel.frame)
-        ex0 = jnp.where(t == 0, exists, ex0)
-        tex0 = jnp.where(t == 0, pl.exists, tex0)
-        v0 = jnp.where(t == 0, pl.value, v0)
         go_on = exists if ep.on_no_plan == "stop" else (exists | (t > 0))
-        active = (~done) & go_on
+        active = (~st.done) & go_on
         a = pl.action
         i, j = bel.frame[0], bel.frame[1]
         tgt = _to_world(pos[i], pos[j], models.targets[a])
@@ -192,22 +252,12 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         s0 = calc.classify(pos[i], pos[j], x)
         s1 = calc.classify(pos[i], pos[j], xn)
         d1 = D1[jnp.clip(s0, 0), jnp.clip(s1, 0)]
-        c1 = c1 + jnp.where(active, d1, 0.0)
-        c2 = c2 + jnp.where(active, jnp.linalg.norm(xn - x), 0.0)
         ob = sim.observe(ko, jnp.concatenate([xn, jnp.zeros(1)]), pos, sensor)
         vis = ob.visible & lm_mask
         got = active & vis[goal].all()
         avail = in_belief(bel.trip_src[i, j])
         cand = vis & vis[i] & vis[j] & (idx != i) & (idx != j) & avail
-        isg = fg.goal_obs[i, j] & (idx == goal.sum() - i - j)
-        h_f = leaf_values(fg, bel.frame, cb, lam, pp.rho)
-        h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
-        h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
-        hs = jnp.stack([jnp.full(L, h_f), h_ik, h_jk], -1)  # (L, 3)
-        kval = jnp.where(isg, -1.0, hs.min(-1))
-        kval = jnp.where(cand, kval, jnp.inf)
-        k = jnp.argmin(kval)
-        link = jnp.argmin(hs[k])
+        k, link = _choose_candidate(fg, bel.frame, cand, goal, cb, lam, pp.rho)
         anyc = cand.any()
         z = discretise(ob.rel[i], ob.rel[j], ob.rel[k], models.num_states, calc)
         upd, _ = update(models, bel, a, k, jnp.clip(z, 0), link)
@@ -218,30 +268,27 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
         if ep.nondetection:  # EXTENSION (docs/bsp.md §non-detection); off in the thesis model
             unseen = (avail & lm_mask & (idx != i) & (idx != j)
                       & ~(vis[i] & vis[j] & vis))
-            pred = nothing.robot  # the prediction (the robot's state when it looked)
-            rows_ij, bad = non_detection(models, sf, pred, nb_.trip[i, j], unseen)
-            # the reversed ordering ji:k is INVERSE of ij:k, an exact permutation P = U[2]
-            # (P = Pᵀ = P⁻¹): update it in the ij order with the same likelihood
-            P = models.U[2]
-            rows_ji, _ = non_detection(models, sf, pred, nb_.trip[j, i] @ P, unseen)
-            nd_trip = nb_.trip.at[i, j].set(rows_ij).at[j, i].set(rows_ji @ P)
-            nb_ = nb_._replace(trip=nd_trip, conflicts=nb_.conflicts + bad)
+            nb_ = _nondetection_step(models, sf, nothing.robot, nb_, unseen, i, j)
         # PQRM rows of every observed candidate triplet (i, j, k'), all orderings
-        nb_ = map_update(kq, models, bel, nb_, ob.rel, cand, ref, ref_scale, ep)
+        nb_ = map_update(kq, models, bel, nb_, ob.rel, cand, lane.ref, lane.ref_scale, ep)
         bel = jax.tree.map(lambda u, v: jnp.where(active, u, v), nb_, bel)
-        x = xn
-        reached = reached | got
-        nst = nst + active.astype(jnp.int32)
-        done = done | got | ~go_on
         logs = (jnp.where(active, bel.frame, -1), jnp.where(active, a, -1),
-                jnp.where(active & anyc, k, -1), x)
-        return LaneState(x, bel, done, reached, c1, c2, nst, ex0, tex0, v0, key), logs
+                jnp.where(active & anyc, k, -1), xn)
+        first = t == 0
+        return LaneState(
+            pos=xn, belief=bel, done=st.done | got | ~go_on, reached=st.reached | got,
+            cost1=st.cost1 + jnp.where(active, d1, 0.0),
+            cost2=st.cost2 + jnp.where(active, jnp.linalg.norm(xn - x), 0.0),
+            steps=st.steps + active.astype(jnp.int32),
+            exists=jnp.where(first, exists, st.exists),
+            tree_exists=jnp.where(first, pl.exists, st.tree_exists),
+            root_value=jnp.where(first, pl.value, st.root_value), key=key), logs
 
     f0 = jnp.zeros((), bool)
     z0 = jnp.zeros((), jnp.float32)
-    init = LaneState(pos=start, belief=belief, done=f0, reached=f0, cost1=z0, cost2=z0,
-                     steps=jnp.zeros((), jnp.int32), exists=f0, tree_exists=f0, root_value=z0,
-                     key=key)
+    init = LaneState(pos=lane.start, belief=lane.belief, done=f0, reached=f0, cost1=z0,
+                     cost2=z0, steps=jnp.zeros((), jnp.int32), exists=f0, tree_exists=f0,
+                     root_value=z0, key=key)
     st, logs = jax.lax.scan(step, init, jnp.arange(ep.t_max))
     return Outcome(exists=st.exists, tree_exists=st.tree_exists, reached=st.reached,
                    cost1=st.cost1, cost2=st.cost2, steps=st.steps,
@@ -250,10 +297,25 @@ def run_lane(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref
 
 
 @partial(jax.jit, static_argnames=("pp", "ep"))
-def run_lanes(models: Models, D1, pos, lm_mask, goal, start, belief: QBelief, ref, ref_scale,
-              keys, costs, pp: PlannerParams, ep: ExecParams) -> Outcome:
-    """:func:`run_lane` ``vmap``-ed over a leading lane axis of every per-lane argument
-    (``costs`` (lanes,) int: 1 or 2 per lane)."""
+def run_lanes(keys: jax.Array, models: Models, D1: jax.Array, lanes: Lane, pp: PlannerParams,
+              ep: ExecParams) -> Outcome:
+    """:func:`run_lane` ``vmap``-ed over lanes, one compiled program per lane layout.
+
+    Args:
+        keys: [N] PRNG keys, one per lane.
+        models: the offline tables (shared by every lane).
+        D1: [Q, Q] neighbour distance of cost 1 (eq. 4.29).
+        lanes: a :class:`Lane` whose every field has a leading ``[N]`` lane axis
+            (``lanes.cost`` [N] int32: 1 or 2 per lane).
+        pp: static planner settings.
+        ep: static execution settings.
+
+    Returns:
+        The :class:`Outcome` of every lane, each field with a leading ``[N]`` axis.
+
+    Raises:
+        ValueError: if ``ep.on_no_plan`` is not ``"stop"`` or ``"continue"``.
+
+    """
     f = partial(run_lane, pp=pp, ep=ep)
-    return jax.vmap(f, (None, None, 0, 0, 0, 0, 0, 0, 0, 0, 0))(
-        models, D1, pos, lm_mask, goal, start, belief, ref, ref_scale, keys, costs)
+    return jax.vmap(f, (0, None, None, 0))(keys, models, D1, lanes)

@@ -51,7 +51,21 @@ def available(trip_src, lm_mask) -> jax.Array:
 @partial(jax.jit, static_argnames=("eps",))
 def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float = 0.01
                 ) -> FrameGraph:
-    """Observability and hop counts of the frozen belief (module docstring); jit-able."""
+    """Observability and hop counts of the frozen belief (Z §4.2.6, module docstring); jit-able.
+
+    Args:
+        models: the offline tables.
+        trip: [L, L, L, Q] triplet rows.
+        trip_src: [L, L, L] int8 source codes.
+        scale: [L, L, nb] frame scales.
+        lm_mask: [L] bool, real landmarks.
+        goal: [3] int, the goal triplet.
+        eps: observability threshold ε_obs on P(β visible).
+
+    Returns:
+        The :class:`FrameGraph` (``Ab`` [L, L, L, Q, nb], ``obs`` [L, L, L], ``hops`` and
+        ``goal_obs`` [L, L]).
+    """
     L = trip.shape[0]
     av = available(trip_src, lm_mask)
     Ab = jnp.einsum("xtb,ijkt->ijkxb", models.A, trip) * av[..., None, None]
@@ -76,5 +90,13 @@ def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float
 
 
 def plan_exists(graph: FrameGraph, frame) -> jax.Array:
-    """``True`` iff some sequence of observable links from ``frame`` reaches the goal."""
+    """Whether some sequence of observable links from ``frame`` reaches the goal (Z §4.3).
+
+    Args:
+        graph: the session's :class:`FrameGraph`.
+        frame: [2] int, the current frame.
+
+    Returns:
+        [] bool.
+    """
     return graph.hops[frame[0], frame[1]] < INF

@@ -174,7 +174,15 @@ class Models(NamedTuple):
 
 
 def stderr(models: Models, name: str) -> np.ndarray:
-    """Binomial standard error of every entry of table ``name`` (same shape as the table)."""
+    """Binomial standard error of every entry of table ``name`` (Z §4.2; module docstring).
+
+    Args:
+        models: the tables with their per-cell counts.
+        name: a table name (``"T"``, ``"AZ"``, ...).
+
+    Returns:
+        An array of the table's shape.
+    """
     p = np.asarray(getattr(models, name), np.float64)
     n = np.asarray(models.counts[name], np.float64)
     n = n.reshape(n.shape + (1,) * (p.ndim - n.ndim))
@@ -361,11 +369,20 @@ def _normalise(c):
 
 def sample_tables(params: ModelParams | None = None,
                   names: tuple[str, ...] = TABLES) -> dict[str, np.ndarray]:
-    """The tables ``names`` (a subset of ``TABLES``) as :func:`build_models` samples them.
+    """The tables ``names`` (a subset of ``TABLES``) as :func:`build_models` samples them (Z §4.2).
 
     Each table has its own key, so a subset is bit-identical to the same tables of the full
     build: a cheap way to test one table (e.g. the σ → 0 limits of ``T`` and ``AZ``).
-    Returns float64 NumPy arrays (normalised as in :class:`Models`).
+
+    Args:
+        params: the sampling parameters (default :class:`ModelParams`).
+        names: the tables to sample.
+
+    Returns:
+        ``{name: float64 NumPy array}``, normalised as in :class:`Models`.
+
+    Raises:
+        ValueError: for unknown table names or invalid ``params``.
     """
     p = (params or ModelParams()).validate()
     names = tuple(sorted(set(names)))
@@ -407,7 +424,17 @@ def bin_edges(params: ModelParams) -> np.ndarray:
 
 
 def build_models(params: ModelParams | None = None) -> Models:
-    """Sample every table of the module docstring (no cache; see :func:`load_models`)."""
+    """Sample every table of Z §4.2.2–4.2.5 (module docstring); no cache, see :func:`load_models`.
+
+    Args:
+        params: the sampling parameters (default :class:`ModelParams`).
+
+    Returns:
+        The :class:`Models` with their per-cell counts and derived fields.
+
+    Raises:
+        ValueError: for invalid ``params``.
+    """
     p = (params or ModelParams()).validate()
     calc = calculi.get(p.calculus)
     out = sample_tables(p)
@@ -481,7 +508,19 @@ def read_models(path: Path, params: ModelParams) -> Models:
 
 def load_models(params: ModelParams | None = None, *, directory: Path | None = None,
                 rebuild: bool = False) -> Models:
-    """The models for ``params`` from the cache, sampling and caching them when missing.
+    """The models for ``params`` from the cache, sampling and caching them when missing (Z §4.2).
+
+    Args:
+        params: the sampling parameters (default :class:`ModelParams`).
+        directory: the cache directory (default: the library's cache directory).
+        rebuild: sample again even when a cached file exists.
+
+    Returns:
+        The :class:`Models`.
+
+    Raises:
+        ValueError: for invalid ``params``; ``CacheError`` for a corrupt or mismatching cache
+            file (named, with how to regenerate it).
 
     >>> m = load_models(ModelParams(samples=8, pool=1 << 16))   # doctest: +SKIP
     """

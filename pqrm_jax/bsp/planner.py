@@ -270,16 +270,28 @@ def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array
 
 
 @partial(jax.jit, static_argnames=("pp",))
-def plan(models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot, key,
+def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, frame, robot,
          pp: PlannerParams = DEFAULT, cost=None) -> Plan:
-    """Plan from ``frame`` with robot belief ``robot`` (module docstring); jit, vmap-able.
+    """Plan from ``frame`` with robot belief ``robot`` (Z §4.2.1, module docstring); jit, vmap-able.
 
     Args:
-        models: offline tables. D1: (Q, Q) neighbour distance (eq. 4.29).
-        trip: (L, L, L, Q) frozen triplet beliefs. scale: (L, L, nb) frame scales.
-        fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`. goal: (3,) landmark ids.
-        frame: (2,) current frame. robot: (Q,) robot belief. key: PRNG key of the session.
-        pp: static settings. cost: optional traced 1 or 2 overriding ``pp.cost``.
+        key: PRNG key of the session (the tree's sampled outcomes).
+        models: offline tables.
+        D1: [Q, Q] neighbour distance (eq. 4.29).
+        trip: [L, L, L, Q] frozen triplet beliefs.
+        scale: [L, L, nb] frame scales.
+        fg: the session's :func:`~pqrm_jax.bsp.graph.frame_graph`.
+        goal: [3] landmark ids.
+        frame: [2] current frame.
+        robot: [Q] robot belief.
+        pp: static settings.
+        cost: optional traced 1 or 2 overriding ``pp.cost``.
+
+    Returns:
+        The :class:`Plan` (root value, first action, plan exists, first-level details).
+
+    Raises:
+        ValueError: for ``pp.depth < 1`` or an unknown ``pp.sampler``.
     """
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")

@@ -60,6 +60,7 @@ from pqrm_jax.hssh.motion import ACTION_MODELS, decompose, sample_motion
 from pqrm_jax.hssh.shapes import ShapeCase, shape_cases, shape_check, shape_image
 from pqrm_jax.hssh.skeleton import PrunedSkeleton, prune_skeleton, skeleton_graph
 from pqrm_jax.hssh.star import (
+    Star,
     StarEntry,
     build_star,
     left_of,
@@ -91,7 +92,8 @@ __all__ = [
     "zhang_suen_thin", "evg_skeleton",
     "PrunedSkeleton", "prune_skeleton", "skeleton_graph",
     "Core", "Gateway", "core", "search_spaces", "find_gateways",
-    "StarEntry", "build_star", "path_continuity", "star_isomorphisms", "right_of", "left_of",
+    "Star", "StarEntry", "build_star", "path_continuity", "star_isomorphisms", "right_of",
+    "left_of",
     "LocalTopology", "MIN_SIDE", "local_topology", "local_topology_batch",
     "topology_from_maps", "place_kind", "occupancy_from_grid", "resolution_bound",
 ]

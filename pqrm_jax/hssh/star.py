@@ -11,6 +11,14 @@ Clockwise is as seen on the grid image (row 0 at the top); the list starts at th
 nearest clockwise from "up". :func:`star_isomorphisms` finds the rotations that preserve
 traversability and direction pairing (two + stars: exactly 4); :func:`right_of` /
 :func:`left_of` give the qualitative sides of a directed path (B §5.1).
+
+:class:`Star` is the one star type of the HSSH, local and global levels alike (the global
+levels, :mod:`pqrm_jax.hssh_global`, use it for views and the tree of maps): the topology
+``(path, dir, alpha)`` of the clockwise list, built from any entries with
+:meth:`Star.from_entries` (``(path, direction, traversable)`` triples, or the
+:class:`StarEntry` records of :func:`build_star`, which also carry the gateway and angle).
+:func:`star_isomorphisms` is the one host isomorphism; it takes stars or entry lists, and
+:func:`pqrm_jax.hssh_global.match_matrix` is its batched (``vmap``) twin.
 """
 
 from __future__ import annotations
@@ -21,8 +29,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["StarEntry", "build_star", "path_continuity", "star_isomorphisms", "right_of",
-           "left_of", "clockwise_angle"]
+__all__ = ["Star", "StarEntry", "build_star", "path_continuity", "star_isomorphisms",
+           "right_of", "left_of", "clockwise_angle"]
 
 
 class StarEntry(NamedTuple):
@@ -42,8 +50,86 @@ class StarEntry(NamedTuple):
     angle: float
 
 
+class Star(NamedTuple):
+    """A local topology: the clockwise circular list of directed local paths (B §5.1).
+
+    Entry ``i`` has a local path id ``path[i]``, a direction ``dir[i]`` (+1/-1 away from the
+    place) and a traversability ``alpha[i]`` (1 when a corridor leads away in that
+    direction); ``opp[i]`` is the entry of the same path in the other direction. Hashable
+    and compared by value (the tree of maps keys views by it).
+
+    Attributes:
+        path: ``tuple[int]`` of length ``L``, the local path id of each entry.
+        dir: ``tuple[int]`` of length ``L``, +1 or -1.
+        alpha: ``tuple[int]`` of length ``L``, 0 or 1.
+
+    >>> Star.from_entries([(0, 1, True), (1, 1, True), (0, -1, True), (1, -1, True)]).opp
+    (2, 3, 0, 1)
+    """
+
+    path: tuple
+    dir: tuple
+    alpha: tuple
+
+    @staticmethod
+    def from_entries(entries) -> Star:
+        """Build and validate a star from its clockwise entries (B §5.1).
+
+        Args:
+            entries: a [L] sequence of ``(path, direction, traversable, ...)`` (triples, or
+                :class:`StarEntry` records whose extra fields are dropped).
+
+        Returns:
+            The :class:`Star` (``alpha`` as 0/1 integers).
+
+        Raises:
+            ValueError: for no entry, a direction other than ±1, a directed path listed twice,
+                a path without its opposite direction, or a traversability other than 0/1.
+        """
+        entries = [(int(e[0]), int(e[1]), int(e[2])) for e in entries]
+        if not entries:
+            raise ValueError("a star needs at least one directed local-path")
+        path, dirs, alpha = zip(*entries, strict=True)
+        star = Star(tuple(path), tuple(dirs), tuple(alpha))
+        seen = {}
+        for i, (p, d) in enumerate(zip(path, dirs, strict=True)):
+            if d not in (1, -1):
+                raise ValueError(f"entry {i}: direction must be +1 or -1, got {d}")
+            if (p, d) in seen:
+                raise ValueError(f"entry {i}: directed local-path ({p}, {d}) appears twice")
+            seen[(p, d)] = i
+        for p, d in seen:
+            if (p, -d) not in seen:
+                raise ValueError(f"star not closed under opposite direction: path {p}")
+        if any(a not in (0, 1) for a in alpha):
+            raise ValueError("alpha must be 0 or 1")
+        return star
+
+    def __len__(self) -> int:  # number of entries L
+        return len(self.path)
+
+    @property
+    def opp(self) -> tuple:
+        """[L] index of the opposite direction of each entry."""
+        index = {(p, d): i for i, (p, d) in enumerate(zip(self.path, self.dir, strict=True))}
+        return tuple(index[(p, -d)] for p, d in zip(self.path, self.dir, strict=True))
+
+    def rotate(self, s: int) -> Star:
+        """The same star listed from entry ``s`` (entry ``s`` becomes entry 0)."""
+        n = len(self)
+        idx = [(i + s) % n for i in range(n)]
+        return Star(tuple(self.path[i] for i in idx), tuple(self.dir[i] for i in idx),
+                    tuple(self.alpha[i] for i in idx))
+
+
 def clockwise_angle(vec: Sequence[float]) -> float:
-    """Clockwise angle from "up" (degrees in [0, 360)) of a (row, col) vector.
+    """Clockwise angle from "up" (degrees in [0, 360)) of a (row, col) vector (B §5.1).
+
+    Args:
+        vec: a [2] (row, col) vector; row grows downwards (the grid image).
+
+    Returns:
+        The angle in degrees, in [0, 360).
 
     >>> clockwise_angle((-1, 0)), clockwise_angle((0, 1)), clockwise_angle((1, 0))
     (0.0, 90.0, 180.0)
@@ -115,11 +201,22 @@ def _check_gateways(ends, outward, centre=None):
 
 
 def path_continuity(ends_a, out_a, ends_b, out_b) -> bool:
-    """B §5.2.2 path-continuity test between two gateways.
+    """B §5.2.2 path-continuity test: are two gateways the two ends of one local path?
+
+    A ray from each gateway's midpoint, normal to it and into the place, must hit the other
+    segment. Scale-free (the same answer in every unit and origin).
 
     Args:
-        ends_a, ends_b: ``[2, 2]`` segment end points (row, col).
-        out_a, out_b: ``[2]`` outward unit normals.
+        ends_a: ``[2, 2]`` segment end points (row, col) of gateway a.
+        out_a: ``[2]`` outward normal of gateway a (normalised here).
+        ends_b: ``[2, 2]`` segment end points of gateway b.
+        out_b: ``[2]`` outward normal of gateway b.
+
+    Returns:
+        True when each inward ray hits the other gateway.
+
+    Raises:
+        ValueError: for non-finite or degenerate segments or normals.
 
     >>> a = np.array([[0.0, 0.0], [0.0, 2.0]]); b = np.array([[5.0, 0.0], [5.0, 2.0]])
     >>> path_continuity(a, np.array([-1.0, 0.0]), b, np.array([1.0, 0.0]))
@@ -148,7 +245,12 @@ def build_star(ends: np.ndarray, outward: np.ndarray, centre: np.ndarray) -> lis
         centre: float ``[2]`` the place centre (angles are measured around it).
 
     Returns:
-        the clockwise list of :class:`StarEntry`.
+        The clockwise list of :class:`StarEntry` (``Star.from_entries`` of it is the
+        topology).
+
+    Raises:
+        ValueError: for wrong shapes, non-finite values, zero-length gateways, zero normals
+            or a non-finite centre.
 
     >>> up = ([[0.0, 4.0], [0.0, 6.0]], [-1.0, 0.0]); dn = ([[9.0, 4.0], [9.0, 6.0]], [1.0, 0.0])
     >>> s = build_star(np.array([up[0], dn[0]]), np.array([up[1], dn[1]]), np.array([5.0, 5.0]))
@@ -199,14 +301,36 @@ def build_star(ends: np.ndarray, outward: np.ndarray, centre: np.ndarray) -> lis
 
 
 def _triples(star):
+    if isinstance(star, Star):
+        return [(p, d, bool(a)) for p, d, a in zip(star.path, star.dir, star.alpha, strict=True)]
     return [(int(e[0]), int(e[1]), bool(e[2])) for e in star]
 
 
-def star_isomorphisms(a: Sequence, b: Sequence) -> list[int]:
-    """Rotations ``k`` with ``phi(a[i]) = b[(i + k) % L]`` that are star isomorphisms (B §5.1).
+def _as_star(star) -> Star:
+    return star if isinstance(star, Star) else Star.from_entries(star)
 
-    ``phi`` must preserve traversability and map the two directions of a path to the two
-    directions of one path.
+
+def star_isomorphisms(a: Star | Sequence, b: Star | Sequence) -> list[int]:
+    """The rotations ``s`` such that ``φ(i) = (i + s) mod L`` is a star isomorphism a → b (B §5.1).
+
+    An isomorphism ``φ: S → S'`` is a bijection with ``next(φ(x)) = φ(next(x))`` that preserves
+    traversability and maps the two directions of a path to the two directions of one path:
+    for stars, a rotation of the circular list preserving ``alpha`` and the pairing ``opp``.
+    The one host implementation, for the local levels (shape checks) and the global levels
+    (view matching, the tree of maps); :func:`pqrm_jax.hssh_global.match_matrix` is its
+    batched twin.
+
+    Args:
+        a: the source star, a :class:`Star` or its [L] clockwise entries
+            ``(path, direction, traversable, ...)``.
+        b: the target star, likewise.
+
+    Returns:
+        The valid shifts in increasing order (empty when the stars are not isomorphic, or
+        either has no entry).
+
+    Raises:
+        ValueError: for entries that are not a star (:meth:`Star.from_entries`).
 
     >>> plus = [(0, 1, True), (1, 1, True), (0, -1, True), (1, -1, True)]
     >>> star_isomorphisms(plus, plus)
@@ -215,30 +339,27 @@ def star_isomorphisms(a: Sequence, b: Sequence) -> list[int]:
     >>> star_isomorphisms(tee, tee)
     [0]
     """
-    a, b = _triples(a), _triples(b)
-    n = len(a)
-    if n != len(b):
+    if len(a) == 0 or len(b) == 0:
         return []
+    a, b = _as_star(a), _as_star(b)
+    n = len(a)
+    if len(b) != n:
+        return []
+    oa, ob = a.opp, b.opp
     out = []
-    for k in range(n):
-        fwd: dict[int, int] = {}
-        bwd: dict[int, int] = {}
-        ok = True
-        for i in range(n):
-            x, y = a[i], b[(i + k) % n]
-            if x[2] != y[2] or fwd.setdefault(x[0], y[0]) != y[0] \
-                    or bwd.setdefault(y[0], x[0]) != x[0]:
-                ok = False
-                break
-        if ok:
-            out.append(k)
+    for s in range(n):
+        if all(b.alpha[(i + s) % n] == a.alpha[i] and ob[(i + s) % n] == (oa[i] + s) % n
+               for i in range(n)):
+            out.append(s)
     return out
 
 
 def _between(star, start, stop):
     s = _triples(star)
     n = len(s)
-    i0 = next(i for i, e in enumerate(s) if e[:2] == start)
+    i0 = next((i for i, e in enumerate(s) if e[:2] == start), None)
+    if i0 is None:
+        raise ValueError(f"directed path {start} is not in the star")
     out = []
     for k in range(1, n):
         e = s[(i0 + k) % n]
@@ -248,9 +369,21 @@ def _between(star, start, stop):
     raise ValueError(f"directed path {stop} is not in the star")
 
 
-def right_of(star: Sequence, path: int, direction: int) -> list[tuple[int, int]]:
-    """Directed paths strictly clockwise between ``(path, direction)`` and its opposite:
-    the ones to the right when leaving along ``(path, direction)`` (B §5.1).
+def right_of(star: Star | Sequence, path: int, direction: int) -> list[tuple[int, int]]:
+    """The directed paths to the right when leaving along ``(path, direction)`` (B §5.1).
+
+    They are the entries strictly clockwise between ``(path, direction)`` and its opposite.
+
+    Args:
+        star: a :class:`Star` or its [L] clockwise entries ``(path, direction, traversable)``.
+        path: the local path id.
+        direction: +1 or -1.
+
+    Returns:
+        The ``(path, direction)`` pairs in clockwise order.
+
+    Raises:
+        ValueError: when ``(path, direction)`` or its opposite is not in the star.
 
     >>> plus = [(0, 1, True), (1, 1, True), (0, -1, True), (1, -1, True)]
     >>> right_of(plus, 0, 1), left_of(plus, 0, 1)
@@ -259,6 +392,21 @@ def right_of(star: Sequence, path: int, direction: int) -> list[tuple[int, int]]
     return _between(star, (path, direction), (path, -direction))
 
 
-def left_of(star: Sequence, path: int, direction: int) -> list[tuple[int, int]]:
-    """Directed paths to the left when leaving along ``(path, direction)`` (B §5.1)."""
+def left_of(star: Star | Sequence, path: int, direction: int) -> list[tuple[int, int]]:
+    """The directed paths to the left when leaving along ``(path, direction)`` (B §5.1).
+
+    They are the entries strictly clockwise between the opposite ``(path, -direction)`` and
+    ``(path, direction)``.
+
+    Args:
+        star: a :class:`Star` or its [L] clockwise entries ``(path, direction, traversable)``.
+        path: the local path id.
+        direction: +1 or -1.
+
+    Returns:
+        The ``(path, direction)`` pairs in clockwise order.
+
+    Raises:
+        ValueError: when ``(path, direction)`` or its opposite is not in the star.
+    """
     return _between(star, (path, -direction), (path, direction))

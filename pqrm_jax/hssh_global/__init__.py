@@ -1,6 +1,7 @@
 """HSSH global levels: tree of topological maps, global metrical layout, navigation (B ch. 8–9).
 
-* :mod:`~pqrm_jax.hssh_global.star` — stars, views, isomorphism matching (B §5.1, §8.2).
+* :mod:`~pqrm_jax.hssh_global.star` — views and their matching (B §8.2) on the local levels'
+  star type and isomorphism (``Star``, ``star_isomorphisms`` of :mod:`pqrm_jax.hssh.star`).
 * :mod:`~pqrm_jax.hssh_global.world` — abstract corridor worlds and explorations (B §8.4).
 * :mod:`~pqrm_jax.hssh_global.tree` — the tree of topological map hypotheses (B Alg. 8.1).
 * :mod:`~pqrm_jax.hssh_global.layout` — SE(2) compounding, LM spring relaxation (B ch. 9).
@@ -51,7 +52,14 @@ from .simulation import (
     sim_world,
     true_layout_sim,
 )
-from .star import Star, isomorphisms, match_matrix, pad_views, view_from_local_star, view_match
+from .star import (
+    Star,
+    match_matrix,
+    pad_views,
+    star_isomorphisms,
+    view_from_local_star,
+    view_match,
+)
 from .tree import (
     MapHypothesis,
     TreeLog,
@@ -77,7 +85,7 @@ from .world import (
     world_from_lattice,
 )
 
-__all__ = ["Star", "isomorphisms", "match_matrix", "pad_views", "view_match",
+__all__ = ["Star", "star_isomorphisms", "match_matrix", "pad_views", "view_match",
            "view_from_local_star",
            "CorridorWorld", "Experience", "explore", "grid_world", "office_world",
            "world_from_lattice", "global_paths",

@@ -57,12 +57,27 @@ def wrap(t):
 
 
 def se2_compose(a, b):
-    """``a ⊕ b`` for SE(2) poses ``[..., 3]`` (Smith, Self & Cheeseman; B §9.1)."""
+    """``a ⊕ b`` for SE(2) poses ``[..., 3]`` (Smith, Self & Cheeseman; B §9.1).
+
+    Args:
+        a: ``[..., 3]`` poses (x, y, θ).
+        b: ``[..., 3]`` poses in the frame of ``a``.
+
+    Returns:
+        ``[..., 3]`` the composed poses, θ wrapped to [-π, π).
+    """
     return _compose(jnp, jnp.asarray(a), jnp.asarray(b))
 
 
 def se2_inverse(a):
-    """``⊖a`` for SE(2) poses ``[..., 3]``."""
+    """``⊖a`` for SE(2) poses ``[..., 3]``.
+
+    Args:
+        a: ``[..., 3]`` poses (x, y, θ).
+
+    Returns:
+        ``[..., 3]`` the inverse poses (B §9.1).
+    """
     return _inverse(jnp, jnp.asarray(a))
 
 
@@ -73,6 +88,13 @@ def se2_compose_host(a, b) -> np.ndarray:
     so point clouds of varying size (LPM snapshots) and per-travel loops cost a compile or a
     dispatch each through :func:`se2_compose`, in float32; this one runs in NumPy, in float64.
 
+    Args:
+        a: ``[..., 3]`` poses (x, y, θ).
+        b: ``[..., 3]`` poses in the frame of ``a``.
+
+    Returns:
+        ``[..., 3]`` float64 composed poses.
+
     >>> se2_compose_host([1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]).round(6).tolist()
     [1.0, 1.0, 1.570796]
     """
@@ -80,15 +102,16 @@ def se2_compose_host(a, b) -> np.ndarray:
 
 
 def se2_inverse_host(a) -> np.ndarray:
-    """:func:`se2_inverse` in NumPy (float64), see :func:`se2_compose_host`."""
+    """:func:`se2_inverse` in NumPy (float64), see :func:`se2_compose_host`.
+
+    Args:
+        a: ``[..., 3]`` poses (x, y, θ).
+
+    Returns:
+        ``[..., 3]`` float64 inverse poses (B §9.1).
+    """
     return _inverse(np, np.asarray(a, float))
 
-
-# The names before issue 28 (the face exports only the se2_* names; ``compose`` there is
-# eq. 4.28 of the compositions). Kept for hssh_global/simulation.py, which issue 26 rewrites;
-# remove once it imports the se2_* names.
-compose, inverse = se2_compose, se2_inverse
-compose_host, inverse_host = se2_compose_host, se2_inverse_host
 
 
 class LayoutProblem(NamedTuple):
@@ -128,6 +151,12 @@ def pack(hypotheses: list[MapHypothesis], odometry, sigma_xy: float = 0.02,
             :func:`~pqrm_jax.hssh_global.world.explore` divides by the shortest corridor
             instead, a deliberate small model mismatch.
         m_max: padded number of places (default: the largest hypothesis).
+
+    Returns:
+        The padded :class:`LayoutProblem` with a leading ``[H]`` hypothesis axis.
+
+    Raises:
+        ValueError: for NaN odometry or odometry of the wrong shape.
     """
     if not hypotheses:
         raise ValueError("no hypothesis to lay out")
@@ -297,7 +326,17 @@ def _relax_single(problem, iters, damping, jacobian):
 
 def relax_loop(problem: LayoutProblem, iters: int = 10, damping: float = 1e-3,
                jacobian: str = "sparse"):
-    """The same relaxation one hypothesis at a time (the benchmark reference)."""
+    """The same relaxation one hypothesis at a time (the benchmark reference).
+
+    Args:
+        problem: a packed :class:`LayoutProblem` with a leading ``[H]`` axis.
+        iters: Gauss–Newton iterations.
+        damping: Levenberg–Marquardt damping.
+        jacobian: ``"sparse"`` or ``"dense"``.
+
+    Returns:
+        ``(chi [H, M, 3], cost [H])`` as :func:`relax` (B §9.2).
+    """
     jac = _jacobian(jacobian)
     outs = [_relax_single(LayoutProblem(*(x[k] for x in problem)), iters, damping, jac)
             for k in range(problem.init.shape[0])]
@@ -395,7 +434,16 @@ def layout_supported(cost, leaves: list[MapHypothesis], n_travels: int,
 
 
 def score_hypotheses(hypotheses, odometry, **kw) -> np.ndarray:
-    """Layout cost of each hypothesis (lower is more likely), ``[H]``."""
+    """Layout cost of each hypothesis (lower is more likely), ``[H]``.
+
+    Args:
+        hypotheses: leaves of the tree of maps (one experience; B §9.2).
+        odometry: ``[N, 3]`` or ``[H, N, 3]`` displacements, as :func:`pack`.
+        **kw: passed to :func:`relax_many` (``sigma_xy``, ``sigma_theta``, ...).
+
+    Returns:
+        ``[H]`` float costs.
+    """
     _, cost = relax(pack(hypotheses, odometry, **kw))
     return np.asarray(cost)
 
@@ -404,6 +452,13 @@ def true_layout(world, experience) -> np.ndarray:
     """Ground-truth place poses ``[m_seen, 3]`` in the frame of the first visit, by first visit.
 
     Places are numbered by first appearance in the experience (as in every hypothesis).
+
+    Args:
+        world: the ground-truth :class:`~pqrm_jax.hssh_global.world.CorridorWorld`.
+        experience: the exploration.
+
+    Returns:
+        ``[m_seen, 3]`` float64 poses (B §9.2).
     """
     from .tree import canonical_places
     lab = canonical_places(experience.true_places)

@@ -32,7 +32,15 @@ class NavigationError(ValueError):
 
 
 def map_graph(h: MapHypothesis, odometry) -> nx.DiGraph:
-    """Directed place graph of a hypothesis; edge attributes ``gate``, ``arrive``, ``length``."""
+    """Directed place graph of a hypothesis; edge attributes ``gate``, ``arrive``, ``length``.
+
+    Args:
+        h: a map hypothesis.
+        odometry: ``[n, 3]`` displacements (edge lengths from their norms).
+
+    Returns:
+        The ``networkx.DiGraph`` over places (B §7.1.3).
+    """
     odo = np.asarray(odometry, float).reshape(-1, 3)
     lengths: dict = {}
     for i in range(len(h.visits) - 1):
@@ -50,7 +58,19 @@ def map_graph(h: MapHypothesis, odometry) -> nx.DiGraph:
 
 
 def command(star: Star, arrival: int, exit_: int) -> tuple[str, int]:
-    """Turn command from arrival entry to exit entry (B §5.1 left/right of a directed path)."""
+    """Turn command from arrival entry to exit entry (B §5.1 left/right of a directed path).
+
+    Args:
+        star: the place's star.
+        arrival: the arrival entry index.
+        exit_: the exit entry index (traversable).
+
+    Returns:
+        ``(kind, n)``: ``("Forward", 0)`` when the exit is the arrival entry,
+        ``("TurnAround", 0)`` when it is its opposite, else ``"Right"``/``"Left"`` with the
+        0-based rank ``n`` of the exit among the entries on that side, counted from the
+        arrival entry (B §7.1.3).
+    """
     n, o = len(star), star.opp[arrival]
     if exit_ == arrival:
         return ("Forward", 0)
@@ -64,7 +84,16 @@ def command(star: Star, arrival: int, exit_: int) -> tuple[str, int]:
 
 
 def apply_command(star: Star, arrival: int, cmd: tuple[str, int]) -> int | None:
-    """The exit entry a command names at a place, or ``None`` when the star has none."""
+    """The exit entry a command names at a place, or ``None`` when the star has none.
+
+    Args:
+        star: the observed star at the place.
+        arrival: the arrival entry index.
+        cmd: ``(kind, n)`` as :func:`command` returns it (B §7.1.3).
+
+    Returns:
+        The exit entry index, or ``None``.
+    """
     n, o = len(star), star.opp[arrival]
     name, k = cmd
     if name == "Forward":
@@ -88,6 +117,12 @@ def plan_route(h: MapHypothesis, odometry, start: tuple[int, int], goal: int):
 
     Raises:
         NavigationError: the start or goal place is not in the map, or no route exists.
+
+    Args:
+        h: the map hypothesis.
+        odometry: ``[n, 3]`` displacements (edge lengths, B §7.1.3).
+        start: the dstate ``(place, arrival entry)``.
+        goal: the goal place.
     """
     g = map_graph(h, odometry)
     if goal not in g or start[0] not in g:
@@ -110,6 +145,11 @@ def execute(world: CorridorWorld, start: tuple[int, int], commands) -> tuple[lis
 
     Returns:
         ``(true places visited, distance travelled, all commands executable)``.
+
+    Args:
+        world: the ground-truth world.
+        start: the true dstate ``(place, arrival entry)``.
+        commands: the turn commands, one per travel (B §7.1.3).
     """
     p, arr = start
     places, dist = [p], 0.0
@@ -124,7 +164,19 @@ def execute(world: CorridorWorld, start: tuple[int, int], commands) -> tuple[lis
 
 
 def shortest_distance(world: CorridorWorld, a: int, b: int) -> float:
-    """Ground-truth shortest corridor distance between two places (networkx Dijkstra)."""
+    """Ground-truth shortest corridor distance between two places (networkx Dijkstra).
+
+    Args:
+        world: the ground-truth world.
+        a: a place.
+        b: a place.
+
+    Returns:
+        The distance in world units.
+
+    Raises:
+        networkx.NetworkXNoPath: when the places are not connected.
+    """
     return float(nx.shortest_path_length(world.graph(), a, b, weight="length"))
 
 
@@ -136,6 +188,17 @@ def evaluate_navigation(world: CorridorWorld, experience, h: MapHypothesis, n_pa
     a goal is a random other map place, whose true place is the one of its first visit. Success:
     the commands are executable and end at the true goal place. ``length_ratio``: mean of
     distance travelled / shortest true distance over successes.
+
+    Args:
+        world: the ground-truth world.
+        experience: the exploration ``h`` was built from.
+        h: the map hypothesis navigated with.
+        n_pairs: random start/goal pairs.
+        seed: NumPy seed of the pairs.
+
+    Returns:
+        ``{"success": rate, "length_ratio": mean, "pairs": n_pairs}`` (NaN rates when the
+        map has no usable pair).
     """
     rng = np.random.default_rng(seed)
     first = {}

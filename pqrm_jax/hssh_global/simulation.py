@@ -54,7 +54,7 @@ import numpy as np
 from pqrm_jax import hssh
 from pqrm_jax import sim as _sim
 
-from .layout import compose, compose_host, inverse, inverse_host
+from .layout import se2_compose, se2_compose_host, se2_inverse, se2_inverse_host
 from .navigation import apply_command, shortest_distance
 from .star import view_from_local_star
 from .world import CorridorWorld, Experience
@@ -161,6 +161,14 @@ def sim_world(world: CorridorWorld, params: SimParams | None = None,
     The lidar grid has twice the LPM resolution (``2 · cells`` cells per corridor width). Each
     corridor is a rectangle of width ``w`` from place to place, extended by ``w / 2`` beyond both
     places so junctions and corners are filled and dead ends close ``w / 2`` past the place.
+
+    Args:
+        world: the abstract corridor world.
+        params: the simulation parameters (default :class:`SimParams`).
+        supersample: lidar cells per LPM cell.
+
+    Returns:
+        The :class:`SimWorld` (occupancy grid, geometry, the world).
 
     >>> from pqrm_jax.hssh_global.world import office_world
     >>> sw = sim_world(office_world())
@@ -592,8 +600,8 @@ def _start(sw: SimWorld, params: SimParams, place: int, arrival: int, key):
 
 def _true_dividing(a: _Arrival, odom_pose) -> np.ndarray:
     """The dividing pose moved from the odometry frame to the true frame via the rover pose."""
-    rel = compose(inverse(np.asarray(odom_pose, float)), a.pose)
-    return np.asarray(compose(a.true_pose, rel))
+    rel = se2_compose(se2_inverse(np.asarray(odom_pose, float)), a.pose)
+    return np.asarray(se2_compose(a.true_pose, rel))
 
 
 def explore_sim(sw: SimWorld, n_travels: int, seed: int = 0, params: SimParams | None = None,
@@ -657,8 +665,9 @@ def explore_sim(sw: SimWorld, n_travels: int, seed: int = 0, params: SimParams |
             world.bearings[p][tru[ex]] + np.pi)
         a_t = _true_entry(world, q, heading)
         visited.update({(p, tru[ex]), (q, world.stars[q].opp[a_t])})
-        todo.append(np.asarray(compose(inverse(tdiv[-1]), _true_dividing(nxt, nxt.odom_pose))))
-        odo.append(np.asarray(compose(inverse(here.pose), nxt.pose)))
+        todo.append(np.asarray(se2_compose(se2_inverse(tdiv[-1]),
+                                           _true_dividing(nxt, nxt.odom_pose))))
+        odo.append(np.asarray(se2_compose(se2_inverse(here.pose), nxt.pose)))
         turns.append((ex - arr) % len(star))
         views.append(nxt.view)
         bears.append(nxt.bearings)
@@ -680,6 +689,12 @@ def true_layout_sim(se: SimExperience) -> np.ndarray:
     The simulator's counterpart of :func:`~pqrm_jax.hssh_global.layout.true_layout`: a place's
     frame is the dividing pose the rover measured at its first visit, so its truth is that pose
     in the true frame (:attr:`SimExperience.true_dividing`), not the lattice node.
+
+    Args:
+        se: the simulated exploration.
+
+    Returns:
+        ``[m_seen, 3]`` float64 poses (B §9.2).
     """
     from .tree import canonical_places
     lab = canonical_places(se.experience.true_places)
@@ -687,7 +702,7 @@ def true_layout_sim(se: SimExperience) -> np.ndarray:
     for i, c in enumerate(lab):
         first.setdefault(c, se.true_dividing[i])
     x0 = first[0]
-    return np.stack([compose_host(inverse_host(x0), first[c]) for c in range(len(first))])
+    return np.stack([se2_compose_host(se2_inverse_host(x0), first[c]) for c in range(len(first))])
 
 
 def navigate_sim(sw: SimWorld, start: tuple[int, int], commands, seed: int = 0,
@@ -703,6 +718,13 @@ def navigate_sim(sw: SimWorld, start: tuple[int, int], commands, seed: int = 0,
 
     Raises:
         SimulationError: the rover lost its way (see :func:`explore_sim`).
+
+    Args:
+        sw: the simulated world.
+        start: the true dstate ``(place, arrival entry)``.
+        commands: turn commands, one per travel.
+        seed: NumPy seed of the rover's noise.
+        params: the simulation parameters.
     """
     params = _params(sw, params)
     rv, here = _start(sw, params, int(start[0]), int(start[1]), jax.random.key(seed))
@@ -727,6 +749,17 @@ def evaluate_navigation_sim(sw: SimWorld, se: SimExperience, h, n_pairs: int = 5
     is the true distance driven (manoeuvres at places included) over the shortest corridor
     route of the world. A :class:`SimulationError` during a run counts as a failure
     (``lost`` counts them; ``lost_reasons`` keeps each one's pair and message).
+
+    Args:
+        sw: the simulated world.
+        se: the simulated exploration ``h`` was built from.
+        h: the map hypothesis navigated with.
+        n_pairs: random start/goal pairs.
+        seed: NumPy seed of the pairs and the runs.
+        params: the simulation parameters.
+
+    Returns:
+        ``{"success", "length_ratio", "pairs", "lost", "lost_reasons"}``.
     """
     from .navigation import plan_route
     ex = se.experience
@@ -789,12 +822,12 @@ def global_occupancy(sw: SimWorld, se: SimExperience, h, chi,
         lo = se.snapshots[i]
         keep = lo != 0
         xy = se.snap_origins[i][None, :] + ij[keep][:, ::-1]          # (x, y) in odometry
-        rel = compose_host(inverse_host(se.snap_poses[i]),
+        rel = se2_compose_host(se2_inverse_host(se.snap_poses[i]),
                            np.concatenate([xy, np.zeros((len(xy), 1))], 1))
-        d = compose_host(chi[p], np.array([0.0, 0.0, h.bearings[p][e]]))
+        d = se2_compose_host(chi[p], np.array([0.0, 0.0, h.bearings[p][e]]))
         if offsets is not None:
-            d = compose_host(d, offsets[i])
-        pts.append(compose_host(d, rel)[:, :2])
+            d = se2_compose_host(d, offsets[i])
+        pts.append(se2_compose_host(d, rel)[:, :2])
         vals.append(lo[keep])
     pts, vals = np.concatenate(pts), np.concatenate(vals)
     origin = pts.min(0) - r
@@ -827,7 +860,7 @@ def map_agreement(sw: SimWorld, grid: np.ndarray, origin, resolution: float, fra
     if len(rows) == 0:
         return float("nan")
     xy = np.asarray(origin)[None, :] + (np.stack([cols, rows], 1) + 0.5) * resolution
-    pts = compose_host(frame, np.concatenate([xy, np.zeros((len(xy), 1))], 1))[:, :2]
+    pts = se2_compose_host(frame, np.concatenate([xy, np.zeros((len(xy), 1))], 1))[:, :2]
     occ = np.asarray(sw.occupied)
     # distance to the wall surface (the boundary between free and occupied), either side
     dist = np.where(occ, distance_transform_edt(occ), distance_transform_edt(~occ)) \
@@ -853,6 +886,14 @@ def revisit_jitter(se: SimExperience, h, offsets=None) -> tuple[float, float]:
     :attr:`~pqrm_jax.hssh_global.relocalize.Relocalization.offsets` of this ``h``) the
     prediction is ``χ_p ⊕ (0, 0, δ_e − δ_first) ⊕ r_i``: what remains is the re-localisation
     error.
+
+    Args:
+        se: the simulated exploration.
+        h: the map hypothesis (places of the visits).
+        offsets: optional ``[n+1, 3]`` re-localisation offsets.
+
+    Returns:
+        ``(mean position discrepancy, mean heading discrepancy)``.
     """
     first: dict = {}
     dxy, dth = [], []
@@ -861,9 +902,9 @@ def revisit_jitter(se: SimExperience, h, offsets=None) -> tuple[float, float]:
             first[p] = (se.true_dividing[i], h.bearings[p][e])
             continue
         x0, d0 = first[p]
-        pred = compose_host(x0, np.array([0.0, 0.0, h.bearings[p][e] - d0]))
+        pred = se2_compose_host(x0, np.array([0.0, 0.0, h.bearings[p][e] - d0]))
         if offsets is not None:
-            pred = compose_host(pred, offsets[i])
+            pred = se2_compose_host(pred, offsets[i])
         dxy.append(float(np.hypot(*(se.true_dividing[i][:2] - pred[:2]))))
         dth.append(abs(float(_wrap(se.true_dividing[i][2] - pred[2]))))
     if not dxy:

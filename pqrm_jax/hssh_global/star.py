@@ -10,15 +10,16 @@ directions (B §5.1): for stars it is a rotation ``i → i + s`` of the circular
 robot arrived on; ``match(v, v')`` holds iff an isomorphism maps the arrival entry of ``v`` onto
 the one of ``v'``.
 
-Two implementations: :func:`isomorphisms` (host Python, used by the tree of maps) and
-:func:`match_matrix` (padded arrays, ``vmap`` over all view pairs, jitted), checked against each
-other in the tests.
+The star type and the host isomorphism are the local levels' (:class:`pqrm_jax.hssh.star.Star`,
+:func:`pqrm_jax.hssh.star.star_isomorphisms`; one type and one isomorphism for the HSSH);
+:func:`match_matrix` is the isomorphism's batched twin (padded arrays, ``vmap`` over all view
+pairs, jitted), checked against it in the tests.
 
 >>> plus = Star.from_entries([(0, 1, 1), (1, 1, 1), (0, -1, 1), (1, -1, 1)])
->>> len(isomorphisms(plus, plus))
+>>> len(star_isomorphisms(plus, plus))
 4
 >>> tee = Star.from_entries([(0, -1, 0), (1, 1, 1), (0, 1, 1), (1, -1, 1)])
->>> isomorphisms(tee, tee)
+>>> star_isomorphisms(tee, tee)
 [0]
 >>> view_match((tee, 1), (tee, 1)), view_match((tee, 1), (tee, 3))
 (True, False)
@@ -26,85 +27,11 @@ other in the tests.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-
-class Star(NamedTuple):
-    """A local topology: the clockwise circular list of directed local-paths (B §5.1).
-
-    Attributes:
-        path: local path id of each entry, ``tuple[int]`` of length ``L``.
-        dir: direction of each entry away from the place, +1 or -1.
-        alpha: traversability away from the place, 0 or 1.
-    """
-
-    path: tuple
-    dir: tuple
-    alpha: tuple
-
-    @staticmethod
-    def from_entries(entries) -> Star:
-        """Builds a star from ``[(path, dir, alpha), ...]`` in clockwise order; validates it."""
-        entries = [tuple(int(v) for v in e) for e in entries]
-        if not entries:
-            raise ValueError("a star needs at least one directed local-path")
-        path, dirs, alpha = zip(*entries, strict=True)
-        star = Star(tuple(path), tuple(dirs), tuple(alpha))
-        seen = {}
-        for i, (p, d) in enumerate(zip(path, dirs, strict=True)):
-            if d not in (1, -1):
-                raise ValueError(f"entry {i}: direction must be +1 or -1, got {d}")
-            if (p, d) in seen:
-                raise ValueError(f"entry {i}: directed local-path ({p}, {d}) appears twice")
-            seen[(p, d)] = i
-        for p, d in seen:
-            if (p, -d) not in seen:
-                raise ValueError(f"star not closed under opposite direction: path {p}")
-        if any(a not in (0, 1) for a in alpha):
-            raise ValueError("alpha must be 0 or 1")
-        return star
-
-    def __len__(self) -> int:  # number of entries L
-        return len(self.path)
-
-    @property
-    def opp(self) -> tuple:
-        """Index of the opposite direction of each entry."""
-        index = {(p, d): i for i, (p, d) in enumerate(zip(self.path, self.dir, strict=True))}
-        return tuple(index[(p, -d)] for p, d in zip(self.path, self.dir, strict=True))
-
-    def rotate(self, s: int) -> Star:
-        """The same star listed from entry ``s`` (entry ``s`` becomes entry 0)."""
-        n = len(self)
-        idx = [(i + s) % n for i in range(n)]
-        return Star(tuple(self.path[i] for i in idx), tuple(self.dir[i] for i in idx),
-                    tuple(self.alpha[i] for i in idx))
-
-
-def isomorphisms(a: Star, b: Star) -> list[int]:
-    """All shifts ``s`` such that ``φ(i) = (i + s) mod L`` is an isomorphism ``a → b`` (B §5.1).
-
-    Args:
-        a: source star.
-        b: target star.
-
-    Returns:
-        The valid shifts in increasing order (empty when the stars are not isomorphic).
-    """
-    n = len(a)
-    if len(b) != n:
-        return []
-    oa, ob = a.opp, b.opp
-    out = []
-    for s in range(n):
-        if all(b.alpha[(i + s) % n] == a.alpha[i] and ob[(i + s) % n] == (oa[i] + s) % n
-               for i in range(n)):
-            out.append(s)
-    return out
+from ..hssh.star import Star, star_isomorphisms
 
 
 def view_match(v: tuple[Star, int], w: tuple[Star, int]) -> bool:
@@ -113,10 +40,13 @@ def view_match(v: tuple[Star, int], w: tuple[Star, int]) -> bool:
     Args:
         v: ``(star, arrival entry index)``.
         w: ``(star, arrival entry index)``.
+
+    Returns:
+        True when the views match.
     """
     (sa, ia), (sb, ib) = v, w
     n = len(sa)
-    return len(sb) == n and (ib - ia) % n in isomorphisms(sa, sb)
+    return len(sb) == n and (ib - ia) % n in star_isomorphisms(sa, sb)
 
 
 def view_from_local_star(entries, arrival_gateway: int) -> tuple[tuple[Star, int], tuple]:
@@ -129,7 +59,7 @@ def view_from_local_star(entries, arrival_gateway: int) -> tuple[tuple[Star, int
     entry of that gateway (B Fig. 8.1: entering via g5 is arriving on π̃_c^-).
 
     Args:
-        entries: the clockwise star entries.
+        entries: the [L] clockwise :class:`~pqrm_jax.hssh.star.StarEntry` records.
         arrival_gateway: index of the gateway the robot entered through.
 
     Returns:
@@ -139,8 +69,7 @@ def view_from_local_star(entries, arrival_gateway: int) -> tuple[tuple[Star, int
     Raises:
         ValueError: no traversable entry leaves through ``arrival_gateway``.
     """
-    star = Star.from_entries([(int(e.path), int(e.direction), int(bool(e.traversable)))
-                              for e in entries])
+    star = Star.from_entries(entries)
     out = [i for i, e in enumerate(entries) if e.traversable and int(e.gateway) == arrival_gateway]
     if not out:
         raise ValueError(f"no traversable entry leaves through gateway {arrival_gateway}")

@@ -122,7 +122,17 @@ def _path_chain_ok(h_stars, edges, p, e) -> bool:
 
 
 def root(experience: Experience) -> MapHypothesis:
-    """The root ``⟨M0, q0⟩`` of Alg. 8.1 step 0: one place with the first view."""
+    """The root ``⟨M0, q0⟩`` of Alg. 8.1 step 0: one place with the first view.
+
+    Args:
+        experience: the exploration.
+
+    Returns:
+        The root :class:`MapHypothesis`.
+
+    Raises:
+        ValueError: for an empty exploration.
+    """
     if len(experience.views) == 0:
         raise ValueError("an empty exploration has no view: the tree of maps has no root")
     star, arr = experience.views[0]
@@ -216,6 +226,15 @@ def build_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
     Returns:
         A :class:`TreeLog`; ``leaves`` is empty when the experience is inconsistent with every map
         (e.g. a view that contradicts known territory in every hypothesis).
+
+    Raises:
+        ValueError: for an empty exploration; TreeTooLarge: beyond ``max_leaves`` leaves.
+
+    >>> from pqrm_jax.hssh_global import explore, is_true_map, minimal_models, office_world
+    >>> e = explore(office_world(), 14, seed=0)                  # 15 views of the §8.3 office
+    >>> t = build_tree(e)
+    >>> len(t.leaves), len(minimal_models(t.leaves)), sum(is_true_map(h, e) for h in t.leaves)
+    (8, 1, 1)
     """
     leaves = [root(experience)]
     stats = _TreeStats()
@@ -241,7 +260,14 @@ def build_tree(experience: Experience, max_leaves: int = 200_000) -> TreeLog:
 
 
 def canonical_places(places) -> tuple:
-    """Relabels a place sequence by order of first appearance (for comparing maps)."""
+    """Relabels a place sequence by order of first appearance (for comparing maps).
+
+    Args:
+        places: a sequence of place labels.
+
+    Returns:
+        The labels renumbered 0, 1, ... by first appearance.
+    """
     lab: dict = {}
     return tuple(lab.setdefault(int(p), len(lab)) for p in places)
 
@@ -252,6 +278,13 @@ def is_true_map(h: MapHypothesis, experience: Experience) -> bool:
     The views must be assigned to the true places (up to relabelling), and at each place the
     map's dstates must correspond to the true ones by one fixed rotation of the star (a map that
     closes a loop onto the right place but the wrong gateway is another map).
+
+    Args:
+        h: a map hypothesis of ``experience``.
+        experience: the exploration, with its ground truth.
+
+    Returns:
+        True for the true map.
     """
     if (canonical_places([v[0] for v in h.visits])
             != canonical_places(experience.true_places)):
@@ -274,6 +307,12 @@ def preference_order(leaves: list, layout_cost=None, supported=None) -> list[int
         supported: optional bool ``[len(leaves)]`` from the declared geometric test
             (:func:`~pqrm_jax.hssh_global.layout.layout_supported`, beyond B): maps the layout
             cannot support are demoted behind every supported one (kept, not discarded).
+
+    Returns:
+        Every leaf index, most preferred first.
+
+    Raises:
+        ValueError: for a ``supported`` of the wrong length.
     """
     cost = np.zeros(len(leaves)) if layout_cost is None else np.asarray(layout_cost, float)
     cost = np.where(np.isnan(cost), np.inf, cost)
@@ -284,7 +323,14 @@ def preference_order(leaves: list, layout_cost=None, supported=None) -> list[int
 
 
 def minimal_models(leaves: list) -> list[int]:
-    """Indices of the leaves with the fewest places (our stand-in for the minimal models)."""
+    """Indices of the leaves with the fewest places (our stand-in for the minimal models).
+
+    Args:
+        leaves: consistent leaves (:class:`MapHypothesis`).
+
+    Returns:
+        The indices of the leaves with the fewest places (B §8.3).
+    """
     if not leaves:
         return []
     m = min(h.n_places for h in leaves)
@@ -303,6 +349,12 @@ def is_planar(h: MapHypothesis) -> bool:
     (``networkx.check_planarity`` asks whether *some* embedding is planar, ignoring the stars'
     orders, and ``networkx.PlanarEmbedding`` holds neither parallel corridors nor loops, so the
     faces are traced here.)
+
+    Args:
+        h: a map hypothesis.
+
+    Returns:
+        True when the rotation system embeds in the plane.
 
     >>> from pqrm_jax.hssh_global.world import office_world, explore
     >>> w = office_world()
@@ -347,7 +399,15 @@ def is_planar(h: MapHypothesis) -> bool:
 
 
 def view_symbol(view) -> tuple:
-    """A view as a symbol: the star read clockwise from the arrival entry (``match`` ⇔ equal)."""
+    """A view as a symbol: the star read clockwise from the arrival entry (``match`` ⇔ equal).
+
+    Args:
+        view: ``(star, arrival entry)``.
+
+    Returns:
+        ``(alpha, opp offsets)``: two tuples read clockwise from the arrival entry, the
+        traversabilities and each entry's opposite as an offset from the arrival (B §8.2).
+    """
     star, a = view
     n, opp = len(star), star.opp
     return (tuple(star.alpha[(a + i) % n] for i in range(n)),
@@ -371,6 +431,13 @@ def build_basic_tree(experience: Experience, max_leaves: int = 200_000) -> TreeL
     Returns:
         A :class:`TreeLog` whose ``leaves`` are ``(R, views, places, q)`` tuples and whose
         ``n_leaves`` has one entry per view *and* per turn.
+
+    Args:
+        experience: the exploration.
+        max_leaves: a :class:`TreeTooLarge` is raised beyond this many leaves.
+
+    Raises:
+        ValueError: for an empty exploration; TreeTooLarge: beyond ``max_leaves`` leaves.
     """
     if len(experience.views) == 0:
         raise ValueError("an empty exploration has no view: the tree of maps has no root")

@@ -95,9 +95,19 @@ def _check_scale(scale) -> float:
 
 
 def world_from_lattice(open_edges: set, scale: float = 1.0) -> CorridorWorld:
-    """Builds a world from lattice corridors ``{((x, y), (x', y')), ...}`` (unit steps).
+    """Builds a world from lattice corridors ``{((x, y), (x', y')), ...}`` (unit steps; B §8.4).
 
-    ``scale`` (the lattice spacing) must be finite and > 0, else ``ValueError``.
+    Args:
+        open_edges: the corridors, each a pair of adjacent lattice nodes.
+        scale: the lattice spacing, finite and > 0.
+
+    Returns:
+        The :class:`CorridorWorld` whose places are the lattice nodes that are not plain
+        corridor points.
+
+    Raises:
+        ValueError: for a bad ``scale``, a corridor that is not a unit step, no corridor, or a
+            lattice without a place (a pure ring corridor).
     """
     _check_scale(scale)
     nbrs: dict = {}
@@ -161,6 +171,12 @@ def grid_world(nx_: int, ny: int, loop_prob: float = 0.4, seed: int = 0,
         loop_prob: probability of each extra corridor.
         seed: NumPy seed.
         scale: lattice spacing (results are scale-free).
+
+    Returns:
+        The :class:`CorridorWorld`.
+
+    Raises:
+        ValueError: for a lattice smaller than 2 × 2.
     """
     if nx_ < 2 or ny < 2:
         raise ValueError("grid_world needs at least a 2x2 lattice")
@@ -184,6 +200,12 @@ def office_world(scale: float = 1.0) -> CorridorWorld:
     from ``x=1`` to a dead-end at ``x=3`` (6 paths). Places: 4 L corners, 3 T (bottom, top and
     centre of ``x=1``), 1 + (``(2, 1)``) and 1 dead-end (``(3, 1)``) → 9 places, 4 distinct stars.
     The thesis's floor plan (Fig. 8.2) is not given as data; this is a stand-in with its counts.
+
+    Args:
+        scale: lattice spacing (results are scale-free).
+
+    Returns:
+        The :class:`CorridorWorld` (9 places).
     """
     e = set()
     for x in range(2):
@@ -219,6 +241,13 @@ def explore(world: CorridorWorld, n_travels: int, seed: int = 0, sigma_xy: float
         seed: NumPy seed (exploration policy, listing rotations, noise).
         sigma_xy, sigma_theta: odometry noise.
         start: start place (random when ``None``).
+
+    Returns:
+        The :class:`Experience` (``n_travels + 1`` views, turns, odometry ``[n, 3]`` and the
+        ground truth for evaluation).
+
+    Raises:
+        ValueError: for ``n_travels < 0`` or a ``start`` not in the world.
     """
     if n_travels < 0:
         raise ValueError(f"n_travels must be >= 0, got {n_travels}")
@@ -279,6 +308,9 @@ def global_paths(world: CorridorWorld) -> list[list[int]]:
 
     Returns:
         One list of places per path, in order along the path.
+
+    Args:
+        world: the corridor world.
     """
     seen, out = set(), []
     for p, star in enumerate(world.stars):

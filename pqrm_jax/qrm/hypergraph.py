@@ -57,6 +57,16 @@ def _spec(calc) -> QRMSpec:
 def empty_map(n: int, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
     """A map of capacity ``n`` landmarks with every relation open and no known node.
 
+    Args:
+        n: capacity N, an integer ≥ 3.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+
+    Returns:
+        The :class:`QRMMap` (``rel`` [N, N, N] all states, ``known`` [N] False; M§VI.A).
+
+    Raises:
+        ValueError: for ``n`` < 3 or not an integer.
+
     >>> m = empty_map(4)
     >>> m.rel.shape, int(m.rel[0, 1, 2]) == (1 << 20) - 1
     ((4, 4, 4), True)
@@ -190,6 +200,17 @@ def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc",
     Returns a :class:`ClosureResult` ``(rel, inconsistent, n_empty, sweeps, converged)``;
     ``converged`` is ``False`` when the ``max_sweeps`` cap stopped it before the fixed point.
 
+    Args:
+        rel: [N, N, N] uint32 relation masks of ``ij:k``.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+        max_sweeps: propagation sweep cap (an integer ≥ 1).
+
+    Returns:
+        The :class:`ClosureResult`.
+
+    Raises:
+        ValueError: for a bad ``max_sweeps``.
+
     >>> r = closure(true_map(jnp.array([[0., 0.], [4., 1.], [1., 3.], [5., 5.]])).rel)
     >>> bool(r.converged), bool(r.inconsistent)
     (True, False)
@@ -254,6 +275,22 @@ def apply_relations(
     in one call and reach the fixed point of fusing them one by one (the result is the
     greatest fixed point below all measurements, independent of their order).
 
+    Args:
+        m: the map (``rel`` [N, N, N] uint32 masks, ``known`` [N]).
+        triples: [T, 3] int landmark ids (X, Y, Z), distinct within a row.
+        sets: [T, 3] uint32 masks of XY:Z, YZ:X, ZX:Y.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+        valid: optional [T] bool, rows to use.
+        max_sweeps: propagation sweep cap (an integer ≥ 1).
+
+    Returns:
+        ``(map', report)``: the fused map (unchanged when the update is inconsistent) and its
+        :class:`UpdateReport`.
+
+    Raises:
+        ValueError: for ids outside the map's capacity, a row repeating an id, or a bad
+            ``max_sweeps``.
+
     >>> m, rep = apply_relations(empty_map(3), [[0, 1, 2]], [[1 << 6, (1 << 20) - 1,
     ...                                                     (1 << 20) - 1]])
     >>> from pqrm_jax.qrm.spec import states_of
@@ -272,7 +309,20 @@ def apply_relations(
 
 def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSpec = "edc",
                  max_sweeps: int = 64) -> tuple[QRMMap, UpdateReport]:
-    """Fuse one :class:`~pqrm_jax.qrm.camera.ImageMeasurement` into the map (M§VI.B)."""
+    """Fuse one :class:`~pqrm_jax.qrm.camera.ImageMeasurement` into the map (M§VI.B).
+
+    Args:
+        m: the map.
+        meas: the measurement of one image (triples, sets, valid rows).
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+        max_sweeps: propagation sweep cap.
+
+    Returns:
+        ``(map', report)`` as :func:`apply_relations`.
+
+    Raises:
+        ValueError: as :func:`apply_relations`.
+    """
     return apply_relations(m, meas.triples, meas.sets, calc, meas.valid, max_sweeps)
 
 
@@ -298,7 +348,15 @@ def true_relations(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc")
 
 
 def true_map(landmarks: jax.Array, calc: Calculus | str | QRMSpec = "edc") -> QRMMap:
-    """The fully constrained map of a layout (singleton sets of the true states)."""
+    """The fully constrained map of a layout (singleton sets of the true states).
+
+    Args:
+        landmarks: [N, 2] positions.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+
+    Returns:
+        The :class:`QRMMap` with every node known (M§VIII.A reference).
+    """
     spec = _spec(calc)
     st = true_relations(landmarks, spec)
     rel = states_to_masks(st, spec.full)

@@ -177,7 +177,21 @@ def navigate(
 
 def navigate_many(landmarks, rng: RNGEstimate, starts, goals, params=None, sensor=None, *,
                   n_steps: int = 3000, lam: float = 1.0) -> RNGNavResult:
-    """:func:`navigate` ``vmap``-ed over start/goal pairs [S, 3] / [S, 2]."""
+    """:func:`navigate` ``vmap``-ed over start/goal pairs [S, 3] / [S, 2].
+
+    Args:
+        landmarks: [N, 2] true landmark positions.
+        rng: the RNG estimate to plan on.
+        starts: [S, 3] start poses.
+        goals: [S, 2] goal positions.
+        params: rover parameters.
+        sensor: camera parameters.
+        n_steps: the most simulation steps.
+        lam: weight of the Alg. 2 edge cost against the hop count (M§VII.B).
+
+    Returns:
+        The :class:`RNGNavResult` with a leading ``[S]`` axis.
+    """
     params = RoverParams() if params is None else params
     sensor = sim.SensorParams(max_range=1e6) if sensor is None else sensor
     sensor = sim.SensorParams(*(jnp.asarray(v, jnp.float32) for v in sensor))

@@ -72,7 +72,17 @@ def _metrics(spec: QRMSpec, m: QRMMap, truth):
 
 
 def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") -> dict:
-    """The M§VIII.A metrics of a map against the true layout, as a dict of floats."""
+    """The M§VIII.A metrics of a map against the true layout, as a dict of floats.
+
+    Args:
+        m: the map.
+        landmarks: [N, 2] the true layout.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+
+    Returns:
+        ``{removed_pct, constrained_pct, not_adjacent_pct, rng_cost, truth_kept, n_known}``
+        as floats.
+    """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     vals = _metrics(spec, m, true_relations(landmarks, spec))
     keys = ("removed_pct", "constrained_pct", "not_adjacent_pct", "rng_cost", "truth_kept",
@@ -122,6 +132,19 @@ def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec 
 
     ``tol``: bearing tolerance of the measurement in radians (None: the default of the
     dtype, :func:`pqrm_jax.qrm.camera.default_tolerance`; docs/qrm.md §camera).
+
+    Args:
+        m: the map before the image.
+        pose: [3] camera pose (x, y, θ).
+        landmarks: [N, 2] true landmark positions.
+        n: landmarks measured (the nearest visible).
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+        sensor: camera parameters.
+        truth: optional [N, N, N] true states (computed when None).
+        tol: bearing tolerance (above).
+
+    Returns:
+        ``(map', metrics)``: the updated map and this image's :class:`Metrics` (M§VIII.A).
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     landmarks = _real(landmarks)
@@ -157,6 +180,18 @@ def run_sequence(
     measurement in radians (None: the dtype's default, which covers the simulator's
     rounding of the bearings, so the true state is never dropped; 0: exact for the computed
     bearings; docs/qrm.md §camera).
+
+    Args:
+        landmarks: [N, 2] true landmark positions.
+        poses: [T, 3] imaging poses.
+        n: landmarks measured per image.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+        sensor: camera parameters.
+        tol: bearing tolerance (above).
+
+    Returns:
+        ``(map, metrics)``: the final map and the per-image :class:`Metrics` with a leading
+        ``[T]`` axis (M§VIII.A).
 
     >>> import jax
     >>> from pqrm_jax import sim

@@ -54,6 +54,13 @@ def rng_estimate_kernel(rel, known, *, lune: int):
 def rng_estimate(m: QRMMap, calc: Calculus | str | QRMSpec = "edc") -> RNGEstimate:
     """Alg. 2: RNG candidate edges and costs from the map (EDC or EDC-with-merged-lune).
 
+    Args:
+        m: the map.
+        calc: the calculus (name, object or its :class:`QRMSpec`).
+
+    Returns:
+        The :class:`RNGEstimate` (``edges`` [N, N] bool, ``cost`` [N, N], ``total_cost``).
+
     >>> import jax.numpy as jnp
     >>> from pqrm_jax.qrm.hypergraph import true_map
     >>> pts = jnp.array([[0.0, 0.0], [2.0, 0.0], [1.1, 0.3]])   # 2 lies in the lune of 0, 1
@@ -69,7 +76,14 @@ def rng_estimate(m: QRMMap, calc: Calculus | str | QRMSpec = "edc") -> RNGEstima
 
 
 def true_rng(points) -> np.ndarray:
-    """Brute-force RNG (lune test) of [N, 2] points: [N, N] bool."""
+    """Brute-force RNG (lune test) of [N, 2] points: [N, N] bool.
+
+    Args:
+        points: [N, 2] positions.
+
+    Returns:
+        [N, N] bool symmetric adjacency of the relative neighbourhood graph (M§VII.A).
+    """
     p = np.asarray(points, np.float64)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)
     n = len(p)

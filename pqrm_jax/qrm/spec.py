@@ -88,7 +88,18 @@ def _bits(rows: np.ndarray) -> np.ndarray:
 
 
 def mask_of(calc: Calculus | str, labels) -> int:
-    """Bitmask of a collection of state labels, e.g. ``mask_of("edc", [7, 8])``."""
+    """Bitmask of a collection of state labels, e.g. ``mask_of("edc", [7, 8])`` (M§VI.A).
+
+    Args:
+        calc: the calculus or its name.
+        labels: state labels (or their string forms).
+
+    Returns:
+        The int mask with bit ``i`` set for state ``i``.
+
+    Raises:
+        ValueError: for a label that is not a state of ``calc``.
+    """
     calc = get_calculus(calc)
     m = 0
     for lab in labels:
@@ -97,10 +108,19 @@ def mask_of(calc: Calculus | str, labels) -> int:
 
 
 def states_of(calc: Calculus | str, mask: int) -> list[str]:
-    """State labels in a bitmask (inverse of :func:`mask_of`).
+    """State labels in a bitmask (inverse of :func:`mask_of`; M§VI.A).
 
-    Raises ``ValueError`` for a negative mask or one with bits at or above ``num_states``
-    (no state of ``calc`` has them, so the mask is not a set of its states).
+    Args:
+        calc: the calculus or its name.
+        mask: an integer mask.
+
+    Returns:
+        The labels of the set bits, in state order.
+
+    Raises:
+        TypeError: for a mask that is not an integer.
+        ValueError: for a negative mask or one with bits at or above ``num_states`` (no state
+            of ``calc`` has them, so the mask is not a set of its states).
     """
     calc = get_calculus(calc)
     if isinstance(mask, bool | np.bool_) or not isinstance(mask, int | np.integer):
@@ -179,7 +199,17 @@ def _spec(calc: Calculus) -> QRMSpec:
 
 
 def qrm_spec(calc: Calculus | str = "edc") -> QRMSpec:
-    """The (cached) :class:`QRMSpec` of a calculus or calculus name.
+    """The (cached) :class:`QRMSpec` of a calculus or calculus name (M§VI).
+
+    Args:
+        calc: the calculus or its name.
+
+    Returns:
+        The :class:`QRMSpec` (state tables, atoms, lune mask).
+
+    Raises:
+        ValueError: for a calculus the QRM masks cannot hold (more than 32 states or atoms) or
+            whose constraints are not lines or circles.
 
     >>> s = qrm_spec("edc")
     >>> s.num_states, s.num_atoms, states_of("edc", s.lune)

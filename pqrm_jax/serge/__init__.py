@@ -8,9 +8,10 @@ qualitative calculus with an Alg. 3 compose table; a relaxed (optax) optimiser.
 >>> import jax, numpy as np
 >>> from pqrm_jax import serge as sg
 >>> xy = np.array([[0., 0.], [10., 0.], [0., 10.], [10., 10.]])
->>> prob = sg.initial_cells(sg.GaussianBeliefs(xy, np.tile(np.eye(2) * .3, (4, 1, 1))),
+>>> prob = sg.initial_cells(jax.random.PRNGKey(0),
+...                         sg.GaussianBeliefs(xy, np.tile(np.eye(2) * .3, (4, 1, 1))),
 ...                         sg.Grid((-5., -5.), (15., 15.), (40, 40)))
->>> sg.serge(prob, mu=2, sigma=1.0, key=jax.random.PRNGKey(1), trials=32).n_regions
+>>> sg.serge(jax.random.PRNGKey(1), prob, mu=2, sigma=1.0, trials=32).n_regions
 2
 """
 

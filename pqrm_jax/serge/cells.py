@@ -76,10 +76,10 @@ def _fill(label: np.ndarray, score: np.ndarray, shape: tuple[int, int]) -> np.nd
 
 
 def initial_cells(
+    key: jax.Array | None,
     beliefs: GaussianBeliefs | SampleBeliefs,
     grid: Grid,
     *,
-    key: jax.Array | None = None,
     n_mc: int = 20000,
     unseparated: str = "error",
     min_saliency: float = 0.01,
@@ -87,9 +87,10 @@ def initial_cells(
     """Build ``C_init`` (one contiguous region per belief) and the SERGE problem.
 
     Args:
+        key: PRNG key of the quasi-samples of Gaussian cell masses (``None``: the fixed key
+            ``PRNGKey(0)``; sample-set beliefs use no key).
         beliefs: the K beliefs (Gaussian or sample sets).
         grid: the fine grid of cells.
-        key: PRNG key of the quasi-samples of Gaussian cell masses.
         n_mc: quasi-samples per Gaussian belief.
         unseparated: ``"error"`` raises for a belief the grid cannot separate; ``"attach"``
             assigns it to the region holding most of its mass (the map then starts with fewer
@@ -104,10 +105,10 @@ def initial_cells(
         ValueError: for an unknown ``unseparated`` mode, or (with ``"error"``) beliefs that win
             no grid cell holding at least ``min_saliency`` of their mass.
 
-    >>> import numpy as np
+    >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
     >>> b = GaussianBeliefs(np.array([[0., 0.], [4., 0.]]), np.tile(np.eye(2) * .1, (2, 1, 1)))
-    >>> p = initial_cells(b, Grid((-2., -2.), (6., 2.), (16, 8)))
+    >>> p = initial_cells(jax.random.PRNGKey(0), b, Grid((-2., -2.), (6., 2.), (16, 8)))
     >>> p.n_init, np.asarray(p.mass).round(3).tolist()
     (2, [[1.0, 0.0], [0.0, 1.0]])
     """

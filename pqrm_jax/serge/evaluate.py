@@ -37,7 +37,7 @@ def make_fold(scene: Scene, grid: Grid, folds: list[np.ndarray], f: int,
     k1, k2, k3, k4 = jax.random.split(key, 4)
     train = [np.flatnonzero(fd != f) for fd in folds]
     test = [np.flatnonzero(fd == f) for fd in folds]
-    prob = initial_cells(scene.beliefs(train, k1), grid, key=k2, unseparated="attach")
+    prob = initial_cells(k2, scene.beliefs(train, k1), grid, unseparated="attach")
     test_b = scene.beliefs(test, k3)
     test_mass = np.asarray(test_b.cell_masses(grid, key=k4), np.float64)
     cells = [np.asarray(grid.cell_of(np.asarray(p[t], np.float64)))
@@ -64,5 +64,5 @@ def score(result: SergeResult, fold: Fold) -> dict:
 def evaluate(fold: Fold, mu: int, sigma: float, key: jax.Array, trials: int) -> dict:
     """Run SERGE on a fold's training problem and score it on the test fold."""
     mu = min(int(mu), fold.problem.k)
-    res = serge(fold.problem, mu, sigma, key=key, trials=trials)
+    res = serge(key, fold.problem, mu, sigma, trials=trials)
     return score(res, fold)

@@ -89,11 +89,11 @@ def trial_seeds(key: jax.Array, trials: int, chunk: int = 1024) -> np.ndarray:
 
 
 def serge_reference(
+    key: jax.Array,
     problem: Problem,
     mu: int,
     sigma: float = 2.0,
     *,
-    key: jax.Array,
     trials: int | None = None,
     active=None,
     start=None,
@@ -106,10 +106,10 @@ def serge_reference(
     the best map by log ψ is kept (docs/serge.md §reference).
 
     Args:
+        key: PRNG key, split as :func:`serge` splits it.
         problem: the SERGE problem.
         mu: the count prior's mean number of regions.
         sigma: the count prior's standard deviation.
-        key: PRNG key, split as :func:`serge` splits it.
         trials: number of trials; defaults to 100·K + 1 as in :func:`serge`.
         active: [R0] bool, restrict the search to some initial regions.
         start: [R0] a coarser contiguous partition to start from.
@@ -126,9 +126,10 @@ def serge_reference(
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
     >>> xy = np.stack(np.meshgrid(np.arange(3.), np.arange(3.)), -1).reshape(-1, 2) * 10
-    >>> p = initial_cells(GaussianBeliefs(xy, np.tile(np.eye(2) * .2, (9, 1, 1))),
+    >>> p = initial_cells(jax.random.PRNGKey(0),
+    ...                   GaussianBeliefs(xy, np.tile(np.eye(2) * .2, (9, 1, 1))),
     ...                   Grid((-5., -5.), (25., 25.), (30, 30)))
-    >>> r = serge_reference(p, mu=4, sigma=2.0, key=jax.random.PRNGKey(0), trials=64)
+    >>> r = serge_reference(jax.random.PRNGKey(0), p, mu=4, sigma=2.0, trials=64)
     >>> r.n_regions, abs(round(r.log_psi3, 4))
     (4, 0.0)
     """

@@ -82,7 +82,7 @@ class RelaxedResult:
     seconds: float
 
 
-def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Array,
+def relaxed_serge(key: jax.Array, problem: Problem, mu: int, sigma: float = 2.0, *,
                   steps: int = 300, restarts: int = 8, polish_trials: int = 32,
                   tau0: float = 1.0, tau1: float = 0.05, lr: float = 0.1,
                   smooth: float = 0.05) -> RelaxedResult:
@@ -91,10 +91,10 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
     The method (not in Padgett) is described in docs/serge.md §relaxed.
 
     Args:
+        key: PRNG key of the restarts and of the polish.
         problem: the SERGE problem.
         mu: the count prior's mean number of regions (the number of region slots).
         sigma: the count prior's standard deviation.
-        key: PRNG key of the restarts and of the polish.
         steps: Adam steps per restart.
         restarts: random initialisations, run as one vmap.
         polish_trials: merge-search trials of the polish.
@@ -112,9 +112,10 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
     >>> xy = np.array([[0., 0.], [10., 0.], [0., 10.], [10., 10.]])
-    >>> p = initial_cells(GaussianBeliefs(xy, np.tile(np.eye(2) * .3, (4, 1, 1))),
+    >>> p = initial_cells(jax.random.PRNGKey(0),
+    ...                   GaussianBeliefs(xy, np.tile(np.eye(2) * .3, (4, 1, 1))),
     ...                   Grid((-5., -5.), (15., 15.), (40, 40)))
-    >>> relaxed_serge(p, 2, 1.0, key=jax.random.PRNGKey(0), steps=50).result.n_regions
+    >>> relaxed_serge(jax.random.PRNGKey(0), p, 2, 1.0, steps=50).result.n_regions
     2
     """
     check_params(mu, sigma, problem.k, problem.grid.n_cells)
@@ -129,7 +130,7 @@ def relaxed_serge(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Arr
     keys = jax.random.split(k2, restarts)
     for i in range(restarts):
         start = project_contiguous(slots[i], adj)
-        res = serge(problem, mu, sigma, key=keys[i], trials=polish_trials, start=start)
+        res = serge(keys[i], problem, mu, sigma, trials=polish_trials, start=start)
         if res.log_psi > best_lp:
             best, best_lp, best_start = res, res.log_psi, start
     # log ψ of the best projection itself, before polishing

@@ -357,11 +357,11 @@ def prepare_inputs(problem: Problem, mu, sigma, active, start):
 
 
 def serge(
+    key: jax.Array,
     problem: Problem,
     mu: int,
     sigma: float = 2.0,
     *,
-    key: jax.Array,
     trials: int | None = None,
     active=None,
     start=None,
@@ -370,11 +370,11 @@ def serge(
     """Run SERGE (Alg. 2) with ``trials`` random-order trials batched; keep the best map.
 
     Args:
+        key: PRNG key; trial i depends only on its own key, so results do not depend on
+            ``chunk`` or on the number of queues.
         problem: the SERGE problem (initial regions, masses, adjacency; :func:`initial_cells`).
         mu: the count prior's mean number of regions, an integer in 1..min(K, N).
         sigma: the count prior's standard deviation (finite, ≥ 0).
-        key: PRNG key; trial i depends only on its own key, so results do not depend on
-            ``chunk`` or on the number of queues.
         trials: number of trials T; defaults to 100·K + 1 (P§3.3 suggests T > 100·K).
         active: [R0] bool, restricts the search to some initial regions and their beliefs (a
             branch of the resolution tree, P§3.3.1).
@@ -391,9 +391,10 @@ def serge(
     >>> import jax, numpy as np
     >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells, serge
     >>> xy = np.stack(np.meshgrid(np.arange(3.), np.arange(3.)), -1).reshape(-1, 2) * 10
-    >>> p = initial_cells(GaussianBeliefs(xy, np.tile(np.eye(2) * .2, (9, 1, 1))),
+    >>> p = initial_cells(jax.random.PRNGKey(0),
+    ...                   GaussianBeliefs(xy, np.tile(np.eye(2) * .2, (9, 1, 1))),
     ...                   Grid((-5., -5.), (25., 25.), (30, 30)))
-    >>> r = serge(p, mu=4, sigma=2.0, key=jax.random.PRNGKey(0), trials=64)
+    >>> r = serge(jax.random.PRNGKey(0), p, mu=4, sigma=2.0, trials=64)
     >>> r.n_regions, abs(round(r.log_psi3, 4))
     (4, 0.0)
     """
@@ -420,7 +421,7 @@ def serge(
     return compact_result(problem, lab[best], mu, sigma, (lp, l1, l3), it, best)
 
 
-def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.Array,
+def serge_sequential(key: jax.Array, problem: Problem, mu: int, sigma: float = 2.0, *,
                      trials: int, active=None, start=None, branch: bool = False) -> SergeResult:
     """Reference: the trials of :func:`serge`, one at a time in a Python loop of jitted trials.
 
@@ -432,7 +433,7 @@ def serge_sequential(problem: Problem, mu: int, sigma: float = 2.0, *, key: jax.
     against ≈ 1.5 µs per trial-step batched; same results either way.
 
     Args:
-        problem, mu, sigma, key, trials, active, start: as :func:`serge`.
+        key, problem, mu, sigma, trials, active, start: as :func:`serge`.
         branch: apply each merge under ``lax.cond``.
 
     Returns:

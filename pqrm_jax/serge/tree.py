@@ -11,7 +11,8 @@ partition the map).
 >>> from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells
 >>> from pqrm_jax.serge.tree import ResolutionTree
 >>> xy = np.array([[0., 0.], [1., 0.], [10., 0.], [11., 0.]])
->>> p = initial_cells(GaussianBeliefs(xy, np.tile(np.eye(2) * .02, (4, 1, 1))),
+>>> p = initial_cells(jax.random.PRNGKey(0),
+...                   GaussianBeliefs(xy, np.tile(np.eye(2) * .02, (4, 1, 1))),
 ...                   Grid((-2., -3.), (13., 3.), (60, 24)))
 >>> t = ResolutionTree.build(p, key=jax.random.PRNGKey(0), mu=2, sigma=1.0, trials=32)
 >>> [len(np.unique(t.map_at(l))) for l in range(t.depth + 1)]
@@ -70,7 +71,7 @@ class ResolutionTree:
         active = np.zeros(self.problem.n_init, bool)
         active[node.init_regions] = True
         mu = max(1, min(int(mu), n, len(node.beliefs)))
-        res = serge(self.problem, mu, sigma, key=key, trials=trials, active=active)
+        res = serge(key, self.problem, mu, sigma, trials=trials, active=active)
         node.mu, node.sigma, node.log_psi = mu, float(sigma), res.log_psi
         br = np.asarray(self.problem.belief_region)
         for r in range(res.n_regions):

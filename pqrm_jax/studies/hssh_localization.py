@@ -27,11 +27,15 @@ units equal a one-process run's bit for bit (every unit draws from its own fold-
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from . import protocol
 from .store import Store, StudyError, atomic_savefig, atomic_write_text
 
 NAME = "hssh-localization"
@@ -41,29 +45,90 @@ MODELS = ("large", "small", "fitted")
 ROUTE = [(0.1, 0.65), (0.35, 0.65), (0.35, 0.25), (0.75, 0.25), (0.75, 0.65), (0.4, 0.65)]
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pqrm-jax study hssh-localization", description=HELP)
-    p.add_argument("--out", default="out/hssh-localization")
-    p.add_argument("--reduced", action="store_true", help="40 steps per run (default 400)")
-    from .protocol import positive_int
+def _kld_default() -> dict:
+    # the extra KLD-sampling rows (B §4.3.2 runs every filter with it; Fox 2003): B's
+    # confidence, error and bins; n_min is this library's choice (B gives none)
+    return {"epsilon": 0.5, "confidence": 0.95, "bin_size": [0.05, 0.05, 0.006], "n_min": 10}
 
-    p.add_argument("--steps", type=positive_int, default=None, help="steps per run")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--kld", action="store_true",
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Every setting of the study (stored in ``config.json`` by :meth:`to_json`, except the
+    two switches of extra rows, which only add units beside the stored ones).
+
+    ``steps`` steps per run; ``runs`` = 2 (Table 4.2 compares run 1 with run 2); the world
+    (``world_cells`` at ``resolution`` m, :func:`pqrm_jax.sim.corridors.network_rectangles`),
+    the route (:data:`ROUTE`, fractions of the side), the odometry's true noise model
+    (``truth_model``), the lidar (``beams``, ``fov_deg``, ``max_range`` m, ``range_sigma`` m),
+    the filters (``blocks`` × ``block`` particles, likelihood field sd ``field_sigma`` m capped
+    at ``field_cap_cells``, grow/shrink ``threshold`` and ``anneal``), the action ``models``
+    and ``kld`` (KLD-sampling settings of the extra rows). ``kld_rows``: also the five
+    algorithms with KLD-sampling (``--kld``); ``equal_budget``: also the KLD filters at an
+    equal particle budget (``--equal-budget``, implies ``kld_rows``).
+    """
+
+    steps: int = 400
+    runs: int = 2
+    seed: int = 0
+    world_cells: int = 801
+    resolution: float = 0.1
+    route: tuple[tuple[float, float], ...] = tuple(ROUTE)
+    truth_model: str = "fitted"
+    beams: int = 180
+    fov_deg: float = 180.0
+    max_range: float = 8.0
+    range_sigma: float = 0.01
+    blocks: int = 5
+    block: int = 100
+    field_sigma: float = 0.1
+    field_cap_cells: int = 20
+    threshold: float = 0.8
+    anneal: float = 0.9
+    models: tuple[str, ...] = MODELS
+    kld: dict = dataclasses.field(default_factory=_kld_default)
+    kld_rows: bool = False
+    equal_budget: bool = False
+
+    def to_json(self) -> dict:
+        """The stored config: every field but the two switches of extra rows."""
+        d = protocol.config_json(self)
+        del d["kld_rows"], d["equal_budget"]
+        return json.loads(json.dumps(d))
+
+
+PRESETS: dict[str, dict] = {"tiny": {"steps": 8}, "reduced": {"steps": 40}, "full": {}}
+"""Field overrides of :class:`Config` per preset (``--reduced``: 40 steps per run)."""
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
+    p.add_argument("--steps", type=protocol.positive_int, default=None,
+                   help="steps per run (default 400; --reduced 40, --tiny 8)")
+    p.add_argument("--kld", dest="kld_rows", action="store_const", const=True, default=None,
                    help="also run the five algorithms with KLD-sampling (extra rows; the "
                         "full-block units stay as they are)")
-    p.add_argument("--equal-budget", action="store_true",
+    p.add_argument("--equal-budget", action="store_const", const=True, default=None,
                    help="also run the KLD filters at an equal particle budget (implies --kld): "
                         "at each step every method scores at most the fewest particles any "
                         "of PF, shrink, grow, shrink-and-grow scored there with KLD")
-    from . import distributed, protocol
-
-    protocol.add_fresh(p)
-    p.add_argument("--no-progress", "--quiet", action="store_true",
-                   help="no progress bar (--quiet: deprecated alias)")
-
-    distributed.add_arguments(p)
-    return p
+    a = p.parse_args(argv)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a,
+                                {"steps": "steps", "kld_rows": "kld_rows",
+                                 "equal_budget": "equal_budget"}, overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    if cfg.equal_budget:
+        cfg = dataclasses.replace(cfg, kld_rows=True)
+    if cfg.steps < 1:
+        p.error(f"argument --steps: must be an integer ≥ 1, got {cfg.steps}")
+    if cfg.runs != 2:
+        p.error(f"runs must be 2 (Table 4.2 compares run 1 with run 2), got {cfg.runs}")
+    if tuple(cfg.models) != MODELS:
+        p.error(f"models must be {', '.join(MODELS)} (the three rows of Table 4.2), got "
+                f"{cfg.models}")
+    return cfg, a
 
 
 def _route(n_steps: int, side: float) -> np.ndarray:
@@ -165,107 +230,141 @@ def _unit_name(run: int, model: str, kld: bool = False, eq: bool = False) -> str
     return f"units/run{run}_{model}{'_kld' if kld else ''}{'_eq' if eq else ''}.json"
 
 
-def main(argv: list[str] | None = None) -> int:
+def _check(u: dict, steps: int) -> bool:
+    """A unit holds one number per step for every method (else it is recomputed)."""
+    from ..hssh.localization import METHODS
+
+    return all(isinstance(u[m], list) and len(u[m]) == steps
+               and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
+
+
+def _check_kld(u: dict, cfg: dict) -> bool:
+    """Also the particle counts, and the KLD settings it was computed with."""
+    from ..hssh.localization import METHODS
+
+    return (_check(u, cfg["steps"]) and u.get("kld") == cfg["kld"]
+            and all(isinstance(u.get(f"{m}_n"), list) and len(u[f"{m}_n"]) == cfg["steps"]
+                    for m in METHODS))
+
+
+def _read(st, cfg: dict, r: int, m: str, k: bool):
+    from ..hssh.localization import METHODS
+
+    names = METHODS + tuple(f"{x}_n" for x in METHODS) + ("kld",) if k else METHODS
+    return st.read_json(_unit_name(r, m, k), names,
+                        (lambda u: _check_kld(u, cfg)) if k else
+                        (lambda u: _check(u, cfg["steps"])))
+
+
+def _read_eq(st, cfg: dict, r: int, m: str, budget: list[int]):
+    from ..hssh.localization import METHODS
+
+    return st.read_json(_unit_name(r, m, True, True), METHODS + ("budget", "kld"),
+                        lambda u: _check_kld(u, cfg) and u.get("budget") == budget)
+
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every unit not yet stored (``units/``), split over the processes; process 0 writes
+    each as it arrives, then the equal-budget units (``equal_budget``, process 0 alone: the
+    budgets come from the stored KLD units) and ``results.csv``."""
     from tqdm import tqdm
 
     from ..hssh.localization import METHODS
-
-    args = _parser().parse_args(argv or [])
-    out = Path(args.out)
-    steps = args.steps or (40 if args.reduced else 400)
-    cfg = {"steps": steps, "runs": 2, "seed": args.seed, "world_cells": 801, "resolution": 0.1,
-           "route": ROUTE, "truth_model": "fitted", "beams": 180, "fov_deg": 180.0,
-           "max_range": 8.0, "range_sigma": 0.01, "blocks": 5, "block": 100,
-           "field_sigma": 0.1, "field_cap_cells": 20, "threshold": 0.8, "anneal": 0.9,
-           "models": list(MODELS),
-           # the extra KLD-sampling rows (B §4.3.2 runs every filter with it; Fox 2003):
-           # B's confidence, error and bins; n_min is this library's choice (B gives none)
-           "kld": {"epsilon": 0.5, "confidence": 0.95, "bin_size": [0.05, 0.05, 0.006],
-                   "n_min": 10}}
     from . import distributed
 
-    cluster = distributed.initialize_from(args)  # before any JAX computation
-
-    from . import protocol
-
-
-    protocol.fresh_start(args, out, NAME, cluster, legacy=())
-    distributed.agree(cluster, cfg, f"{NAME} config")
+    cluster = cluster or distributed.current()
+    c = cfg.to_json()
+    distributed.agree(cluster, c, f"{NAME} config")
     # the five published algorithms as B ran them (full blocks), then the same with KLD
-    args.kld = args.kld or args.equal_budget
-    units = [(r, m, k) for k in ((False, True) if args.kld else (False,))
-             for r in range(2) for m in MODELS]
-
-    def check(u):  # one number per step for every method, else recomputed
-        return all(isinstance(u[m], list) and len(u[m]) == steps
-                   and all(isinstance(v, (int, float)) for v in u[m]) for m in METHODS)
-
-    def check_kld(u):  # also the counts, and the settings it was computed with
-        return (check(u) and u.get("kld") == cfg["kld"]
-                and all(isinstance(u.get(f"{m}_n"), list) and len(u[f"{m}_n"]) == steps
-                        for m in METHODS))
-
-    def read(st, r, m, k):
-        names = METHODS + tuple(f"{x}_n" for x in METHODS) + ("kld",) if k else METHODS
-        return st.read_json(_unit_name(r, m, k), names, check_kld if k else check)
-
+    units = [(r, m, k) for k in ((False, True) if cfg.kld_rows else (False,))
+             for r in range(cfg.runs) for m in cfg.models]
     st = None
 
     def left():  # process 0 only: open the store, list the units not yet written
         nonlocal st
         # "kld" is not guarded: a directory from before the KLD rows keeps its five-algorithm
-        # units (unchanged by this option); each KLD unit records its settings (check_kld)
-        st = Store.open(out, NAME, cfg, selection=("kld",))
-        return [read(st, *u) is None for u in units]
+        # units (unchanged by this option); each KLD unit records its settings (_check_kld)
+        st = Store.open(out, NAME, c, selection=("kld",), fresh=fresh)
+        return [_read(st, c, *u) is None for u in units]
 
     try:
         mask = distributed.decide(cluster, len(units), left)
         todo = [u for u, m in zip(units, mask, strict=True) if m]
-
-        def one(u):
-            return run_unit(u[0], u[1], cfg, kld=u[2])
-
-        for i, rec in tqdm(distributed.map_units(one, todo, cluster, codec="json"),
-                           total=len(todo), desc="hssh-localization", unit="unit",
-                           disable=args.no_progress or not cluster.is_main):
+        for i, rec in tqdm(distributed.map_units(lambda u: run_unit(u[0], u[1], c, kld=u[2]),
+                                                 todo, cluster, codec="json"),
+                           total=len(todo), desc=NAME, unit="unit",
+                           disable=quiet or not cluster.is_main):
             if st is not None:
                 st.write_json(_unit_name(*todo[i]), rec)  # atomic
         if st is None:
-            return 0
-        both = {u: read(st, *u) for u in units}
+            return
+        both = {u: _read(st, c, *u) for u in units}
         if any(v is None for v in both.values()):
             raise StudyError(f"{NAME}: a unit did not read back as written")
         data = {(r, m): v for (r, m, k), v in both.items() if not k}
         kdata = {(r, m): v for (r, m, k), v in both.items() if k} or None
-        edata = None
-        if args.equal_budget:  # process 0 alone (the budgets come from the stored KLD units)
-            edata = {}
-            for r in range(2):
-                for m in MODELS:
+        if cfg.equal_budget:  # process 0 alone (the budgets come from the stored KLD units)
+            for r in range(cfg.runs):
+                for m in cfg.models:
                     budget = equal_budget(kdata[(r, m)])
-                    name = _unit_name(r, m, True, True)
-
-                    def ok(u, budget=budget):
-                        return check_kld(u) and u.get("budget") == budget
-
-                    rec = st.read_json(name, METHODS + ("budget", "kld"), ok)
-                    if rec is None:
-                        rec = run_unit(r, m, cfg, kld=True, budget=budget)
-                        st.write_json(name, rec)
-                    edata[(r, m)] = rec
-        _report(data, cfg, out, kdata, edata)
+                    if _read_eq(st, c, r, m, budget) is None:
+                        st.write_json(_unit_name(r, m, True, True),
+                                      run_unit(r, m, c, kld=True, budget=budget))
         st.write_results_csv(
             [(f"run{r}_{m}_{meth}", "mean_best_likelihood", float(np.mean(data[(r, m)][meth])))
-             for r in range(2) for m in MODELS for meth in METHODS]
+             for r in range(cfg.runs) for m in cfg.models for meth in METHODS]
             + [(f"run{r}_{m}_{meth}_kld", q, float(np.mean(kdata[(r, m)][meth + suffix])))
-               for r in range(2) for m in MODELS for meth in METHODS
+               for r in range(cfg.runs) for m in cfg.models for meth in METHODS
                for q, suffix in (("mean_best_likelihood", ""), ("mean_particles", "_n"))
                if kdata])
     finally:
         if st is not None:
             st.close()
-    print(f"wrote {out / 'report.md'}")
-    return 0
+
+
+def _load(out: Path) -> tuple[dict, dict, dict | None, dict | None]:
+    """(stored config, full-block units, KLD units or None, equal-budget units or None) of
+    ``out``: the KLD and equal-budget rows when every one of their units is stored."""
+    with Store.open(out, NAME, None) as st:
+        c = st.config
+        keys = [(r, m) for r in range(c["runs"]) for m in c["models"]]
+        data = {u: _read(st, c, *u, False) for u in keys}
+        if any(v is None for v in data.values()):
+            raise StudyError(f"{out} holds no finished {NAME} results; run the study first")
+        kdata = {u: _read(st, c, *u, True) for u in keys}
+        kdata = kdata if all(v is not None for v in kdata.values()) else None
+        edata = None
+        if kdata:
+            edata = {u: _read_eq(st, c, *u, equal_budget(kdata[u])) for u in keys}
+            edata = edata if all(v is not None for v in edata.values()) else None
+    return c, data, kdata, edata
+
+
+def _claims(data: dict) -> list[protocol.Claim]:
+    verdicts = {"yes": protocol.MATCH, "no": protocol.MISMATCH}
+    return [protocol.Claim(text, "holds (B Table 4.2)", nums, None,
+                           verdicts.get(v, f"{protocol.MISMATCH}: {v}"))
+            for text, v, nums in orderings(data)]
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """B's published orderings (Table 4.2) on the full-block units: mean paired difference
+    over the steps, held when every difference is > 0 with p < 0.01."""
+    return _claims(_load(Path(out))[1])
+
+
+def report(out: Path) -> Path:
+    """``report.md`` and ``best_likelihood.png`` from the stored units (with the KLD and
+    equal-budget rows when they are stored)."""
+    out = Path(out)
+    c, data, kdata, edata = _load(out)
+    _report(data, c, out, kdata, edata)
+    return out / "report.md"
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])
+main = protocol.main_for(sys.modules[__name__])
 
 
 def table(data: dict, model: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -363,10 +462,7 @@ def _report(data, cfg, out: Path, kdata: dict | None = None,
                      for j in range(len(names))]
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["## Published orderings", "", "| ordering (B) | holds here | numbers |",
-              "|---|---|---|"]
-    for text, verdict, nums in orderings(data):
-        lines.append(f"| {text} | {verdict} | {nums} |")
+    lines += ["## Published orderings", "", *protocol.claims_table(_claims(data))]
     if kdata:
         k = cfg["kld"]
         lines += ["", "## KLD-sampling on every filter (Fox 2003; extra rows, `--kld`)", "",
@@ -416,7 +512,10 @@ def _report(data, cfg, out: Path, kdata: dict | None = None,
               "likelihood field saturates near the best pose (1-cell sigma), so 500 proposal "
               "particles already find it and the Gaussian refit adds nothing measurable; B's "
               "Konolige likelihood on 5 cm cells is far more peaked than its proposals.", "",
-              "Figure: `best_likelihood.png`."]
+              *protocol.figure("best_likelihood.png", "Mean best scan likelihood (between 0 and 1, "
+                               "over the steps of both runs) of each algorithm, one bar per "
+                               "action model: large (overestimates the noise), small "
+                               "(underestimates it) and fitted (the robot's own).")]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(7, 3.5))
     names = table(data, "large")[2]

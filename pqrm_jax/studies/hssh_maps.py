@@ -36,9 +36,14 @@ always falls to process 0.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import sys
 from pathlib import Path
 
 import numpy as np
+
+from . import protocol
 
 NAME = "hssh-maps"
 HELP = "HSSH global levels: tree of maps, layout, navigation (B §8.3, ch. 9)"
@@ -81,32 +86,80 @@ REASONS = {
 }
 
 
-def config_for(a) -> dict:
-    if a.reduced:
-        cfg = {"worlds": 4, "sizes": [[3, 3], [4, 3]], "travels": 16, "basic_travels": 8,
-               "nav_pairs": 10, "office_seeds": 2}
-    else:
-        cfg = {"worlds": 30, "sizes": [[3, 3], [4, 3], [4, 4]], "travels": 24,
-               "basic_travels": 10, "nav_pairs": 30, "office_seeds": 10}
-    if a.reduced:
-        cfg.update({"sim_worlds": 1, "sim_sizes": [[3, 3]], "sim_travels": 10,
-                    "sim_nav_pairs": 2})
-    else:
-        cfg.update({"sim_worlds": 8, "sim_sizes": [[3, 3], [4, 3]], "sim_travels": 20,
-                    "sim_nav_pairs": 6})
-    cfg.update({"loop_prob": 0.5, "sigma_xy": 0.03, "sigma_theta": 0.02, "max_leaves": 20000,
-                "sim_width": 0.2, "sim_sigma_v": 0.02, "sim_sigma_w": 0.02, "geo_alpha": 1e-3,
-                "sim_layout_sigma": [0.02, 0.02],
-                "sim_reloc": {"window_xy": 0.8, "window_theta": 0.12, "steps": 9, "levels": 4,
-                              "zoom": 3.0, "sigma_cells": 1.0, "threshold": 0.4,
-                              "min_score": 0.3, "max_points": 512},
-                "seed": a.seed, "reasons": REASONS})
-    return cfg
+def _reloc_default() -> dict:
+    return {"window_xy": 0.8, "window_theta": 0.12, "steps": 9, "levels": 4, "zoom": 3.0,
+            "sigma_cells": 1.0, "threshold": 0.4, "min_score": 0.3, "max_points": 512}
 
 
-def _relax_padded(hg, leaves, odometry, cfg):
-    """All leaves relaxed by :func:`pqrm_jax.hssh_global.layout.relax_many` (bucketed shapes)."""
-    return hg.relax_many(leaves, odometry, cfg["sigma_xy"], cfg["sigma_theta"])
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Every setting of the study (each knob's reason in :data:`REASONS`); stored in
+    ``config.json`` by :meth:`to_json` (with the reasons). ``worlds`` only selects units
+    (``--worlds N``: the first N random worlds)."""
+
+    worlds: int = 30
+    sizes: tuple[tuple[int, int], ...] = ((3, 3), (4, 3), (4, 4))
+    travels: int = 24
+    basic_travels: int = 10
+    nav_pairs: int = 30
+    office_seeds: int = 10
+    sim_worlds: int = 8
+    sim_sizes: tuple[tuple[int, int], ...] = ((3, 3), (4, 3))
+    sim_travels: int = 20
+    sim_nav_pairs: int = 6
+    loop_prob: float = 0.5
+    sigma_xy: float = 0.03
+    sigma_theta: float = 0.02
+    max_leaves: int = 20000
+    sim_width: float = 0.2
+    sim_sigma_v: float = 0.02
+    sim_sigma_w: float = 0.02
+    geo_alpha: float = 1e-3
+    sim_layout_sigma: tuple[float, float] = (0.02, 0.02)
+    sim_reloc: dict = dataclasses.field(default_factory=_reloc_default)
+    seed: int = 18
+
+    def to_json(self) -> dict:
+        """The stored config (the dict every function of this module reads)."""
+        return json.loads(json.dumps(dict(protocol.config_json(self), reasons=REASONS)))
+
+
+PRESETS: dict[str, dict] = {
+    "tiny": {"worlds": 2, "sizes": ((3, 3),), "travels": 12, "basic_travels": 6,
+             "nav_pairs": 4, "office_seeds": 1, "sim_worlds": 1, "sim_sizes": ((3, 3),),
+             "sim_travels": 6, "sim_nav_pairs": 1},
+    "reduced": {"worlds": 4, "sizes": ((3, 3), (4, 3)), "travels": 16, "basic_travels": 8,
+                "nav_pairs": 10, "office_seeds": 2, "sim_worlds": 1, "sim_sizes": ((3, 3),),
+                "sim_travels": 10, "sim_nav_pairs": 2},
+    "full": {},
+}
+"""Field overrides of :class:`Config` per preset (``--reduced``: 4 small worlds, one simulator
+world, CI; ``--tiny``: 2 worlds, short explorations, for tests)."""
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
+    p.add_argument("--worlds", type=protocol.positive_int, default=None,
+                   help="run/report only the first N random worlds (resumable)")
+    a = p.parse_args(argv)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, {"worlds": "worlds"}, overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    ints = ("worlds", "travels", "basic_travels", "nav_pairs", "office_seeds", "sim_worlds",
+            "sim_travels", "sim_nav_pairs", "max_leaves")
+    bad = [k for k in ints if getattr(cfg, k) < 1]
+    if bad:
+        p.error(f"{', '.join(bad)} must be ≥ 1, got {[getattr(cfg, k) for k in bad]}")
+    if not cfg.sizes or not cfg.sim_sizes or min(min(s) for s in (*cfg.sizes,
+                                                                  *cfg.sim_sizes)) < 2:
+        p.error(f"sizes and sim_sizes must be lattices of at least 2 x 2, got {cfg.sizes}, "
+                f"{cfg.sim_sizes}")
+    if not 0 <= cfg.loop_prob <= 1 or not 0 < cfg.geo_alpha < 1:
+        p.error(f"loop_prob must be in [0, 1] and geo_alpha in (0, 1), got {cfg.loop_prob}, "
+                f"{cfg.geo_alpha}")
+    return cfg, a
 
 
 def run_world(cfg: dict, i: int) -> dict:
@@ -125,7 +178,7 @@ def run_world(cfg: dict, i: int) -> dict:
     leaves = log.leaves
     lmax = max(len(s) for s in w.stars)
     truth = [k for k, h in enumerate(leaves) if hg.is_true_map(h, e)]
-    prob, chi, cost = _relax_padded(hg, leaves, e.odometry, cfg)
+    prob, chi, cost = hg.relax_many(leaves, e.odometry, cfg["sigma_xy"], cfg["sigma_theta"])
     order = hg.preference_order(leaves, np.asarray(cost))
     best = leaves[order[0]]
     minimal = hg.minimal_models(leaves)
@@ -174,7 +227,7 @@ def run_office(cfg: dict, s: int) -> dict:
     log = hg.build_tree(e, max_leaves=cfg["max_leaves"])
     minimal = hg.minimal_models(log.leaves)
     truth = [k for k, h in enumerate(log.leaves) if hg.is_true_map(h, e)]
-    _, _, cost = _relax_padded(hg, log.leaves, e.odometry, cfg)
+    _, _, cost = hg.relax_many(log.leaves, e.odometry, cfg["sigma_xy"], cfg["sigma_theta"])
     best = hg.preference_order(log.leaves, cost)[0]
     sup = hg.layout_supported(cost, log.leaves, len(e.odometry), cfg["geo_alpha"])
     best_geo = hg.preference_order(log.leaves, cost, sup)[0]
@@ -309,7 +362,8 @@ def _mean(rows, key):
     return float(np.mean(v)) if v else float("nan")
 
 
-def report(st, cfg, worlds, office, sim=()) -> str:
+def report_text(st, cfg, worlds, office, sim=()) -> str:
+    """``report.md`` (written to the store ``st``) from the records; its text."""
     ok = [r for r in worlds if not r["too_large"]]
     n_fewer = sum(r["star_leaves_prefix"] <= r["basic_leaves_prefix"]
                   or r["basic_leaves_prefix"] < 0 for r in ok)
@@ -317,6 +371,8 @@ def report(st, cfg, worlds, office, sim=()) -> str:
              f"{len(worlds)} random worlds ({len(worlds) - len(ok)} too large to enumerate), "
              f"{cfg['travels']} travels each; odometry sd {cfg['sigma_xy']}·d (x, y), "
              f"{cfg['sigma_theta']} rad per unit corridor (θ).", "",
+             "## Claims", "", *protocol.claims_table(_claims(cfg, worlds, office)), "",
+             "## Random worlds", "",
              "| world | lattice | places (seen) | final leaves | minimal | k | branch events "
              "(≤ ml/2) | true in leaves | preferred true | layout err odo → relaxed | nav "
              "success | nav length ratio | leaves star / basic (prefix) |",
@@ -390,9 +446,34 @@ def report(st, cfg, worlds, office, sim=()) -> str:
               "filters the final leaves)."]
     lines += _sim_report(cfg, sim)
     lines += _geo_report(cfg, ok, office, sim)
+    lines += ["", "## Figures", "", *_figure_lines(st.path("."))]
     text = "\n".join(lines) + "\n"
     st.write_text("report.md", text)
     return text
+
+
+FIGURES = {
+    "tree_size.png": "Consistent leaves of the tree of maps after each travel (log scale): "
+                     "blue, the random worlds; red, the office explorations; dotted, the "
+                     "published 83 leaves of the office.",
+    "layout.png": "Global layout of the places of a 4 x 4 lattice world before and after the "
+                  "spring relaxation: black dots true, orange crosses compounded odometry, "
+                  "blue pluses relaxed (grey: the corridors).",
+    "navigation.png": "Three navigation runs planned on the true map and executed in a 4 x 4 "
+                      "lattice world (grey: corridors); the legend lists each run's "
+                      "F/L/R/T commands.",
+    "sim_map.png": "Global occupancy maps of simulator world 0: LPM snapshots at the places "
+                   "projected from odometry, relaxed and re-localised place poses; the title "
+                   "of each gives its agreement with the true walls.",
+}
+"""The report's figures and their captions (``sim_map.png`` is drawn while simulator world 0
+is computed)."""
+
+
+def _figure_lines(out: Path) -> list[str]:
+    return [line for name, cap in FIGURES.items()
+            if name != "sim_map.png" or (Path(out) / name).exists()
+            for line in protocol.figure(name, cap)]
 
 
 def _geo_report(cfg: dict, worlds: list, office: list, sim) -> list[str]:
@@ -558,85 +639,153 @@ def figures(out: Path, cfg: dict, worlds: list, office: list) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str]) -> int:
+def _units(cfg: Config) -> list[tuple[str, int]]:
+    # simulator world 0 first: item 0 of the units left always falls to process 0, which
+    # draws its map figure
+    return ([("sim", i) for i in range(cfg.sim_worlds)]
+            + [("world", i) for i in range(cfg.worlds)]
+            + [("office", s) for s in range(cfg.office_seeds)])
+
+
+def _logs(st) -> dict:
+    return {"world": st.records("worlds.jsonl", key=lambda r: r["world"],
+                                required=("world", "too_large")),
+            "office": st.records("office.jsonl", key=lambda r: r["seed"],
+                                 required=("seed", "leaves")),
+            "sim": st.records("sim.jsonl", key=lambda r: r["world"], required=("world", "lost"))}
+
+
+def _sorted(logs: dict, n_worlds: int) -> tuple[list, list, list]:
+    """(random worlds below ``n_worlds``, office runs, simulator worlds), in unit order."""
+    sim = sorted(logs["sim"].values(), key=lambda r: r["world"])
+    worlds = sorted((r for r in logs["world"].values() if r["world"] < n_worlds),
+                    key=lambda r: r["world"])
+    office = sorted(logs["office"].values(), key=lambda r: r["seed"])
+    return worlds, office, sim
+
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every world, office and simulator unit not yet recorded, split over the processes;
+    process 0 appends each record as it arrives, then writes ``results.csv``."""
     from tqdm.auto import tqdm
 
     from . import distributed
     from .store import Store, tidy_rows
 
-    ap = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    ap.add_argument("--out", default="out/hssh-maps", type=Path,
-                    help="the study directory (default out/hssh-maps)")
-    ap.add_argument("--reduced", action="store_true", help="4 small worlds (CI, < 1 min)")
-    ap.add_argument("--seed", type=int, default=18)
-    ap.add_argument("--worlds", type=int, help="run/report only the first N worlds (resumable)")
-    ap.add_argument("--no-progress", "--quiet", action="store_true",
-                    help="no progress bars (--quiet: deprecated alias)")
-    from . import protocol
-
-    protocol.add_fresh(ap)
-    distributed.add_arguments(ap)
-    a = ap.parse_args(argv)
-    cfg = config_for(a)
-    if a.worlds is not None:
-        if a.worlds < 1:
-            raise SystemExit("--worlds must be >= 1")
-        cfg["worlds"] = a.worlds
-    n_worlds = cfg["worlds"]
-    cluster = distributed.initialize_from(a)  # before any JAX computation
-    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
-    distributed.agree(cluster, cfg, f"{NAME} config")
-    # simulator world 0 first: item 0 of the units left always falls to process 0, which
-    # draws its map figure
-    units = ([("sim", i) for i in range(cfg["sim_worlds"])]
-             + [("world", i) for i in range(n_worlds)]
-             + [("office", s) for s in range(cfg["office_seeds"])])
+    cluster = cluster or distributed.current()
+    c = cfg.to_json()
+    distributed.agree(cluster, c, f"{NAME} config")
+    units = _units(cfg)
     st = None
     logs: dict = {}
 
     def left():  # process 0 only: open the store, list the units not yet recorded
         nonlocal st
-        st = Store.open(a.out, NAME, cfg, selection=("worlds",))
-        logs["world"] = st.records("worlds.jsonl", key=lambda r: r["world"],
-                                   required=("world", "too_large"))
-        logs["office"] = st.records("office.jsonl", key=lambda r: r["seed"],
-                                    required=("seed", "leaves"))
-        logs["sim"] = st.records("sim.jsonl", key=lambda r: r["world"],
-                                 required=("world", "lost"))
+        st = Store.open(out, NAME, c, selection=("worlds",), fresh=fresh)
+        logs.update(_logs(st))
         return [i not in logs[kind] for kind, i in units]
 
     def compute(unit):
         kind, i = unit
         if kind == "world":
-            return run_world(cfg, i)
+            return run_world(c, i)
         if kind == "office":
-            return run_office(cfg, i)
-        return run_sim_world(cfg, i, st.path(".") if i == 0 and st is not None else None)
+            return run_office(c, i)
+        return run_sim_world(c, i, st.path(".") if i == 0 and st is not None else None)
 
     try:
         mask = distributed.decide(cluster, len(units), left)
         todo = [u for u, m in zip(units, mask, strict=True) if m]
         for j, rec in tqdm(distributed.map_units(compute, todo, cluster, codec="json"),
-                           total=len(todo), disable=a.no_progress or not cluster.is_main,
+                           total=len(todo), disable=quiet or not cluster.is_main,
                            desc="units"):
             if st is not None:
                 logs[todo[j][0]].add(rec)
         if st is None:
-            return 0
-        sim = sorted(logs["sim"].values(), key=lambda r: r["world"])
-        worlds = sorted((r for r in logs["world"].values() if r["world"] < n_worlds),
-                        key=lambda r: r["world"])
-        office = sorted(logs["office"].values(), key=lambda r: r["seed"])
+            return
+        worlds, office, sim = _sorted(logs, cfg.worlds)
         st.write_results_csv(
             tidy_rows(worlds, unit=lambda r: f"world{r['world']}", skip=("world", "leaves",
                                                                           "lattice"))
             + tidy_rows(office, unit=lambda r: f"office{r['seed']}", skip=("seed", "leaves"))
             + tidy_rows(sim, unit=lambda r: f"sim{r['world']}",
                         skip=("world", "lattice", "reason", "nav_lost_reasons")))
-        text = report(st, cfg, worlds, office, sim)
-        figures(st.path("."), cfg, worlds, office)
     finally:
         if st is not None:
             st.close()
-    print(text)
+
+
+def _load(out: Path, worlds: int | None = None):
+    """(stored config, random worlds, office runs, simulator worlds) of ``out``; the first
+    ``worlds`` random worlds (default: as many as the stored config runs)."""
+    from .store import Store, StudyError
+
+    with Store.open(out, NAME, None) as st:
+        c = st.config
+        rows = _sorted(_logs(st), worlds or c["worlds"])
+    if not any(rows):
+        raise StudyError(f"{out} holds no {NAME} results; run the study first")
+    return (c, *rows)
+
+
+def _claims(cfg: dict, worlds: list, office: list) -> list[protocol.Claim]:
+    ok = [r for r in worlds if not r["too_large"]]
+    n = len(ok)
+    truth = sum(r["true_in_leaves"] for r in ok)
+    bounds = sum(r["bound_branching_ok"] and r["bound_events_ok"] for r in ok)
+    cs = [protocol.Claim("the true map is never discarded (random worlds)",
+                         "always among the leaves (B §8.3)", f"{truth}/{n}", None,
+                         protocol.MATCH if truth == n else protocol.MISMATCH),
+          protocol.Claim("§8.3 bounds (branching ≤ k+1, branching travels ≤ ml/2)",
+                         "hold in every world (B §8.3)", f"{bounds}/{n}", None,
+                         protocol.MATCH if bounds == n else protocol.MISMATCH)]
+    if office:
+        lv = float(np.median([r["final_leaves"] for r in office]))
+        mm = float(np.median([r["minimal_models"] for r in office]))
+        cs += [protocol.Claim("office: leaves after 14 travels (order of magnitude)",
+                              f"{PUBLISHED['office_leaves']} (trace not published)", lv,
+                              (8.3, 830.0), protocol.verdict_in(lv, 8.3, 830.0)),
+               protocol.Claim("office: minimal models (median)",
+                              f"{PUBLISHED['office_minimal']} (trace not published)", mm,
+                              None, protocol.NOT_CHECKED)]
+    return cs
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """B §8.3's claims: the true map is never discarded, the branching bounds hold, and the
+    office's leaf count is within a factor 10 of the published 83 (its trace is not
+    published, so only the order of magnitude is compared)."""
+    c, worlds, office, _ = _load(Path(out))
+    return _claims(c, worlds, office)
+
+
+def report(out: Path, worlds: int | None = None) -> Path:
+    """``report.md`` and the figures from the records (the first ``worlds`` random worlds;
+    default: as many as the stored config runs)."""
+    from .store import Store
+
+    out = Path(out)
+    c, ws, office, sim = _load(out, worlds)
+    with Store.open(out, NAME, None) as st:
+        report_text(st, c, ws, office, sim)
+    figures(out, c, ws, office)
+    return out / "report.md"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``pqrm-jax study hssh-maps`` (the protocol's driver; ``--worlds N`` also limits the
+    report to the first N random worlds)."""
+    from . import distributed
+
+    cfg, a = configure(list(argv or []))
+    if not a.report_only:
+        cluster = distributed.initialize_from(a)
+        run_study(cfg, Path(a.out), quiet=a.no_progress, cluster=cluster, fresh=a.fresh)
+        if not cluster.is_main:
+            return 0
+    print(f"wrote {report(Path(a.out), a.worlds)}")
     return 0
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])

@@ -26,19 +26,23 @@ tests. The run ends with ``report.md`` (measured vs published) and figures.
 Multi-process (:mod:`pqrm_jax.studies.distributed`, ``--coordinator HOST:PORT --processes K
 --process-id P`` or the environment / Slurm): process ``P`` computes the units ``i = P mod
 K`` of process 0's to-do list, process 0 alone reads and writes the store; the records equal a
-one-process run's (the measured ``seconds`` aside).
+one-process run's byte for byte (each image's measured ``seconds`` live apart, in
+``times/``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import math
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import protocol
 from .store import Store, atomic_savefig, atomic_write_json, atomic_write_text, tidy_rows
 
 NAME = "hssh-plus"
@@ -61,69 +65,140 @@ PUBLISHED = {
 }
 
 
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """The settings of a run (the full stored config is :func:`_stored`: every fixed knob of
+    B §6.3.3 beside these).
+
+    ``corpus`` "full" (:data:`ROTATIONS` × :data:`SIZES` × :data:`NOISE`) or "reduced"
+    (:data:`REDUCED`); ``sizes`` / ``rotations`` the subset of units to run (empty: all of the
+    corpus; selection only); ``supersample`` area samples per cell and axis when drawing the
+    +; ``method`` the gateway method; ``seed`` the noise seed; ``chunk`` cells per compiled
+    chunk of the cellular stages (0: sized from the device memory, a resume keeps the stored
+    one; results do not depend on it); ``memory_bytes`` the device memory that sizing
+    assumes (None: what the device reports; not stored).
+    """
+
+    corpus: str = "full"
+    sizes: tuple[int, ...] = ()
+    rotations: tuple[float, ...] = ()
+    supersample: int = 4
+    method: str = "anchor"
+    seed: int = 0
+    chunk: int = 0
+    memory_bytes: int | None = None
+
+
+PRESETS: dict[str, dict] = {"tiny": {"corpus": "reduced", "sizes": (29,), "rotations": (0.0,)},
+                            "reduced": {"corpus": "reduced"}, "full": {}}
+"""Field overrides of :class:`Config` per preset (``--reduced``: 2 rotations × 2 sizes × 2
+noise levels; ``--tiny``: one of its units)."""
+
+
+def _grid(corpus: str) -> dict:
+    return REDUCED if corpus == "reduced" else {"rotations": ROTATIONS, "sizes": SIZES,
+                                                "noise": NOISE}
+
+
+MIN_MEMORY_BYTES = 1 << 16
+"""The smallest ``--memory-bytes`` accepted (64 KiB): below it no study program fits (the
+smallest one, one 29 × 29 grid of this study's cellular stages, needs 22 KB, and a chunk may
+use only :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget), so a smaller value is a
+typo, refused before any work."""
+
+
+def memory_bytes_arg(raw: str) -> int:
+    """``--memory-bytes`` (argparse type, also qlink's): an integer ≥
+    :data:`MIN_MEMORY_BYTES`."""
+    v = protocol.positive_int(raw)
+    if v < MIN_MEMORY_BYTES:
+        raise argparse.ArgumentTypeError(f"must be at least {MIN_MEMORY_BYTES} bytes (64 KiB), "
+                                         f"got {raw!r}")
+    return v
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pqrm-jax study hssh-plus", description=HELP)
-    p.add_argument("--out", default="out/hssh-plus", help="output directory")
-    p.add_argument("--reduced", action="store_true",
-                   help="small corpus (2 rotations x 2 sizes x 2 noise levels)")
+    p = protocol.parser(NAME, HELP, seed=Config.seed, chunk=True)
     p.add_argument("--sizes", default=None,
                    help="comma list of sizes to run (default: all of the corpus)")
     p.add_argument("--rotations", default=None,
                    help="comma list of rotations (degrees) to run (default: all)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed")
-    p.add_argument("--supersample", type=int, default=4,
-                   help="area samples per cell and axis when drawing the +")
-    p.add_argument("--method", default="anchor", choices=("anchor", "constriction"))
+    p.add_argument("--supersample", type=protocol.positive_int, default=None,
+                   help="area samples per cell and axis when drawing the + (default 4)")
+    p.add_argument("--method", default=None, choices=("anchor", "constriction"),
+                   help="gateway method (default anchor)")
     p.add_argument("--shapes", action="store_true",
                    help="run the family of other shapes instead of the + (T, L, straight "
                         "corridor, dead end: sizes 39-299, rotations 0-45°, noise 0-10 %%, robot "
                         "off the centre; pqrm_jax.hssh.shapes) and write shapes_report.md")
-    p.add_argument("--shapes-per-kind", type=int, default=60,
+    p.add_argument("--shapes-per-kind", type=protocol.positive_int, default=60,
                    help="random cases per shape with --shapes")
-    p.add_argument("--chunk-cells", type=int, default=None,
-                   help="cells per compiled chunk of the cellular stages (default: sized from "
-                        "the device memory, on CPU at most the cache-sized default; a resume "
-                        "keeps the stored one; results do not depend on it)")
-    p.add_argument("--memory-bytes", type=int, default=None,
+    p.add_argument("--memory-bytes", type=memory_bytes_arg, default=None,
                    help="device memory the chunk is sized for and checked against (default: "
                         "what the device reports)")
-    from . import distributed, protocol
-
-    protocol.add_fresh(p)
-    p.add_argument("--no-progress", "--quiet", action="store_true",
-                   help="no progress bar (--quiet: deprecated alias)")
-    distributed.add_arguments(p)  # --coordinator / --processes / --process-id
     return p
 
 
-def _config(args) -> dict:
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = _parser()
+    a = p.parse_args(argv)
+
+    def pick(text, flag, cast):
+        if text is None:
+            return None
+        try:
+            return tuple(cast(v) for v in text.split(",") if v.strip())
+        except ValueError:
+            p.error(f"argument {flag}: a comma list of numbers, got {text!r}")
+
+    a.sizes = pick(a.sizes, "--sizes", int)
+    a.rotations = pick(a.rotations, "--rotations", float)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a,
+                                {"sizes": "sizes", "rotations": "rotations",
+                                 "supersample": "supersample", "method": "method",
+                                 "memory_bytes": "memory_bytes"}, overrides)
+    if "chunk" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, chunk=a.chunk)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    if cfg.corpus not in ("full", "reduced"):
+        p.error(f"corpus must be full or reduced, got {cfg.corpus!r}")
+    grid = _grid(cfg.corpus)
+    for flag, vals, allowed in (("--sizes", cfg.sizes, grid["sizes"]),
+                                ("--rotations", cfg.rotations, grid["rotations"])):
+        bad = [v for v in vals if v not in allowed]
+        if bad:
+            p.error(f"argument {flag}: not in the {cfg.corpus} corpus: {bad}; choose from "
+                    f"{list(allowed)}")
+    if cfg.supersample < 1 or cfg.chunk < 0 or cfg.method not in ("anchor", "constriction"):
+        p.error(f"supersample must be ≥ 1, chunk ≥ 0 and method anchor or constriction, got "
+                f"{cfg.supersample}, {cfg.chunk}, {cfg.method!r}")
+    return cfg, a
+
+
+def _stored(cfg: Config) -> dict:
+    """The stored config of the + corpus (``layout`` is added when the chunk is known)."""
     from ..hssh.gateways import SIDE_CONE, SIDE_SLACK
 
-    grid = REDUCED if args.reduced else {"rotations": ROTATIONS, "sizes": SIZES, "noise": NOISE}
+    grid = _grid(cfg.corpus)
     return {
-        "corpus": "reduced" if args.reduced else "full",
+        "corpus": cfg.corpus,
         "corpus_rotations": grid["rotations"], "corpus_sizes": grid["sizes"],
         "noise_levels": grid["noise"],
         "threshold": 127, "free_if_grey_at_least": 128,
         "robot_radius": 0.0, "robot_cell": "image centre (side // 2, side // 2)",
-        "arm_width_fraction": 1 / 3, "supersample": args.supersample,
-        "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK, "method": args.method,
+        "arm_width_fraction": 1 / 3, "supersample": cfg.supersample,
+        "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK, "method": cfg.method,
         # side obstacles within +-side_cone degrees of the branch normal (issue 26: B's
         # half-plane rule, 90, lays gateways across wide grid-aligned T and L junctions)
         "side_cone": SIDE_CONE,
-        "seed": args.seed,
+        "seed": cfg.seed,
         "success": "4 gateways, star isomorphic to the + star (B §5.1)",
+        "sizes_run": list(cfg.sizes or grid["sizes"]),
+        "rotations_run": list(cfg.rotations or grid["rotations"]),
     }
-
-
-def _pick(text, allowed, cast):
-    if text is None:
-        return list(allowed)
-    vals = [cast(v) for v in text.split(",") if v.strip()]
-    bad = [v for v in vals if v not in allowed]
-    if bad:
-        raise SystemExit(f"not in the corpus: {bad}; choose from {list(allowed)}")
-    return vals
 
 
 def _image(side: int, rot: float, noise: float, cfg: dict):
@@ -192,8 +267,9 @@ def run_unit(side: int, rot: float, cfg: dict) -> list[dict]:
     return recs
 
 
-UNIT_FIELDS = ("side", "rotation", "noise", "success", "gateways", "paths", "kind", "reason",
-               "seconds")
+UNIT_FIELDS = ("side", "rotation", "noise", "success", "gateways", "paths", "kind", "reason")
+"""Fields every stored record has. The measured ``seconds`` of each image live apart, in
+``times/`` (a unit written before that kept them in its records, and is still read)."""
 
 
 def unit_ok(unit: dict, noise_levels: list) -> bool:
@@ -230,13 +306,14 @@ def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, clust
     """Cells per chunk of the cellular stages (docs/studies.md §hssh-plus), the same on every
     process, checked against this process's device.
 
-    The user's ``--chunk-cells``, else the stored one, else sized from the memory: a probe
+    The user's ``--chunk``, else the stored one, else sized from the memory: a probe
     of one grid of the largest side bounds a grid's bytes (its fixed part counted for every
-    grid), :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two of
-    such grids (at most the noise levels of a unit) within the budget; on CPU at most
+    grid), the one chunk sizer :func:`~pqrm_jax.studies.chunking.auto` takes the largest
+    power of two of such grids (at most the noise levels of a unit) within the budget (without
+    memory figures: :data:`~pqrm_jax.hssh.cellular.CHUNK_CELLS`); on CPU at most
     :data:`~pqrm_jax.hssh.cellular.CHUNK_CELLS`, where the caches, not the memory, bound the
     chunk (measured, see that module). A chunk that does not fit is refused naming
-    ``--chunk-cells``.
+    ``--chunk``.
     """
     import jax
 
@@ -249,26 +326,32 @@ def chunk_cells(given: int | None, out: Path, sizes: list[int], cfg: dict, clust
     n = len(cfg["noise_levels"])
 
     def size() -> int:
-        grids = chunking.fit(per_grid, budget, total=n, option="--chunk-cells")
-        if grids is None:
+        grids = chunking.auto(lambda: per_grid, total=n, option="--chunk",
+                              memory_bytes=memory_bytes, fallback=0)
+        if not grids:  # no memory figures
             return CHUNK_CELLS
         cells = grids * side * side
         if jax.local_devices()[0].platform == "cpu":
             cells = min(cells, CHUNK_CELLS)
-        print(f"{NAME}: --chunk-cells {cells} sized from the memory ({per_grid / 2**20:.1f} "
+        print(f"{NAME}: --chunk {cells} sized from the memory ({per_grid / 2**20:.1f} "
               f"MiB per {side}x{side} grid, {budget / 2**20:.0f} MiB available)")
         return cells
 
     cells = chunking.resolve(given, out, size, cluster=cluster, key="chunk_cells")
     grids = max(1, min(n, cells // (side * side)))
     chunking.check_fits(None if not per_grid else per_grid * grids, budget,
-                        option="--chunk-cells",
+                        option="--chunk",
                         what=f"{NAME}: a chunk of {grids} grids of {side}x{side} cells")
     return cells
 
 
 def _unit_name(side: int, rot: float) -> str:
     return f"units/s{side:03d}_r{int(round(rot * 10)):03d}.json"
+
+
+def _times_name(side: int, rot: float) -> str:
+    """The measured seconds per image of a unit (apart from its records)."""
+    return "times/" + _unit_name(side, rot).split("/", 1)[1]
 
 
 def _shared_todo(todo: list | None, cluster) -> list:
@@ -290,9 +373,10 @@ def _shared_todo(todo: list | None, cluster) -> list:
 def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
     """Run the units; with ``K`` processes :func:`distributed.map_units` splits them (unit
     ``i`` on process ``i mod K``, rounds of ``K``, errors exchanged: a unit that fails on one
-    process ends every process with its message) and process 0 alone writes them. Units are
-    deterministic, so the stored records equal a one-process run's (except the measured
-    ``seconds``)."""
+    process ends every process with its message) and process 0 alone writes them: the
+    records to ``units/``, their measured ``seconds`` apart to ``times/`` (so two runs write
+    byte-identical units). Units are deterministic, so the stored records equal a
+    one-process run's."""
     from tqdm import tqdm
 
     from . import distributed
@@ -302,21 +386,23 @@ def _compute(todo: list, cfg: dict, cluster, st, quiet: bool = False) -> None:
                         unit="unit", disable=quiet or not cluster.is_main):
         if cluster.is_main:
             # atomic (temp file + os.replace): a killed run leaves no half unit
-            st.write_json(_unit_name(*todo[j]), {"records": recs})
+            secs = [r.get("seconds") for r in recs]
+            st.write_json(_times_name(*todo[j]), {"seconds": secs})
+            st.write_json(_unit_name(*todo[j]),
+                          {"records": [{k: v for k, v in r.items() if k != "seconds"}
+                                       for r in recs]})
 
 
 SHAPE_SIZES = [s for s in SIZES if 39 <= s <= 299]
 
 
-def _shapes_config(args) -> dict:
+def _shapes_config(cfg: Config, per_kind: int) -> dict:
     from ..hssh.gateways import SIDE_CONE, SIDE_SLACK
 
-    if args.shapes_per_kind < 1:
-        raise SystemExit("--shapes-per-kind must be >= 1")
-    return {"corpus": "shapes", "per_kind": args.shapes_per_kind, "seed": args.seed,
+    return {"corpus": "shapes", "per_kind": per_kind, "seed": cfg.seed,
             # sides drawn in 39..299 are rounded to the + corpus sizes (shared compiles)
             "sizes": SHAPE_SIZES, "rotations": [0.0, 45.0], "noise": [0.0, 0.10],
-            "widths": [0.22, 0.36], "supersample": args.supersample, "method": args.method,
+            "widths": [0.22, 0.36], "supersample": cfg.supersample, "method": cfg.method,
             "robot_radius": 0.0, "evg_cap_fraction": 0.2, "side_slack": SIDE_SLACK,
             "side_cone": SIDE_CONE,
             "success": "gateway count, star and place kind of pqrm_jax.hssh.shapes.EXPECTED"}
@@ -351,12 +437,12 @@ def shape_unit(side: int, cases: list, cfg: dict) -> list[dict]:
     return recs
 
 
-def _shapes_main(args, out: Path) -> int:
+def _shapes_main(c: Config, per_kind: int, out: Path) -> int:
     from tqdm import tqdm
 
     from ..hssh.shapes import shape_cases
 
-    cfg = _shapes_config(args)
+    cfg = _shapes_config(c, per_kind)
     cases = shape_cases(cfg["per_kind"], seed=cfg["seed"], sizes=(39, 299),
                         rotations=tuple(cfg["rotations"]), noise=tuple(cfg["noise"]),
                         widths=tuple(cfg["widths"]))
@@ -424,55 +510,111 @@ def shapes_report(rows: list[dict], cfg: dict, wall: float) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every (size, rotation) unit not yet stored (``units/``), split over the processes by
+    :func:`_compute`; process 0 writes each unit, then ``results.csv``."""
     from . import distributed
 
-    args = _parser().parse_args(argv or [])
-    out = Path(args.out)
-    if args.shapes:
-        return _shapes_main(args, out)
-    cfg = _config(args)
-    sizes = _pick(args.sizes, cfg["corpus_sizes"], int)
-    rots = _pick(args.rotations, cfg["corpus_rotations"], float)
-    cfg_all = dict(cfg, sizes_run=sizes, rotations_run=rots)
-    if args.chunk_cells is not None and args.chunk_cells < 1:
-        raise SystemExit("--chunk-cells must be positive")
-    cluster = distributed.initialize_from(args)  # before any JAX computation
-    from . import protocol
-
-    protocol.fresh_start(args, out, NAME, cluster, legacy=())
+    out = Path(out)
+    cluster = cluster or distributed.current()
+    cfg_all = _stored(cfg)
+    sizes, rots = cfg_all["sizes_run"], cfg_all["rotations_run"]
+    grid = {k: v for k, v in cfg_all.items() if k not in ("sizes_run", "rotations_run")}
+    protocol.fresh_start(argparse.Namespace(fresh=fresh), out, NAME, cluster, legacy=_LEGACY)
     distributed.agree(cluster, cfg_all, "hssh-plus configuration")
-    cells = chunk_cells(args.chunk_cells, out, sizes, cfg, cluster, args.memory_bytes)
-    cfg["layout"] = cfg_all["layout"] = {"chunk_cells": cells}
+    cells = chunk_cells(cfg.chunk or None, out, sizes, grid, cluster, cfg.memory_bytes)
+    grid["layout"] = cfg_all["layout"] = {"chunk_cells": cells}
     if not cluster.is_main:  # a helper process: compute its share, write nothing
-        _compute(_shared_todo(None, cluster), cfg, cluster, None)
-        return 0
+        _compute(_shared_todo(None, cluster), grid, cluster, None)
+        return
     with Store.open(out, NAME, cfg_all, selection=("sizes_run", "rotations_run", "layout"),
-                    legacy=("units", "units/*", "config.json", "report.md", "summary.json",
-                            "*.png")) as st:
+                    legacy=_LEGACY) as st:
         def check(u):
-            return unit_ok(u, cfg["noise_levels"])
+            return unit_ok(u, grid["noise_levels"])
 
         todo = [(s, r) for s in sizes for r in rots
                 if st.read_json(_unit_name(s, r), ("records",), check) is None]
         todo = _shared_todo(todo, cluster)
-        t_start = time.perf_counter()
-        _compute(todo, cfg, cluster, st, quiet=args.no_progress)
-        wall = time.perf_counter() - t_start
-        rows = []
-        for path in sorted((out / "units").glob("s*_r*.json")):
-            unit = st.read_json(f"units/{path.name}", ("records",), check)
-            if unit is not None:
-                rows.extend(unit["records"])
-        summary = summarise(rows, cfg)
-        _figures(rows, cfg, out)
-        _report(summary, rows, cfg, out, wall, len(todo))
+        _compute(todo, grid, cluster, st, quiet=quiet)
+        rows = _rows(st)
         st.write_results_csv(tidy_rows(
             [dict(r, success=float(r["success"])) for r in rows],
             unit=lambda r: f"s{r['side']}_r{r['rotation']:g}_n{r['noise']:g}",
             skip=("side", "rotation", "noise", "kind", "star", "reason",
                   "orientation_errors")))
-    print(f"wrote {out / 'report.md'}")
+
+
+_LEGACY = ("units", "units/*", "config.json", "report.md", "summary.json", "*.png")
+
+
+def _rows(st, times: bool = False) -> list[dict]:
+    """The records of every stored unit (a corrupt one is set aside); with ``times`` each
+    with its measured ``seconds`` (NaN when not stored)."""
+    import json
+
+    rows = []
+    for path in sorted((st.out / "units").glob("s*_r*.json")):
+        unit = st.read_json(f"units/{path.name}", ("records",),
+                            lambda u: unit_ok(u, st.config["noise_levels"]))
+        if unit is None:
+            continue
+        recs = unit["records"]
+        if times:
+            try:
+                secs = json.loads((st.out / "times" / path.name).read_text())["seconds"]
+            except (OSError, ValueError, KeyError, TypeError):
+                secs = []
+            if not isinstance(secs, list) or len(secs) != len(recs):
+                secs = [float("nan")] * len(recs)
+            recs = [dict(r, seconds=r.get("seconds", t if isinstance(t, (int, float))
+                                          else float("nan")))
+                    for r, t in zip(recs, secs, strict=True)]
+        rows.extend(recs)
+    return rows
+
+
+def _load(out: Path) -> tuple[dict, list[dict]]:
+    """(stored config, records of every stored unit) of ``out``."""
+    from .store import StudyError
+
+    with Store.open(out, NAME, None, legacy=_LEGACY) as st:
+        cfg, rows = st.config, _rows(st, times=True)
+    if not rows:
+        raise StudyError(f"{out} holds no {NAME} units; run the study first")
+    return cfg, rows
+
+
+def claims(out: Path) -> list:
+    """B §6.3.3's figures against the stored units (a partial corpus is "not checked")."""
+    cfg, rows = _load(Path(out))
+    return _claims(summarise(rows, cfg))
+
+
+def report(out: Path) -> Path:
+    """``report.md``, ``summary.json`` and the figures from the stored units."""
+    out = Path(out)
+    cfg, rows = _load(out)
+    _figures(rows, cfg, out)
+    _report(summarise(rows, cfg), rows, cfg, out)
+    return out / "report.md"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``pqrm-jax study hssh-plus`` (the protocol's driver; ``--shapes`` runs the shape
+    family instead, into the same ``--out``)."""
+    from . import distributed
+
+    cfg, a = configure(list(argv or []))
+    out = Path(a.out)
+    if a.shapes:
+        return _shapes_main(cfg, a.shapes_per_kind, out)
+    if not a.report_only:
+        cluster = distributed.initialize_from(a)  # before any JAX computation
+        run_study(cfg, out, quiet=a.no_progress, cluster=cluster, fresh=a.fresh)
+        if not cluster.is_main:
+            return 0
+    print(f"wrote {report(out)}")
     return 0
 
 
@@ -526,7 +668,7 @@ def summarise(rows: list[dict], cfg: dict) -> dict:
                         "big_low_noise": (k1, n1), "mid": (k2, n2)})
     s["per_rotation"] = per_rot
     s["n_images"] = len(rows)
-    s["seconds"] = float(sum(r["seconds"] for r in rows))
+    s["seconds"] = float(np.nansum([r.get("seconds", np.nan) for r in rows]))
     return s
 
 
@@ -646,38 +788,70 @@ def _free_verdict(s, ok: bool) -> str:
     return "match" if ok else "mismatch"
 
 
-def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
+def _claims(s: dict) -> list:
+    """The published figures of B §6.3.3 against the summary ``s`` (:func:`summarise`)."""
+    def verdict(v: str) -> str:
+        return v if v in (protocol.MATCH, protocol.MISMATCH) else f"{protocol.NOT_CHECKED}: {v}"
+
+    cs = []
+    for key in ("big_low_noise", "mid", "mid_4gw"):
+        pk, pn, text = PUBLISHED[key]
+        k, n = s[key]
+        cs.append(protocol.Claim(text, f"{100 * pk / pn:.2f} %",
+                                 f"{100 * k / n:.2f} % ({k}/{n})" if n else "—", None,
+                                 verdict(_verdict(k, n, pk, pn))))
+    bk, bn = s["big_noise"]
+    cs.append(protocol.Claim(f"{PUBLISHED['big_noise']} (side 599)", "100 %",
+                             f"{100 * bk / bn:.1f} % ({bk}/{bn})" if bn else "—", None,
+                             verdict("match" if bn and bk == bn else
+                                     ("not run" if not bn else "mismatch"))))
+    first = s["noise_free_first_all_ok"]
+    cs.append(protocol.Claim(PUBLISHED["noise_free"], "39",
+                             f"all rotations correct from side {first}; failing noise-free "
+                             f"sides: {s['noise_free_failing_sides']}", None,
+                             verdict(_free_verdict(s, first == 39))))
+    if s["noise_free_29"]:
+        fails = [f"{a:g}°" for a, ok, _ in s["noise_free_29"] if not ok]
+        cs.append(protocol.Claim("29x29 noise-free fails only at 30°", "30°",
+                                 f"fails at {fails or 'none'}", None,
+                                 verdict(_free_verdict(s, fails == ["30°"]))))
+    o = s.get("orientation")
+    if o:
+        cs.append(protocol.Claim(
+            PUBLISHED["orientation"], "sd 3.53, mean 3.94, median 4.31",
+            f"signed: mean {o['mean']:.2f}, median {o['median']:.2f}, sd {o['sd']:.2f}; "
+            f"\\|err\\|: mean {o['mean_abs']:.2f}, median {o['median_abs']:.2f} (n={o['n']})",
+            None, verdict("reference only (skeleton-dependent)")))
+    return cs
+
+
+FIGURES = {
+    "accuracy_size_noise.png": "Share of images with the correct + local topology (colour, 0 "
+                               "to 1) by LPM side (rows, cells) and free-cell noise (columns, "
+                               "%), mean over the rotations run (cf. B Fig. 6.36).",
+    "accuracy_rotation_size_noise.png": "Left: accuracy per rotation over all sizes and noise "
+                                        "levels (cf. B Fig. 6.30); middle: noise-free success "
+                                        "(1 correct, 0 not; offset per rotation) against the "
+                                        "LPM side (cf. Fig. 6.34a); right: accuracy against "
+                                        "noise at the largest side run (cf. Fig. 6.35a).",
+    "accuracy_per_rotation.png": "One size-by-noise success map per rotation (yellow correct, "
+                                 "purple not, blank not run; cf. B Figs. 6.31-6.32).",
+    "gateway_orientation.png": "Histogram of the gateway orientation errors (degrees, mod "
+                               "90°, rotated back by the image's rotation) of the correct "
+                               "cases (cf. B Fig. 6.33c).",
+}
+"""The report's figures and their captions (``gateway_orientation.png`` only when a case
+succeeded)."""
+
+
+def _report(s, rows, cfg, out: Path) -> None:
     lines = ["# hssh-plus: anchor-based gateways on the + corpus (B §6.3.3)", ""]
     total = len(cfg["corpus_sizes"]) * len(cfg["corpus_rotations"]) * len(cfg["noise_levels"])
     lines.append(f"Corpus: {cfg['corpus']}; images evaluated: {s['n_images']} "
                  f"(of {total} in this corpus definition). Method: {cfg['method']}. "
                  "Configuration: `config.json` (every knob).")
-    lines.append(f"Compute time summed over images: {s['seconds']:.1f} s; this invocation ran "
-                 f"{n_units_run} (size, rotation) units in {wall:.1f} s wall.")
-    lines += ["", "| figure | published | measured | verdict |", "|---|---|---|---|"]
-    for key in ("big_low_noise", "mid", "mid_4gw"):
-        pk, pn, text = PUBLISHED[key]
-        k, n = s[key]
-        pct = f"{100 * k / n:.2f} % ({k}/{n})" if n else "—"
-        lines.append(f"| {text} | {100 * pk / pn:.2f} % | {pct} | {_verdict(k, n, pk, pn)} |")
-    bk, bn = s["big_noise"]
-    lines.append(f"| {PUBLISHED['big_noise']} (side 599) | 100 % | "
-                 f"{(f'{100 * bk / bn:.1f} % ({bk}/{bn})') if bn else '—'} | "
-                 f"{'match' if bn and bk == bn else ('not run' if not bn else 'mismatch')} |")
-    first = s["noise_free_first_all_ok"]
-    lines.append(f"| {PUBLISHED['noise_free']} | 39 | all rotations correct from side "
-                 f"{first}; failing noise-free sides: {s['noise_free_failing_sides']} | "
-                 f"{_free_verdict(s, first == 39)} |")
-    if s["noise_free_29"]:
-        fails = [f"{a:g}°" for a, ok, _ in s["noise_free_29"] if not ok]
-        lines.append(f"| 29x29 noise-free fails only at 30° | 30° | fails at {fails or 'none'} "
-                     f"| {_free_verdict(s, fails == ['30°'])} |")
-    o = s.get("orientation")
-    if o:
-        lines.append(f"| {PUBLISHED['orientation']} | sd 3.53, mean 3.94, median 4.31 | "
-                     f"signed: mean {o['mean']:.2f}, median {o['median']:.2f}, sd {o['sd']:.2f}; "
-                     f"|err|: mean {o['mean_abs']:.2f}, median {o['median_abs']:.2f} (n={o['n']})"
-                     " | reference only (skeleton-dependent) |")
+    lines.append(f"Compute time summed over images: {s['seconds']:.1f} s.")
+    lines += ["", *protocol.claims_table(_claims(s))]
     if s.get("per_rotation"):
         lines += ["", "## Per rotation (B Fig. 6.30: flat across rotations)", "",
                   "| rotation | images | all | side >= 200, noise <= 35 % | "
@@ -708,7 +882,11 @@ def _report(s, rows, cfg, out: Path, wall: float, n_units_run: int) -> None:
               "- Gateway orientation statistics depend on the skeleton: this thinning differs "
               "from EVG-Thin in details (tangent smoothing over +-2 nodes, Alg. 6.3 averaging), "
               "so they are a reference, not a target.",
-              "", "Figures: `accuracy_size_noise.png`, `accuracy_rotation_size_noise.png`, "
-              "`accuracy_per_rotation.png`, `gateway_orientation.png`."]
+              "", "## Figures", ""]
+    lines += [line for name, cap in FIGURES.items() if (out / name).exists()
+              for line in protocol.figure(name, cap)]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     atomic_write_json(out / "summary.json", s)
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])

@@ -321,7 +321,7 @@ def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, d
 
     def plan_exists(e: int) -> np.ndarray:  # [grid] int8: a plan exists at each eps
         env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
-        b = E.initial_belief(models, env, jax.random.key(e), compositions=True,
+        b = E.initial_belief(jax.random.key(e), models, env, compositions=True,
                              L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
                              samples=cfg["initial_measurement_samples"],
                              scale_model=cfg["scale_model"])
@@ -375,7 +375,7 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
             env = make_env(cfg, sw["seed"], e, size)
             goal = jnp.asarray(env.goal)
             for mode in ("without", "with"):
-                b = E.initial_belief(models, env, jax.random.key(e),
+                b = E.initial_belief(jax.random.key(e), models, env,
                                      compositions=mode == "with", L_max=cfg["L_max"],
                                      sigma_z=cfg["execution"]["sigma_z"],
                                      samples=cfg["initial_measurement_samples"],
@@ -389,8 +389,8 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                     topo[mode].append(bool(G.plan_exists(fg0, b.frame)))
                 if size == cfg["size"]:
                     for d, pp in pps.items():
-                        pl = P.plan(models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot,
-                                    jax.random.key(e), pp, 1)
+                        pl = P.plan(jax.random.key(e), models, D1, b.trip, b.scale, fg, goal,
+                                    b.frame, b.robot, pp, 1)
                         tex[mode][d].append(bool(pl.exists))
             bar.update(1)
         for mode in ("without", "with"):
@@ -457,7 +457,7 @@ def run_chunk_arrays(cfg: dict, models, D1, envs: list, ids: list[int],
                         what=f"{NAME}: a chunk of {cfg['chunk']} environments "
                              f"({4 * cfg['chunk']} lanes)")
     t0 = time.perf_counter()
-    out = jax.device_get(compiled(models, D1, *lanes))
+    out = jax.device_get(compiled(lanes[0], models, D1, lanes[1]))
     dt = time.perf_counter() - t0
     return tuple(np.asarray(x) for x in out), dt
 
@@ -470,12 +470,12 @@ def chunk_program(cfg: dict, models, D1, lanes, pp, ep):
     (cached per models key and layout): its XLA memory analysis sizes and checks the chunk."""
     from ..bsp import execute as X
 
-    n = int(lanes[-1].shape[0])
+    n = int(lanes[0].shape[0])
     key = (cfg["models_key"], n, lane_devices(n), pp, ep)
     if key not in _AOT:
         if len(_AOT) > 4:
             _AOT.clear()
-        _AOT[key] = X.run_lanes.lower(models, D1, *lanes, pp, ep).compile()
+        _AOT[key] = X.run_lanes.lower(lanes[0], models, D1, lanes[1], pp, ep).compile()
     return _AOT[key]
 
 
@@ -537,9 +537,9 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     keys = jnp.stack([jax.random.fold_in(jax.random.key(cfg["seed"]), i) for i in pid])
     beliefs = {}
     for mode in ("without", "with"):
-        bels = [E.initial_belief(models, e, jax.random.fold_in(jax.random.key(cfg["seed"] + 1),
-                                                                i),
-                                 compositions=mode == "with", L_max=L, sigma_z=ex["sigma_z"],
+        bels = [E.initial_belief(jax.random.fold_in(jax.random.key(cfg["seed"] + 1), i),
+                                 models, e, compositions=mode == "with", L_max=L,
+                                 sigma_z=ex["sigma_z"],
                                  samples=cfg["initial_measurement_samples"],
                                  scale_model=cfg["scale_model"])
                 for e, i in zip(pad, pid, strict=True)]
@@ -553,7 +553,9 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
                          n_beta=cfg["planner"]["n_beta"], lam=cfg["planner"]["lam"],
                          rho=cfg["planner"]["rho"],
                          nothing_seen="nothing_seen" in cfg.get("extensions", {}))
-    lanes = (rep(pos), rep(lm), rep(goal), rep(start), B, rep(ref), rep(rs), rep(keys), costs)
+    # (keys, lanes): run_lanes takes the lanes' keys first
+    lanes = (rep(keys), X.Lane(pos=rep(pos), lm_mask=rep(lm), goal=rep(goal), start=rep(start),
+                               belief=B, ref=rep(ref), ref_scale=rep(rs), cost=costs))
     return shard_lanes(lanes), pp, ep
 
 

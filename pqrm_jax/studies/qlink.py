@@ -30,14 +30,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import sys
 import time
 import zlib
 from collections import Counter
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import protocol
 from .store import Store, StudyError
 
 NAME = "qlink"
@@ -89,8 +93,12 @@ REASONS = {
 }
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Config:
+    """Every setting of the study (each knob's reason in :data:`REASONS`); ``memory_bytes``
+    (the device memory the automatic chunk is sized for; None: what the device reports) is
+    not stored."""
+
     worlds: tuple[int, ...] = (0, 1, 2)
     landmarks: int = 200
     size: float = 200.0
@@ -114,6 +122,7 @@ class Config:
     max_pairs: int = 0
     chunk: int | None = None  # None: sized from the device memory per world (auto_chunk)
     seed: int = 0
+    memory_bytes: int | None = None
 
 
 REDUCED = dict(worlds=(0,), landmarks=50, size=100.0, max_pairs=64, betas=(2, 1),
@@ -218,7 +227,10 @@ def run_setting(cfg: Config, w: int, beta: int, name: str, frac: float, occ: flo
 
 
 WORLD_ARRAYS = ("positions", "element_ids", "element_probs", "betas", "detection")
-WORLD_INFO = ("elements", "mapped_landmarks", "pairs", "map_s", "detection", "setting_s")
+WORLD_INFO = ("elements", "mapped_landmarks", "pairs", "detection")
+WORLD_TIMES = ("map_s", "setting_s")
+"""Measured times of a world (:func:`compute_world`'s info): stored apart, in
+``world_XX.times.json``, so two runs write byte-identical ``world_XX.json``."""
 
 
 def trials_name(w: int, beta: int, name: str) -> str:
@@ -266,59 +278,86 @@ def results_table(rows: list[dict]) -> list[tuple[str, str, float]]:
     return out
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="out/qlink")
-    p.add_argument("--reduced", action="store_true", help="small world, a few settings (<1 min)")
-    from .protocol import nonneg_int
+PRESETS: dict[str, dict] = {
+    "tiny": dict(REDUCED, landmarks=30, size=80.0, max_pairs=16, sensor_fracs=(1.0,),
+                 occluder_sizes=(), chunk=16),
+    "reduced": REDUCED,
+    "full": {},
+}
+"""Field overrides of :class:`Config` per preset (``--reduced``: one 50-landmark world, 64
+pairs, a few settings, under a minute; ``--tiny``: 30 landmarks, 16 pairs, R′ = R only)."""
 
-    p.add_argument("--worlds", type=nonneg_int, nargs="+", help="world seeds (default 0 1 2)")
-    p.add_argument("--max-pairs", type=nonneg_int, help="pairs per world (0 = all ordered pairs)")
-    p.add_argument("--chunk", type=lambda v: 0 if v == "auto" else int(v),
-                   help="pool lanes per compiled batch, or 'auto' (the default, --reduced: 32): "
-                   "sized per world from the device memory, at most 128 on CPU; results do "
-                   "not depend on it")
-    p.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
-                   "sized for (default: what the device reports)")
-    p.add_argument("--sensing", choices=("step", "epoch"), help="sensing model of the "
-                   "navigating robot (default step; docs/qlink.md §sensing)")
-    p.add_argument("--ablation", nargs="*", metavar="SETTING", help="instead of the study: "
-                   "the variants of ABLATIONS on the given settings (default R) of each world; "
-                   "writes ablation.csv to --out")
-    p.add_argument("--no-progress", "--quiet", action="store_true",
-                   help="no progress bars (--quiet: deprecated alias)")
-    from . import distributed, protocol
+_FLAGS = {"worlds": "worlds", "max_pairs": "max_pairs", "sensing": "sensing",
+          "memory_bytes": "memory_bytes"}
 
-    protocol.add_fresh(p)
 
-    distributed.add_arguments(p)
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    from .hssh_plus import memory_bytes_arg
+
+    p = protocol.parser(NAME, HELP, seed=Config.seed, chunk=True)
+    p.set_defaults(chunk=None)  # not given: the preset's (reduced 32, full sized per world)
+    p.add_argument("--worlds", type=protocol.nonneg_int, nargs="+", default=None,
+                   help="world seeds (default 0 1 2)")
+    p.add_argument("--max-pairs", type=protocol.nonneg_int, default=None,
+                   help="pairs per world (0 = all ordered pairs)")
+    p.add_argument("--memory-bytes", type=memory_bytes_arg, default=None,
+                   help="device memory the automatic chunk is sized for (default: what the "
+                        "device reports)")
+    p.add_argument("--sensing", choices=("step", "epoch"), default=None,
+                   help="sensing model of the navigating robot (default step; docs/qlink.md "
+                        "§sensing)")
+    p.add_argument("--ablation", nargs="*", metavar="SETTING",
+                   help="instead of the study: the variants of ABLATIONS on the given settings "
+                        "(default R) of each world; writes ablation.csv to --out")
     a = p.parse_args(argv)
-    cfg = Config(**REDUCED) if a.reduced else Config()
-    if a.worlds:
-        cfg.worlds = tuple(a.worlds)
-    if a.max_pairs is not None:
-        cfg.max_pairs = a.max_pairs
-    if a.sensing is not None:
-        cfg.sensing = a.sensing
-    if a.chunk is not None:
-        if a.chunk < 0:
-            p.error("--chunk must be positive or 'auto'")
-        cfg.chunk = a.chunk or None
-    if a.ablation is not None:
-        return _run_ablation(cfg, a.out, tuple(a.ablation) or ("R",))
+    if a.worlds is not None:
+        a.worlds = tuple(a.worlds)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, _FLAGS, overrides)
+    if a.chunk is not None and "chunk" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, chunk=a.chunk or None)  # 0: sized automatically
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    if cfg.chunk is not None and cfg.chunk < 1:
+        cfg = dataclasses.replace(cfg, chunk=None)
+    if not cfg.worlds or min(cfg.worlds) < 0 or cfg.max_pairs < 0:
+        p.error(f"worlds must be seeds ≥ 0 and max_pairs ≥ 0, got {cfg.worlds}, "
+                f"{cfg.max_pairs}")
+    if cfg.landmarks < 3 or min(cfg.size, cfg.map_range, cfg.ds) <= 0 or cfg.sigma < 0 \
+            or not cfg.betas or not cfg.sensor_fracs:
+        p.error("landmarks must be ≥ 3, size, map_range and ds > 0, sigma ≥ 0, and betas and "
+                "sensor_fracs not empty")
+    if cfg.sensing not in ("step", "epoch"):
+        p.error(f"sensing must be step or epoch, got {cfg.sensing!r}")
+    return cfg, a
+
+
+def _stored(cfg: Config) -> dict:
+    """The stored config: every field (``memory_bytes`` aside) and the reasons."""
     stored = dataclasses.asdict(cfg)
+    del stored["memory_bytes"]
     stored["reasons"] = REASONS
-    cluster = distributed.initialize_from(a)  # before any JAX computation
-    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
+    return stored
+
+
+def run_study(cfg: Config, out, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every world's map and trials units not yet stored, split over the processes (one
+    world per unit); process 0 writes them, ``trials.csv``, ``results.csv`` and
+    ``times.json`` (this run's wall time, apart from the results)."""
+    from . import distributed
+
+    cluster = cluster or distributed.current()
+    stored = _stored(cfg)
+    protocol.fresh_start(argparse.Namespace(fresh=fresh), out, NAME, cluster, legacy=())
     distributed.agree(cluster, stored, f"{NAME} config")
     st = None
     plan: list[int] = []
 
     def worlds_left():  # process 0: open the store; per world its id and what is missing
         nonlocal st
-        st = Store.open(a.out, NAME, stored, selection=("worlds", "chunk"),
-                        legacy=("config.json", "world_*.npz", "world_*.json", "trials",
-                                "trials.csv", "report.md", "*.png"))
+        st = Store.open(out, NAME, stored, selection=("worlds", "chunk"), legacy=_LEGACY)
         # every world stored so far plus the ones asked (selection: union)
         for w in (int(w) for w in st.config["worlds"]):
             info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)  # its chunk, 0: none
@@ -332,39 +371,130 @@ def main(argv: list[str]) -> int:
         flat = distributed.decide(cluster, n, lambda: plan).tolist()
         k = 3 + len(_units_of(cfg))  # [world, arrays missing, trials missing per unit, chunk]
         table = [flat[i:i + k] for i in range(0, n, k)]
-        cfg.worlds = tuple(row[0] for row in table)
+        cfg = dataclasses.replace(cfg, worlds=tuple(row[0] for row in table))
         todo = [(row[0], bool(row[1]), tuple(bool(x) for x in row[2:-1]), row[-1])
                 for row in table if any(row[1:-1])]
         t0 = time.time()
         for j, res in distributed.map_units(
-                lambda u: compute_world(cfg, *u, progress=not a.no_progress
-                                        and cluster.is_main, memory_bytes=a.memory_bytes),
+                lambda u: compute_world(cfg, *u, progress=not quiet and cluster.is_main,
+                                        memory_bytes=cfg.memory_bytes),
                 todo, cluster, codec="json"):
             if st is not None:
                 _write_world(st, todo[j][0], res)
         if st is None:
-            return 0
-        summary, units = {}, {}
-        for w in cfg.worlds:
-            info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
-            got = {} if info is None else {
-                trials_name(w, b, nm): _read_trials(st, w, b, nm, info["pairs"])
-                for b, nm in _units_of(cfg)}
-            if info is None or any(v is None for v in got.values()):
-                raise StudyError(f"{NAME}: world {w} did not read back as written")
-            summary[w] = info
-            units.update(got)
-        rows = [r for name in sorted(units) for r in units[name]]
+            return
+        rows, _ = _read_all(st, cfg)
         st.write_csv("trials.csv", FIELDS, rows)
         st.write_results_csv(results_table(rows))
-        examples = example_trajectories(cfg, st, rows)
-        from ._qlink_report import write_report
-        write_report(st.out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg),
-                     time.time() - t0, examples)
-        print(f"wrote {st.out / 'report.md'} ({len(rows)} trials, {time.time() - t0:.0f} s)")
+        st.write_json("times.json", {"wall_s": round(time.time() - t0, 1)})
     finally:
         if st is not None:
             st.close()
+
+
+_LEGACY = ("config.json", "world_*.npz", "world_*.json", "trials", "trials.csv", "report.md",
+           "*.png")
+
+
+def _read_all(st: Store, cfg: Config) -> tuple[list[dict], dict]:
+    """(every trial row in unit order, world → summary) of the worlds of ``cfg``."""
+    summary, units = {}, {}
+    for w in cfg.worlds:
+        info = st.read_json(f"world_{w:02d}.json", WORLD_INFO)
+        got = {} if info is None else {
+            trials_name(w, b, nm): _read_trials(st, w, b, nm, info["pairs"])
+            for b, nm in _units_of(cfg)}
+        if info is None or any(v is None for v in got.values()):
+            raise StudyError(f"{NAME}: world {w} did not read back as written")
+        times = st.read_json(f"world_{w:02d}.times.json") or {}
+        summary[w] = dict(info, **{k: times[k] for k in WORLD_TIMES if k in times})
+        units.update(got)
+    return [r for name in sorted(units) for r in units[name]], summary
+
+
+def _config_of(stored: dict) -> Config:
+    """The Config of a stored config (lists back to tuples)."""
+    fields = {f.name for f in dataclasses.fields(Config)}
+    return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()
+                     if k in fields})
+
+
+def _mean_rates(rows: list[dict], beta: int) -> dict[str, float]:
+    """Setting → world mean of the failure rate (%) over reachable pairs at ``beta``."""
+    out = {}
+    for unit, metric, v in results_table(rows):
+        if metric == "failure_pct" and unit.startswith(f"mean/b{beta}/"):
+            out[unit.split("/", 2)[2]] = v
+    return out
+
+
+def _claims(cfg: Config, rows: list[dict]) -> list:
+    """P Table 4.1's failure rates at the primary β: the sensor-range rows against
+    :data:`BANDS`, the occlusion rows within ±5 points of the published value."""
+
+    rates = _mean_rates(rows, cfg.betas[0])
+    cs = []
+    for name, _, _ in settings(cfg):
+        if name not in rates or name not in PUBLISHED:
+            continue
+        m, pub = rates[name], PUBLISHED[name]
+        lo, hi = BANDS.get(name, (pub - 5.0, pub + 5.0))
+        cs.append(protocol.Claim(f"Table 4.1 failure rate, {name} (β = {cfg.betas[0]})",
+                                 f"{pub:g} %", round(m, 3), (lo, hi),
+                                 protocol.verdict_in(m, lo, hi)))
+    return cs
+
+
+def _load(out) -> tuple[Config, list[dict], dict]:
+    with Store.open(out, NAME, None, legacy=_LEGACY) as st:
+        cfg = _config_of(st.config)
+        rows, summary = _read_all(st, cfg)
+    return cfg, rows, summary
+
+
+def claims(out) -> list:
+    """P Table 4.1's failure rates (%) per setting at the primary β, world means."""
+    cfg, rows, _ = _load(out)
+    return _claims(cfg, rows)
+
+
+def report(out) -> Path:
+    """``report.md``, the figures and the example trajectories from the stored results."""
+    from ._qlink_report import write_report
+
+    out = Path(out)
+    with Store.open(out, NAME, None, legacy=_LEGACY) as st:
+        cfg = _config_of(st.config)
+        rows, summary = _read_all(st, cfg)
+        examples = example_trajectories(cfg, st, rows)
+        try:
+            wall = float(json.loads((out / "times.json").read_text())["wall_s"])
+        except (FileNotFoundError, KeyError, ValueError, TypeError):
+            wall = float("nan")
+        write_report(st.out, cfg, rows, summary, PUBLISHED, BANDS, settings(cfg), wall,
+                     examples)
+        text = (out / "report.md").read_text()
+        st.write_text("report.md", text + "\n".join(
+            ["", "## Claims (world means, primary β)", "",
+             *protocol.claims_table(_claims(cfg, rows)), ""]))
+    return out / "report.md"
+
+
+def main(argv: list[str]) -> int:
+    """``pqrm-jax study qlink`` (the protocol's driver; ``--ablation`` runs the ablation
+    instead)."""
+    from . import distributed
+
+    cfg, a = configure(list(argv or []))
+    if a.ablation is not None:
+        return _run_ablation(cfg, a.out, tuple(a.ablation) or ("R",))
+    if not a.report_only:
+        cluster = distributed.initialize_from(a)  # before any JAX computation
+        run_study(cfg, a.out, quiet=a.no_progress, cluster=cluster, fresh=a.fresh)
+        if not cluster.is_main:
+            return 0
+    path = report(a.out)
+    print(f"wrote {path}")
     return 0
 
 
@@ -400,31 +530,29 @@ def auto_chunk(cfg: Config, w: int, lm, el, pairs, detect, plans,
     One lane's bytes are bounded by the navigation pool compiled for one lane and its
     :data:`QUEUE_PER_LANE` queued trials on this world's map (XLA's memory analysis, the
     map's fixed part counted for every lane; the last setting, with occluders when there
-    are any); :func:`~pqrm_jax.studies.chunking.pick_chunk` takes the largest power of two
-    that fits, capped at the pairs, and on CPU at :data:`CPU_CHUNK`. A device too small for
-    one lane is refused naming ``--chunk``.
+    are any); the one chunk sizer :func:`~pqrm_jax.studies.chunking.auto` takes the largest
+    power of two that fits, capped at the pairs, and on CPU at :data:`CPU_CHUNK` (also the
+    chunk without memory figures). A device too small for one lane is refused naming
+    ``--chunk``.
     """
     from pqrm_jax.qlink import navigate as nav
 
     from . import chunking
 
-    name, frac, occ = settings(cfg)[-1]
-    params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
-                                       pairs[:1])
-    q = QUEUE_PER_LANE
-    trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
-                        np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
-                        np.ones(q, np.int32))
-    compiled = nav.navigate(trials, nav.NavMap(lm, el, plans=plans), params, model, chunk=1,
-                            compile_only=True)
-    nbytes = chunking.program_bytes(compiled)
-    budget = chunking.budget(memory_bytes)
-    lanes = chunking.fit(nbytes, budget, total=len(pairs), option="--chunk", cpu_cap=CPU_CHUNK)
-    if lanes is None:
-        return CPU_CHUNK
-    print(f"{NAME}: world {w}: --chunk {lanes} pool lanes sized from the memory "
-          f"({nbytes / 2**20:.1f} MiB per lane, {budget / 2**20:.0f} MiB available)")
-    return lanes
+    def probe() -> int | None:
+        name, frac, occ = settings(cfg)[-1]
+        params, model, keys = _trial_setup(cfg, w, cfg.betas[0], name, frac, occ, detect,
+                                           pairs[:1])
+        q = QUEUE_PER_LANE
+        trials = nav.Trials(jnp.concatenate([keys] * q), np.repeat(pairs[:1, 0], q),
+                            np.repeat(pairs[:1, 1], q), np.zeros((q, 1), np.int32),
+                            np.ones(q, np.int32))
+        return chunking.program_bytes(nav.navigate(trials, nav.NavMap(lm, el, plans=plans),
+                                                   params, model, chunk=1, compile_only=True))
+
+    return chunking.auto(probe, total=len(pairs), option="--chunk", memory_bytes=memory_bytes,
+                         cpu_cap=CPU_CHUNK, fallback=CPU_CHUNK, say=f"{NAME}: world {w}",
+                         unit="pool lanes")
 
 
 ABLATIONS = {
@@ -600,7 +728,9 @@ def _write_world(st: Store, w: int, res: dict) -> None:
                      compressed=False)
     for f, rows in res["trials"].items():
         st.write_csv(f, FIELDS, rows)
-    st.write_json(f"world_{w:02d}.json", res["info"])
+    info = res["info"]
+    st.write_json(f"world_{w:02d}.times.json", {k: info[k] for k in WORLD_TIMES if k in info})
+    st.write_json(f"world_{w:02d}.json", {k: v for k, v in info.items() if k not in WORLD_TIMES})
 
 
 def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
@@ -688,3 +818,6 @@ def _drive(cfg, w, beta, name, frac, occ, world, pairs, record=0):
                               nav.NavMap(lm, el, g, to_go, goal_row, tables, plans), params,
                               model, chunk=min(cfg.chunk or CPU_CHUNK, len(pairs)),
                               record=record)    # few lanes: the traces are big
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])

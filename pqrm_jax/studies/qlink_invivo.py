@@ -22,6 +22,12 @@ What is checked (``report.md``, match/mismatch):
 Results are kept in the shared :class:`~pqrm_jax.studies.store.Store` (one record per
 ``p_miss``; a re-run resumes and refuses a different configuration); ``trials.csv`` has one row
 per trial, ``world.npz`` the world and the map, ``invivo_world.png`` the world and trajectories.
+
+The study follows :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS`` tiny / reduced /
+full, ``configure``, ``run_study``, ``report``, ``claims``, ``--sweep``). As N processes
+(``--coordinator/--processes/--process-id``) the ``p_miss`` settings are split over the
+processes (:func:`.distributed.map_units`) and process 0 writes them; each setting's trials
+draw from their own keys, so the records equal a one-process run's.
 """
 
 from __future__ import annotations
@@ -30,9 +36,12 @@ import argparse
 import dataclasses
 import functools
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 
+from . import protocol
 from .store import Store, atomic_savefig, atomic_write_npz, atomic_write_text, csv_text
 
 NAME = "qlink-invivo"
@@ -73,7 +82,7 @@ REASONS = {
 }
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Config:
     """Every result-changing setting (reasons in :data:`REASONS`)."""
 
@@ -100,6 +109,14 @@ class Config:
 
 REDUCED = dict(points=12, size=(120.0, 80.0), num_samples=16, max_obs=2, sweep_step=6.0,
                trials=6)
+
+PRESETS: dict[str, dict] = {
+    "tiny": dict(REDUCED, num_samples=8, trials=4),
+    "reduced": REDUCED,
+    "full": {},
+}
+"""Field overrides of :class:`Config` per preset (``--tiny``: a few seconds, for tests;
+``--reduced``: 12 points, 6 trials, seconds)."""
 
 FIELDS = ("p_miss", "trial", "start_element", "goal_element", "n_planned", "n_entered",
           "replans", "success", "reason", "attributed", "length_m", "final_x", "final_y")
@@ -310,19 +327,38 @@ def checks(cfg: Config, rows: list[dict]) -> list[tuple[str, str, str, bool]]:
     return out
 
 
-def report(cfg: Config, world: dict, rows: list[dict], out) -> str:
-    """``report.md`` text (and the figure)."""
-    hmap = world["hmap"]
+def _claims(cfg: Config, rows: list[dict]) -> list[protocol.Claim]:
+    """The acceptance checks (:func:`checks`) as claims, and P's success rate beside ours
+    (not a target: terrain pitch and recognition errors are not simulated)."""
+    def cell(text: str) -> str:  # "|P|" inside a markdown table cell
+        return text.replace("|", "\\|")
+
+    out = [protocol.Claim(cell(name), tgt, cell(ours), None,
+                          protocol.MATCH if ok else protocol.MISMATCH)
+           for name, tgt, ours, ok in checks(cfg, rows)]
+    for pm in cfg.p_miss:
+        rs = [r for r in rows if r["p_miss"] == pm]
+        if rs:
+            rate = sum(r["success"] for r in rs) / len(rs)
+            out.append(protocol.Claim(
+                f"success rate, p_miss = {pm} (beside P, not a target)",
+                f"{PUBLISHED['success_rate']:.0%} in vivo", round(rate, 4), None,
+                protocol.NOT_CHECKED))
+    return out
+
+
+def report_text(cfg: Config, world: dict, rows: list[dict], out) -> str:
+    """``report.md`` text (and the figure); ``world`` holds ``points``, ``walls`` and
+    ``element_kind`` (as stored in ``world.npz``)."""
+    kind = np.asarray(world["element_kind"])
     lines = ["# In-vivo-like Q-Link study (P §4.4.2)", "",
              f"World: {cfg.points} points + 2 walls in {cfg.size[0]:g} m × {cfg.size[1]:g} m, "
-             f"R = {cfg.map_range:g} m, σ = {cfg.sigma:g} m; map: {len(hmap.kind)} elements "
-             f"({int((hmap.kind == 1).sum())} bands, {int((hmap.kind == 0).sum())} LR) "
+             f"R = {cfg.map_range:g} m, σ = {cfg.sigma:g} m; map: {len(kind)} elements "
+             f"({int((kind == 1).sum())} bands, {int((kind == 0).sum())} LR) "
              f"(P: {PUBLISHED['elements']}); β = {cfg.beta}, −log p costs, τ = {cfg.horizon}, "
              f"direct transitions, ≤ {cfg.max_replans} re-plans. Config and reasons: "
              "`config.json`.", "",
-             "## Acceptance checks", "", "| check | target | ours | |", "|---|---|---|---|"]
-    for name, tgt, ours, ok in checks(cfg, rows):
-        lines.append(f"| {name} | {tgt} | {ours} | {'match' if ok else 'mismatch'} |")
+             "## Acceptance checks", "", *protocol.claims_table(_claims(cfg, rows))]
     lines += ["", "## Success beside P (not a target)", "",
               "| | trials | successes | rate | successes after a re-plan |",
               "|---|---|---|---|---|",
@@ -350,7 +386,11 @@ def report(cfg: Config, world: dict, rows: list[dict], out) -> str:
         lines.append(f"| {k} | {pub[0] if pub else '—'} | {pub[1] if pub else '—'} | "
                      + " | ".join(cells) + " |")
     lines += ["", "Lengths are not expected to match P: the synthetic world's size and layout "
-              "are ours (config `size`).", "", "![world](invivo_world.png)", ""]
+              "are ours (config `size`).", "",
+              *protocol.figure("invivo_world.png", "The synthetic world (black: point "
+                               "landmarks, blue: the two walls; axes in metres) with up to six "
+                               "driven trials per p_miss, re-planned and failed ones first: "
+                               "triangle = start, star = end, dots = stops, dashed = failed.")]
     _figure(cfg, world, rows, out)
     return "\n".join(lines)
 
@@ -392,27 +432,68 @@ def _figure(cfg, world, rows, out):
     plt.close(fig)
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="out/qlink-invivo")
-    from . import protocol
 
-    protocol.add_fresh(p)
-    p.add_argument("--reduced", action="store_true", help="small world, 6 trials (seconds)")
-    p.add_argument("--seed", type=protocol.nonneg_int, help="root seed (default 0)")
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
     a = p.parse_args(argv)
-    cfg = Config(**REDUCED) if a.reduced else Config()
-    if a.seed is not None:
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, {}, overrides)
+    if "seed" not in (overrides or {}):
         cfg = dataclasses.replace(cfg, seed=a.seed)
-    stored = dataclasses.asdict(cfg)
-    stored["reasons"] = REASONS
-    with Store.open(a.out, NAME, json.loads(json.dumps(stored)), fresh=a.fresh) as st:
-        log = st.records("settings.jsonl", key=lambda r: r["p_miss"],
-                         required=("p_miss", "rows"))
+    cfg = dataclasses.replace(cfg, size=tuple(float(x) for x in cfg.size),
+                              p_miss=tuple(float(x) for x in cfg.p_miss))
+    if len(cfg.size) != 2 or min(cfg.size) <= 0:
+        p.error(f"size must be two lengths > 0, got {cfg.size}")
+    if not all(0.0 <= x < 1.0 for x in cfg.p_miss) or not cfg.p_miss:
+        p.error(f"p_miss must be probabilities in [0, 1), got {cfg.p_miss}")
+    if min(cfg.points, cfg.trials, cfg.num_samples, cfg.max_obs, cfg.beta) < 1 \
+            or cfg.max_replans < 0:
+        p.error("points, trials, num_samples, max_obs and beta must be ≥ 1 and max_replans "
+                "≥ 0")
+    return cfg, a
+
+
+def _stored(cfg: Config) -> dict:
+    return json.loads(json.dumps(dict(dataclasses.asdict(cfg), reasons=REASONS)))
+
+
+def _open(out: Path, cfg: Config | None, fresh: bool = False) -> Store:
+    return Store.open(out, NAME, None if cfg is None else _stored(cfg), fresh=fresh)
+
+
+def _records(st: Store):
+    return st.records("settings.jsonl", key=lambda r: r["p_miss"], required=("p_miss", "rows"))
+
+
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
+    """Every ``p_miss`` setting not yet stored (``settings.jsonl``, one record each), split
+    over the processes; process 0 writes them, ``trials.csv``, ``world.npz`` and
+    ``results.csv``."""
+    from . import distributed
+
+    cluster = cluster or distributed.current()
+    distributed.agree(cluster, _stored(cfg), f"{NAME} config")
+    st = log = None
+
+    def left():  # process 0: open the store, the settings not stored yet
+        nonlocal st, log
+        st = _open(out, cfg, fresh)
+        log = _records(st)
+        return [pm not in log for pm in cfg.p_miss]
+
+    try:
+        todo = [pm for pm, m in zip(cfg.p_miss, distributed.decide(cluster, len(cfg.p_miss),
+                                                                     left), strict=True) if m]
         world = build(cfg)
-        for pm in cfg.p_miss:
-            if pm not in log:
-                log.add({"p_miss": pm, "rows": run_setting(cfg, world, pm)})
+        for j, rows in distributed.map_units(lambda pm: run_setting(cfg, world, pm), todo,
+                                             cluster, codec="json"):
+            if log is not None:
+                log.add({"p_miss": todo[j], "rows": rows})
+        if st is None:
+            return
         rows = [r for pm in cfg.p_miss for r in log.get(pm)["rows"]]
         atomic_write_text(st.path("trials.csv"), csv_text(FIELDS, rows))
         hm = world["hmap"]
@@ -420,11 +501,46 @@ def main(argv: list[str]) -> int:
             "points": np.asarray(world["points"]), "walls": np.asarray(world["walls"]),
             "element_ids": np.asarray(hm.elements.ids), "element_kind": hm.kind,
             "beta": np.int32(cfg.beta)})
-        atomic_write_text(st.path("report.md"), report(cfg, world, rows, st.out))
         st.write_results_csv([
             (f"p_miss={pm}", m, v)
             for pm in cfg.p_miss
             for m, v in (("success_rate", np.mean([r["success"] for r in rows
                                                    if r["p_miss"] == pm])),
                          ("replans", sum(r["replans"] for r in rows if r["p_miss"] == pm)))])
-    return 0
+    finally:
+        if st is not None:
+            st.close()
+
+
+def _load(out: Path) -> tuple[Config, list[dict], dict]:
+    """(Config, trial rows, world arrays) of a finished study in ``out``."""
+    from .store import StudyError
+
+    with _open(Path(out), None) as st:
+        fields = {f.name for f in dataclasses.fields(Config)}
+        stored = {k: v for k, v in st.config.items() if k in fields}
+        cfg = Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()})
+        log = _records(st)
+        world = st.read_npz("world.npz", ("points", "walls", "element_kind"))
+        if world is None or any(pm not in log for pm in cfg.p_miss):
+            raise StudyError(f"{out} holds no finished {NAME} results; run the study first")
+        rows = [r for pm in cfg.p_miss for r in log.get(pm)["rows"]]
+    return cfg, rows, world
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """The acceptance checks of P §4.4.2 and P's success rate beside ours."""
+    cfg, rows, _ = _load(out)
+    return _claims(cfg, rows)
+
+
+def report(out: Path) -> Path:
+    """``report.md`` and ``invivo_world.png`` from the stored results."""
+    out = Path(out)
+    cfg, rows, world = _load(out)
+    atomic_write_text(out / "report.md", report_text(cfg, world, rows, out))
+    return out / "report.md"
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])
+main = protocol.main_for(sys.modules[__name__])

@@ -306,9 +306,9 @@ def _figures(summary, scenes, grids, out: Path, meta) -> None:
     axes = np.atleast_1d(axes)
     for ax, (d, mu, sigma) in zip(axes, examples, strict=True):
         sc, g = scenes[d], grids[d]
-        p = initial_cells(sc.beliefs(), g, unseparated="attach")
+        p = initial_cells(jax.random.PRNGKey(0), sc.beliefs(), g, unseparated="attach")
         trials = meta["trials"] or (4 if meta["reduced"] else 20) * sc.k
-        r = serge(p, min(mu, sc.k), sigma, key=jax.random.PRNGKey(7), trials=trials)
+        r = serge(jax.random.PRNGKey(7), p, min(mu, sc.k), sigma, trials=trials)
         ax.imshow(r.cell_labels.reshape(g.shape).T, origin="lower", extent=g.extent(),
                   cmap="tab20", interpolation="nearest", aspect="auto")
         pts = np.concatenate(sc.points)
