@@ -40,7 +40,10 @@ def test_tiny_study(tmp_path, request, capsys):
     assert cfg["layout"]["chunk"] == 4
     # measured times live apart: timing.json, not results.json
     assert set(json.loads((out / "results.json").read_text())) == {"results"}
-    assert json.loads((out / "timing.json").read_text())["total_s"] >= 0
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["total_s"] >= 0 and timing["lane_seconds_mean"] > 0
+    rec = json.loads((out / "chunks" / "env00000.json").read_text())
+    assert len(rec["rows"]) == 4 and not any("lane_seconds" in r for r in rec["rows"])
     assert json.loads((out / "study.json").read_text())["study"] == "qbsp"
     tidy = list(csv.DictReader(open(out / "results.csv")))
     assert tidy[0].keys() == {"study", "unit", "metric", "value"}

@@ -934,7 +934,7 @@ TEST_COLUMNS = ["env", "n", "mode", "cost", "plan_exists", "tree_exists", "reach
                 "actions"]
 ROW_FIELDS = ("env", "n", "mode", "cost", "plan_exists", "tree_exists", "reached",
               "executed_cost", "steps", "cost1", "cost2", "conflicts", "root_value", "frames",
-              "actions", "path", "lane_seconds")
+              "actions", "path")  # (older records also hold the measured lane_seconds)
 COMBOS = {(m, c) for m in ("without", "with") for c in (1, 2)}
 CALIBRATION_FIELDS = ("knob", "how", "rates", "eps_obs")
 SWEEP_FIELDS = ("sizes", "depths", "eps_obs", "envs", "exists", "tree_exists")
@@ -1066,6 +1066,7 @@ def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
         t0 = time.perf_counter()
         bar = tqdm(total=sum(map(len, work)), desc="qbsp lanes", unit="env",
                    disable=not progress)
+        lane_s: list[float] = []  # measured seconds per lane, this invocation (timing.json)
 
         def compute(w: int):
             return run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w],
@@ -1075,14 +1076,14 @@ def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
             bar.update(len(work[w]) * cluster.num_processes)
             if not cluster.distributed and main_:  # write as we go (resume unit)
                 _store_rows(st, work[w], chunk_rows(*res, [envs[i] for i in work[w]],
-                                                    work[w]), have)
+                                                    work[w]), have, lane_s)
 
         results = distributed.map_chunks(compute, len(work), cluster, done=done)
         bar.close()
         if cluster.distributed and main_:
             for ids, (arrays, dt) in zip(work, results, strict=True):
                 _store_rows(st, ids, chunk_rows(arrays, float(dt), [envs[i] for i in ids],
-                                                ids), have)
+                                                ids), have, lane_s)
         t_lanes = time.perf_counter() - t0
         if not main_:
             return 0
@@ -1109,7 +1110,7 @@ def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
         timing = {"models_s": round(t_models, 1), "calibration_s": round(t_calib, 1),
                   "lanes_s": round(t_lanes, 1), "sweep_s": round(t_sweep, 1),
                   "total_s": round(time.perf_counter() - t_start, 1),
-                  "lane_seconds_mean": float(np.mean([r["lane_seconds"] for r in rows])),
+                  "lane_seconds_mean": float(np.mean(lane_s)) if lane_s else None,
                   "processes": cluster.num_processes,
                   "devices_per_process": len(jax.local_devices()),
                   "devices": len(jax.devices())}
@@ -1211,8 +1212,13 @@ def main(argv: list[str] | None = None) -> int:
 sweep_summary = protocol.summary_for(sys.modules[__name__])
 
 
-def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict) -> None:
+def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict,
+                lane_s: list[float]) -> None:
+    """Each environment's record (the resume unit) without the measured ``lane_seconds``,
+    which go to ``lane_s`` (this invocation's times, for ``timing.json``)."""
+    lane_s += [r["lane_seconds"] for r in rows if r["env"] in ids]
     for i in ids:
-        rec = {"env": i, "rows": [r for r in rows if r["env"] == i]}
+        rec = {"env": i, "rows": [{k: v for k, v in r.items() if k != "lane_seconds"}
+                                  for r in rows if r["env"] == i]}
         st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
         have[i] = json.loads(json.dumps(rec))  # the rows as stored
