@@ -136,3 +136,27 @@ def test_visible_references_match_a_per_element_oracle():
                 assert refs[e].tolist() == want.tolist()
                 seen += 1
     assert 0 < seen < 40 * 5        # both outcomes occur
+
+
+def test_length_order_check_skips_bins_without_a_spread_of_their_own():
+    """The mean-length-vs-|P| check orders only bins with at least ``min_bin_trials``
+    successes (issue 24 item 4: a one-trial bin flipped it at p_miss 0.3): a one-trial bin
+    above its neighbour is shown but not ordered; a decrease between two full bins is still a
+    mismatch, and with ``min_bin_trials = 1`` the one-trial bin counts again."""
+    mod = discover()["qlink-invivo"]
+
+    def rows(lengths):   # {|P|: [lengths]} -> successful trial rows at p_miss 0
+        return [dict(p_miss=0.0, success=1, replans=0, attributed=1, n_planned=k,
+                     n_entered=k, length_m=x) for k, xs in lengths.items() for x in xs]
+
+    def mono(cfg, lengths):
+        (row,) = [c for c in mod.checks(cfg, rows(lengths)) if "non-decreasing" in c[0]]
+        return row
+
+    cfg = mod.Config(p_miss=(0.0,))
+    assert cfg.min_bin_trials == 2
+    row = mono(cfg, {2: [55.0], 3: [30.0, 50.0], 4: [45.0, 60.0]})
+    assert row[3] and "(n = 1, not ordered)" in row[2]
+    assert not mono(cfg, {2: [55.0, 56.0], 3: [30.0, 50.0]})[3]
+    assert not mono(mod.Config(p_miss=(0.0,), min_bin_trials=1),
+                    {2: [55.0], 3: [30.0, 50.0], 4: [45.0, 60.0]})[3]

@@ -37,6 +37,10 @@ def test_reduced_study(tmp_path):
     report = (out / "report.md").read_text()
     assert "Table 4.1" in report and "Fig. 4.6" in report and "β = 1" in report
     assert (out / "fig4_7_length_vs_elements.png").exists()
+    # every figure is embedded with its caption (protocol.figure): alt text = caption below it
+    for png in ("fig4_6_path_elements.png", "fig4_7_length_vs_elements.png"):
+        cap = next(ln for ln in report.splitlines() if ln.endswith(f"]({png})"))[2:-len(png) - 3]
+        assert len(cap) > 40 and f"*{cap}*" in report, png
     cs = mod.claims(out)          # Table 4.1 at the primary beta, one claim per setting
     assert [c.name for c in cs] == ["Table 4.1 failure rate, R (β = 2)",
                                     "Table 4.1 failure rate, 0.8R (β = 2)",

@@ -149,7 +149,14 @@ def validate(*, landmarks=None, elements=None, landmark_ids: Mapping | None = No
             executive): an all-zero row is refused; graph-only callers pass False.
 
     Returns:
-        ``{name: int64 array}`` the checked landmark id lists.
+        ``{name: int64 array}`` the checked landmark id lists (shapes as given).
+
+    Raises:
+        ValueError: naming the argument and the offending value — NaN/inf or coincident
+            landmarks, an empty id list, a negative, out-of-range (≥ N), non-integer or
+            unmapped id, a landmark twice in one element, an all-zero probability row
+            (``probs_used``), a scalar that is not finite and positive (non-negative), a
+            non-finite array, β outside 1..3, a path entry that is not an element.
 
     >>> validate(landmark_ids={"goals": [1, 2]}, num_landmarks=3)["goals"].tolist()
     [1, 2]

@@ -52,9 +52,24 @@ def _edge_success(ids, probs, feasible, detect, step_cost, reward, src, dst, *, 
 
 def edge_success(elements: MapElements, model: _pomdp.SearchPOMDP, src, dst,
                  full: bool = False) -> tuple[jax.Array, jax.Array]:
-    """``(p^{0:τ} [K], expected commands [K])`` of the transitions ``src[k] → dst[k]``.
+    """Success probability and expected commands of Link Graph transitions (P §4.3.3, eq. 4.3).
 
-    Needs ``model.p_move = 1`` (the open-loop plan is then the exact POMDP policy).
+    The search POMDP's exact open-loop plan from each transition's PQRM entry (the link's
+    distribution), averaged over the robot's entry state.
+
+    Args:
+        elements: the map elements (``ids [E, 3]``, ``probs [E, 6, Q]``).
+        model: the search POMDP; needs ``model.p_move = 1`` (the open-loop plan is then the
+            exact POMDP policy).
+        src, dst: ``[K]`` element indices of the transitions ``src[k] → dst[k]``.
+        full: count every command of the horizon (``True``) or stop at detection.
+
+    Returns:
+        ``(p [K], n [K])``: ``p^{0:τ}`` the probability of finding the link within τ
+        commands (clipped to ``[1e-12, 1]``) and the expected number of commands.
+
+    Raises:
+        ValueError: ``model.p_move != 1``.
     """
     if model.p_move != 1.0:
         raise ValueError("edge_success needs p_move = 1 (exact open-loop policy)")
@@ -72,7 +87,22 @@ def edge_success(elements: MapElements, model: _pomdp.SearchPOMDP, src, dst,
 
 def edge_costs(elements: MapElements, beta: int, kind: str = "unit",
                model: _pomdp.SearchPOMDP | None = None):
-    """The Link Graph with edge costs ``kind`` ∈ {"unit", "expected_length", "neg_log_success"}.
+    """The Link Graph of ``elements`` with edge costs of one kind (P §4.3.2, eqs. 4.2–4.4).
+
+    Args:
+        elements: the map elements (``E`` of them).
+        beta: the edge threshold β (``|L_i ∩ L_j| ≥ β``).
+        kind: ``"unit"`` (1 per edge), ``"expected_length"`` (expected commands, eq. 4.2)
+            or ``"neg_log_success"`` (``−log p^{0:τ}``, eqs. 4.3–4.4; 0 where p = 1).
+        model: the search POMDP of the costs (default :func:`~.pomdp.search_model`, τ = 4).
+
+    Returns:
+        :class:`~pqrm_jax.qlink.linkgraph.LinkGraph` with ``cost [E, E]`` (``inf`` = no
+        edge).
+
+    Raises:
+        ValueError: an unknown ``kind``, malformed elements, β outside 1..3, an all-zero
+            probability row (non-unit costs).
 
     >>> import jax.numpy as jnp
     >>> from pqrm_jax.qlink.elements import exact_elements
@@ -101,6 +131,14 @@ def edge_costs(elements: MapElements, beta: int, kind: str = "unit",
 
 
 def path_success(graph, path) -> float:
-    """eq. 4.4: ``exp(−Σ C_ij)`` along ``path`` of a −log-success graph."""
+    """The success probability of a path of a −log-success graph (P §4.3.2, eq. 4.4).
+
+    Args:
+        graph: a Link Graph with ``kind="neg_log_success"`` costs (:func:`edge_costs`).
+        path: ``[L]`` element indices (``-1`` padded).
+
+    Returns:
+        ``exp(−Σ C_ij)`` along the path (0.0 if a step is not an edge).
+    """
     p = [int(x) for x in np.asarray(path) if x >= 0]
     return float(np.exp(-sum(graph.cost[a, b] for a, b in zip(p[:-1], p[1:], strict=True))))

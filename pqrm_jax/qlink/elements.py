@@ -71,7 +71,13 @@ def ordering_index(ids_row: jax.Array, a, b) -> jax.Array:
 
 
 def incidence(elements: MapElements) -> np.ndarray:
-    """``[N_L, E]`` bool landmark–element incidence (landmark ∈ element).
+    """The landmark–element incidence of a map (P §4.2: which elements hold a landmark).
+
+    Args:
+        elements: the map elements (``ids [E, 3]`` over ``num_landmarks`` = N_L landmarks).
+
+    Returns:
+        ``[N_L, E]`` bool, ``True`` where the landmark is a member of the element.
 
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3]]), jnp.zeros((2, 6, 4)), 4)
     >>> incidence(el).astype(int).tolist()
@@ -144,7 +150,13 @@ def from_mapping_run(key: jax.Array, landmarks: jax.Array, poses: jax.Array,
         floor: likelihood floor in the fusion.
 
     Returns:
-        ``(elements, visible [P, N])``.
+        ``(elements, visible [P, N])``: the :class:`MapElements` (``ids [E, 3]``,
+        ``probs [E, 6, Q]``) and the mapping run's bool visibility per pose.
+
+    Raises:
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) NaN/inf or coincident
+            landmarks, NaN/inf poses, fewer than 3 landmarks, ``poses`` not ``[P, 3]``, a
+            run in which no triplet is seen together.
 
     >>> lm = jnp.array([[0., 0.], [6., 0.], [3., 4.], [40., 40.]])
     >>> el, vis = from_mapping_run(jax.random.key(0), lm, jnp.array([[3., 1., 0.]]),
@@ -205,16 +217,27 @@ def _exact_probs(lm: np.ndarray, trip: np.ndarray, calculus: str) -> np.ndarray 
 
 def exact_elements(landmarks: jax.Array, ids: np.ndarray,
                    calculus: str = "quadrant") -> MapElements:
-    """Elements ``ids [E, 3]`` with the noise-free relations of ``landmarks [N, 2]``.
+    """Map elements with the noise-free relations of the true landmark positions (P §4.2).
 
     One-hot except where a landmark lies exactly on a dividing line of its ordering: for the
     quadrant and lr calculi its probability is split evenly between the states the line
     separates (½ each; ¼ each at the midpoint M), the σ → 0 limit of the PQRM; another
     calculus refuses such an element (docs/qlink.md §boundary).
 
+    Args:
+        landmarks: ``[N, 2]`` landmark positions (any scale; the relations are scale-free).
+        ids: ``[E, 3]`` integer landmark ids of each element (sorted in the result).
+        calculus: the QSR of the relations (default ``"quadrant"``, P Fig. 4.5).
+
+    Returns:
+        :class:`MapElements` with ``ids [E, 3]`` int32 and ``probs [E, 6, Q]`` (one row per
+        ordering of :data:`ORDERINGS`, dtype of ``landmarks``).
+
     Raises:
         ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) non-finite or coincident
-            landmarks, ids not integers in ``[0, N)``, a landmark twice in one element.
+            landmarks, ids not integers in ``[0, N)``, a landmark twice in one element,
+            ``ids`` not ``[E, 3]`` or empty, a landmark on a dividing line of a calculus
+            without an exact split.
 
     >>> lm = jnp.array([[0., 0.], [10., 0.], [8., 3.]])
     >>> exact_elements(lm, np.array([[0, 1, 2]])).probs[0, 0].tolist()   # {0, 1 : 2} = FL

@@ -436,25 +436,58 @@ def _around_walls(s: _S, out: _S, walls, params: HybridParams, scan) -> _S:
     return out._replace(stops=scan, trace=tr_)
 
 
+def _visible(key, scan, pos, who, lm, walls, params: HybridParams) -> jax.Array:
+    """``[K]``: which of ``who`` (landmark ids, −1 = none) are in range of ``pos`` (path
+    length round the walls) and not missed (probability ``p_miss``, one draw per key, scan
+    and landmark)."""
+    w = jnp.maximum(who, 0)
+    d = landmark_distances(pos, lm, walls)[w]
+    u = jax.vmap(lambda x: jax.random.uniform(
+        jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
+    return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
+
+
+def _measure(key, scan, who, lm, sigma) -> jax.Array:
+    """``[K, 2]`` noisy positions (std ``sigma``) of the landmarks ``who`` at scan ``scan``."""
+    z = jax.vmap(lambda x: jax.random.normal(
+        jax.random.fold_in(jax.random.fold_in(key, scan), x), (2,), lm.dtype))(who)
+    return lm[jnp.maximum(who, 0)] + sigma * z
+
+
+def _search_plan(refs, cur, mem_n, ids, kind, plans_lr, plans_bd) -> tuple:
+    """``(target, commands [τ])`` of the QSR search from element ``cur`` (references
+    ``refs [2]``) for the next element's members ``mem_n [3]``: the target by the host rule
+    (:func:`reference_rule`, mirrored), the exact plan of its ordering, or the uniform
+    sequence when the target is not in ``cur`` (its state is unknown)."""
+    tau = plans_lr.shape[-1]
+    mem_c = ids[cur]
+    in_n = (mem_c[:, None] == mem_n[None, :]).any(1)
+    not_ref = (mem_c != refs[0]) & (mem_c != refs[1])
+    cand_c = in_n & not_ref
+    n_not_ref = (mem_n != refs[0]) & (mem_n != refs[1])
+    tgt = jnp.where(jnp.any(cand_c), mem_c[jnp.argmax(cand_c)],
+                    mem_n[jnp.argmax(n_not_ref)]).astype(jnp.int32)
+    in_c = jnp.any(mem_c == tgt)
+    order = ordering_index(mem_c, refs[0], refs[1])
+    seq = jnp.where(kind[cur] == BANDS, plans_bd[cur, order], plans_lr[cur, order])
+    q_uni = jnp.where(kind[cur] == BANDS, jnp.arange(tau) % 3, jnp.arange(tau) % 2)
+    return tgt, jnp.where(in_c, seq, q_uni)   # uniform_sequence: the state is unknown
+
+
 @partial(jax.jit, static_argnames=("trace_len",))
 def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, plans_bd,
            params, *, trace_len):
+    """The hybrid executive (:func:`drive`) over B trials, ``vmap``ped: per trial one
+    ``while_loop`` of scans (ENTER, SEARCH, goal stage) until it ends."""
     lr, bd = calculi.get("lr"), bands_calculus()
     tau = plans_lr.shape[-1]
     fdt = lm.dtype
 
     def visible(key, scan, pos, who):
-        """[K] who (landmark ids, -1 = none) in range of pos and not missed."""
-        w = jnp.maximum(who, 0)
-        d = landmark_distances(pos, lm, walls)[w]
-        u = jax.vmap(lambda x: jax.random.uniform(
-            jax.random.fold_in(jax.random.fold_in(key, scan), x)))(w)
-        return (who >= 0) & (d <= params.nav_range) & (u >= params.p_miss)
+        return _visible(key, scan, pos, who, lm, walls, params)
 
     def measure(key, scan, who):
-        z = jax.vmap(lambda x: jax.random.normal(
-            jax.random.fold_in(jax.random.fold_in(key, scan), x), (2,), fdt))(who)
-        return lm[jnp.maximum(who, 0)] + params.sigma * z
+        return _measure(key, scan, who, lm, params.sigma)
 
     def one(key, path, n, refs0, pos0):
         k_miss, k_noise = jax.random.split(key)
@@ -488,19 +521,7 @@ def _drive(keys, paths, n, refs0, pos0, lm, walls, ids, kind, probs, plans_lr, p
                                    refs_xy=measure(k_noise, scan, refs), phase=jnp.int32(ENTER),
                                    hops=st.hops + 1, c=jnp.int32(0), e=jnp.int32(-1))
             s_trans = enter_next(s, new_refs)
-            # plan the QSR search: target (host rule, mirrored), belief, command sequence
-            mem_c = ids[cur]
-            in_n = (mem_c[:, None] == mem_n[None, :]).any(1)
-            not_ref = (mem_c != s.refs[0]) & (mem_c != s.refs[1])
-            cand_c = in_n & not_ref
-            n_not_ref = (mem_n != s.refs[0]) & (mem_n != s.refs[1])
-            tgt = jnp.where(jnp.any(cand_c), mem_c[jnp.argmax(cand_c)],
-                            mem_n[jnp.argmax(n_not_ref)]).astype(jnp.int32)
-            in_c = jnp.any(mem_c == tgt)
-            order = ordering_index(mem_c, s.refs[0], s.refs[1])
-            seq = jnp.where(kind[cur] == BANDS, plans_bd[cur, order], plans_lr[cur, order])
-            q_uni = jnp.where(kind[cur] == BANDS, jnp.arange(tau) % 3, jnp.arange(tau) % 2)
-            seq = jnp.where(in_c, seq, q_uni)   # uniform_sequence: the state is unknown
+            tgt, seq = _search_plan(s.refs, cur, mem_n, ids, kind, plans_lr, plans_bd)
             centre = jnp.mean(s.refs_xy, axis=0)
             s_search = s._replace(pos=centre, length=s.length + jnp.linalg.norm(centre - s.pos),
                                   phase=jnp.int32(SEARCH), c=jnp.int32(0), e=tgt, seq=seq)

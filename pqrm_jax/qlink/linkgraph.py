@@ -109,6 +109,14 @@ def link_graph(elements: MapElements, beta: int, cost: np.ndarray | None = None)
             :mod:`pqrm_jax.qlink.costs`); default unit cost ("unit cost to ensure a minimum
             Link Graph path length", P §4.4.1).
 
+    Returns:
+        :class:`LinkGraph`: ``cost [E, E]`` (``inf`` where there is no edge), ``shared
+        [E, E]`` ``|L_i ∩ L_j|``, ``beta``.
+
+    Raises:
+        ValueError: malformed elements, β not an integer in 1..3, ``cost`` not ``[E, E]``
+            or NaN/negative on an edge.
+
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [3, 4, 5]]), jnp.zeros((3, 6, 4)), 6)
     >>> link_graph(el, 2).adjacency.astype(int).tolist()
     [[0, 1, 0], [1, 0, 0], [0, 0, 0]]
@@ -129,9 +137,16 @@ def link_graph(elements: MapElements, beta: int, cost: np.ndarray | None = None)
 
 
 def to_networkx(graph: LinkGraph, elements: MapElements | None = None) -> nx.DiGraph:
-    """The Link Graph as a ``networkx.DiGraph`` (edge attributes ``weight``, ``shared``).
+    """The Link Graph as a ``networkx.DiGraph`` (P §4.3.2), for host-side analysis and re-planning.
 
-    Node attribute ``landmarks`` (the element's landmark ids) when ``elements`` is given.
+    Args:
+        graph: the Link Graph (``E`` elements).
+        elements: optional map elements: each node then carries the attribute ``landmarks``
+            (its landmark ids).
+
+    Returns:
+        ``networkx.DiGraph`` with nodes ``0..E-1`` and one edge per finite cost, attributes
+        ``weight`` (the cost) and ``shared`` (``|L_i ∩ L_j|``).
 
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3]]), jnp.zeros((2, 6, 4)), 4)
     >>> g = to_networkx(link_graph(el, 2), el)
@@ -358,7 +373,7 @@ def _path_costs(graph: LinkGraph, path: np.ndarray) -> np.ndarray:
 
 
 def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> LinkPlan:
-    """Plan every (start landmark, goal landmark) pair in one batched program (eq. 4.1).
+    """Least-cost Link Graph paths for B (start, goal) landmark pairs, batched (P §4.3.2, eq. 4.1).
 
     Sources are all elements containing the start landmark, targets all elements containing
     the goal landmark. Equal edge costs use :func:`bfs_distances`, others
@@ -366,6 +381,16 @@ def plan_pairs(graph: LinkGraph, elements: MapElements, starts, goals) -> LinkPl
     give simple optimal paths) on :func:`work_costs` (scaled, never silently cast);
     distances are computed once per distinct start landmark. Paths are sized by hop counts.
     ``cost`` is Σ C_ij along the returned path in float64 (hops × the cost for equal costs).
+
+    Args:
+        graph: the Link Graph of ``elements`` (any costs ≥ 0; ``inf`` = no edge).
+        elements: the map elements (``E`` of them).
+        starts: ``[B]`` start landmark ids; goals: ``[B]`` goal landmark ids.
+
+    Returns:
+        :class:`LinkPlan`: ``reachable [B]``, ``n_elements [B]`` ``|P|`` (0 when
+        unreachable), ``path [B, L]`` element indices (``-1`` padded, ``L`` the longest
+        path), ``cost [B]`` (``inf`` when unreachable).
 
     Raises:
         ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) empty, non-integer, negative
@@ -428,13 +453,23 @@ def _bfs_next(hops, nbr):
 
 
 def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> GoalTable:
-    """Cost-to-go, successor and hop tables ``[G, E]`` to the elements holding each goal.
+    """Cost-to-go, successor and hop tables to the elements holding each goal (P §4.3.2).
 
     Computed once per world and goal (reverse search on the transposed costs: the
     predecessor in the reversed graph is the successor towards the goal), so a robot can
     plan from whatever elements it has in view (P §4.3.2: "The robot defines its start as
     M_1 since it has a set of reference landmarks from M_1 in view"). Equal costs: breadth-
     first search, successor = the first out-neighbour one hop closer. ``inf`` = unreachable.
+
+    Args:
+        graph: the Link Graph of ``elements`` (``E`` elements, any costs ≥ 0).
+        elements: the map elements.
+        goals: ``[G]`` goal landmark ids.
+
+    Returns:
+        :class:`GoalTable` of ``[G, E]`` tables: ``cost`` (float64), ``next`` (int32
+        successor, ``-1`` at the goal and where unreachable), ``hops`` (int32, ``-1`` =
+        unreachable).
 
     Raises:
         ValueError: as :func:`plan_pairs` for ``goals``.
@@ -460,12 +495,18 @@ def goal_distances(graph: LinkGraph, elements: MapElements, goals) -> GoalTable:
 
 
 def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
-    """The Link Graph as padded adjacency lists: ``(nbr [E, D] int32, cost [E, D] float32)``.
+    """The Link Graph as padded adjacency lists (P §4.3.2), for walks without the dense matrix.
 
     Row u holds the heads of u's out-edges in increasing index order (``-1`` padded, cost
-    ``inf``), ``D`` the largest out-degree rounded up to a multiple of 8. :func:`plan_from`
-    walks it instead of the dense ``[E, E]`` matrix (the same argmin, ties to the smaller
-    index); compute it once per graph and pass it to every call.
+    ``inf``), ``D`` the largest out-degree rounded up to a multiple of 8.
+    :func:`goal_distances` takes the equal-cost successors from it (ties to the smaller
+    index).
+
+    Args:
+        graph: the Link Graph (``E`` elements).
+
+    Returns:
+        ``(nbr [E, D] int32, cost [E, D] float32)``.
 
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.zeros((3, 6, 4)), 5)
     >>> nbr, c = neighbour_table(link_graph(el, 2))
@@ -486,7 +527,7 @@ def neighbour_table(graph: LinkGraph) -> tuple[jax.Array, jax.Array]:
 
 def plan_from(graph: LinkGraph, to_go: GoalTable, rows, candidates,
               max_len: int | None = None) -> LinkPlan:
-    """Paths from per-trial candidate start elements down a :class:`GoalTable`.
+    """Paths from per-trial candidate start elements down a :class:`GoalTable` (P §4.3.2).
 
     The candidate with the least cost-to-go (ties: the first) is ``M_1``; the path follows
     the recorded successors to the goal, so it is simple and optimal for any costs ≥ 0.
@@ -498,6 +539,14 @@ def plan_from(graph: LinkGraph, to_go: GoalTable, rows, candidates,
         candidates: ``[B, C]`` element indices the robot may start from (``-1`` padded).
         max_len: path array width, at least the longest path (hops + 1); default the
             longest of this batch.
+
+    Returns:
+        :class:`LinkPlan`: ``reachable [B]``, ``n_elements [B]`` (0 when unreachable),
+        ``path [B, max_len]`` (``-1`` padded), ``cost [B]`` the chosen candidate's
+        cost-to-go (``inf`` when unreachable).
+
+    Raises:
+        ValueError: ``to_go`` of another graph, ``max_len`` shorter than the longest path.
 
     >>> el = MapElements(jnp.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]]), jnp.ones((3, 6, 4)), 5)
     >>> g = link_graph(el, 2)

@@ -157,8 +157,23 @@ class NavMap(NamedTuple):
 
 def nav_map(landmarks, elements: MapElements, graph=None,
             model: _pomdp.SearchPOMDP | None = None) -> NavMap:
-    """A :class:`NavMap`: with ``graph`` the goal table, goal rows and start tables of every
-    mapped landmark; with ``model`` the QSR plan table (both computed once per map)."""
+    """The map bundle a robot navigates on, with its tables computed once (P §4.3).
+
+    Args:
+        landmarks: ``[N, 2]`` true landmark positions.
+        elements: the map elements (``E`` of them).
+        graph: optional Link Graph: then the goal table (:func:`goal_distances` to every
+            mapped landmark), goal rows ``[N]`` and :func:`start_tables` are computed
+            (what :func:`navigate_pairs` needs).
+        model: optional search POMDP: then the :func:`qsr_plans` table ``[E, 6, Q, τ]``.
+
+    Returns:
+        :class:`NavMap` (fields not computed are ``None``).
+
+    Raises:
+        ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) NaN/inf or coincident
+            landmarks, malformed elements.
+    """
     from .elements import incidence
     from .linkgraph import goal_distances
 
@@ -250,34 +265,112 @@ class _Trial(NamedTuple):
     start_pose: jax.Array   # [3]
 
 
+def _noisy(landmarks, sigma, key_noise, lm_id, step):
+    """A noisy measurement ``[2]`` of landmark ``lm_id`` at step ``step`` (std ``sigma``;
+    the same key, landmark and step always give the same draw)."""
+    z = jax.random.normal(jax.random.fold_in(jax.random.fold_in(key_noise, step), lm_id),
+                          (2,), landmarks.dtype)
+    return landmarks[lm_id] + sigma * z
+
+
+def _init(t: _Trial, landmarks, params: NavParams, tau: int, record: int) -> _S:
+    """The state a trial starts in: circling the start landmark (measured) at R′."""
+    fdt = landmarks.dtype
+    start, start_pose = t.start, t.start_pose
+    s_xy = _noisy(landmarks, params.sigma, t.key, start, 1 << 30)
+    pos0 = start_pose[:2]
+    return _S(pose=start_pose, length=jnp.zeros((), fdt), steps=jnp.int32(0),
+              k=jnp.int32(-1), refs=jnp.full(2, -1, jnp.int32),
+              refs_xy=jnp.zeros((2, 2), fdt), phase=jnp.int32(CIRCLE),
+              seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
+              e_xy=s_xy,
+              motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
+              status=jnp.int32(RUNNING), hops=jnp.int32(0),
+              trace=jnp.full((record, 2), jnp.nan, fdt))
+
+
+def _plan_step(s: _S, pos, goal, path, nxt, goal_stage, ids, plans, params: NavParams) -> _S:
+    """PLAN (step 1 of P §4.3.1): choose the link and the QSR command sequence; the state
+    that starts the first quarter arc, or (a reference that is the link) the circle."""
+    quad = calculi.get("quadrant")
+    cur = path[jnp.maximum(s.k, 0)]
+    lc = ids[cur]
+    in_next = (lc[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1)
+    not_ref = (lc != s.refs[0]) & (lc != s.refs[1])
+    cand = in_next & not_ref
+    link_tr = jnp.where(jnp.any(cand), lc[jnp.argmax(cand)], lc[jnp.argmax(in_next)])
+    link = jnp.where(goal_stage, goal, link_tr).astype(jnp.int32)
+    # circle-only strategy (Prop. 2): circle a reference that is also in L_j (or any
+    # reference at the goal: the goal lies within 2R of it)
+    ref_in = jnp.where(goal_stage, jnp.array([True, True]),
+                       (s.refs[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1))
+    use_circle = (params.circle_only > 0.5) & jnp.any(ref_in)
+    link = jnp.where(use_circle, s.refs[jnp.argmax(ref_in)], link).astype(jnp.int32)
+    link_is_ref = (link == s.refs[0]) | (link == s.refs[1])
+    order = ordering_index(lc, s.refs[0], s.refs[1])
+    a_xy, b_xy = s.refs_xy[0], s.refs_xy[1]
+    q_r = jnp.maximum(quad.classify(a_xy, b_xy, pos), 0).astype(jnp.int32)
+    seq = plans[cur, order, q_r]          # the exact POMDP plan for this entry state
+    centre, lo = tr.quadrant_wedge(a_xy, b_xy, seq[0])
+    ref_pos = jnp.where(link == s.refs[0], a_xy, b_xy)
+    s_plan_arc = s._replace(phase=jnp.int32(ARC), seq=seq.astype(jnp.int32),
+                            c=jnp.int32(0), e=link,
+                            motion=tr.arc_motion(pos, centre, params.map_range, lo))
+    s_plan_circ = s._replace(phase=jnp.int32(CIRCLE), e=link, e_xy=ref_pos,
+                             motion=tr.circle_motion(
+                                 pos, ref_pos, params.circle_margin * params.nav_range))
+    return where_tree(link_is_ref, s_plan_circ, s_plan_arc)
+
+
+def _move_step(s: _S, pos, goal_stage, tau: int, params: NavParams) -> tuple[_S, _S]:
+    """``(moved, look)``: one rover step along the current motion (an arc that ends: the
+    next command, a LOOK in the epoch model, or failure; a circle that ends: failure), and
+    the LOOK decision of the epoch model (nothing seen from the arc's end: next command or
+    failure)."""
+    dt = 1.0
+    v_max, w_max = params.ds, params.turn_per_step
+    fdt = s.length.dtype
+    epochs = params.sense_epochs > 0.5
+    u, mot = tr.motion_control(s.pose, s.motion, v_max, w_max, dt)
+    new_pose = _sim.step(_sim.RoverState(s.pose, jnp.zeros((), fdt)), u,
+                         _sim.RoverParams(dt=dt, max_speed=v_max, max_turn_rate=w_max)).pose
+    mot, finished = tr.advance(mot, u, dt)
+    s_move = s._replace(pose=new_pose, length=s.length + jnp.abs(u[0]) * dt, motion=mot)
+    # arc finished without the link: next command or failure
+    c2 = s.c + 1
+    more = c2 < tau
+    a_xy, b_xy = s.refs_xy[0], s.refs_xy[1]
+    centre2, lo2 = tr.quadrant_wedge(a_xy, b_xy, s.seq[jnp.minimum(c2, tau - 1)])
+    s_next_cmd = s_move._replace(c=c2, motion=tr.arc_motion(new_pose[:2], centre2,
+                                                            params.map_range, lo2))
+    arc_fail = jnp.where(goal_stage, GOAL_NOT_FOUND, LINK_NOT_FOUND)
+    circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
+    s_arc_end = where_tree(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
+    s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
+    # epoch model: an arc that ends is followed by one look from its end point
+    s_arc_end = where_tree(epochs, s_move._replace(phase=jnp.int32(LOOK)), s_arc_end)
+    s_moved = where_tree(finished & (s.phase == ARC), s_arc_end,
+                         where_tree(finished & (s.phase == CIRCLE), s_circ_end, s_move))
+    # LOOK (epoch model): nothing seen from the arc's end: next command or failure
+    s_look = where_tree(more, s._replace(c=c2, phase=jnp.int32(ARC),
+                                         motion=tr.arc_motion(pos, centre2,
+                                                              params.map_range, lo2)),
+                        s._replace(status=jnp.int32(arc_fail)))
+    return s_moved, s_look
+
+
 def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion: bool,
              record: int = 0):
     """``(init, body)`` of one trial's state machine: ``init(t) -> _S`` and
     ``body(s, t) -> _S`` (one sensing + decision + rover step); a trial is ``body`` applied
     from ``init(t)`` while ``status == RUNNING``."""
-    quad = calculi.get("quadrant")
-    dt = 1.0
-    v_max, w_max = params.ds, params.turn_per_step
     tau = int(model.horizon)
-    fdt = landmarks.dtype
 
     def noisy(key_noise, lm_id, step):
-        z = jax.random.normal(jax.random.fold_in(jax.random.fold_in(key_noise, step), lm_id),
-                              (2,), fdt)
-        return landmarks[lm_id] + params.sigma * z
+        return _noisy(landmarks, params.sigma, key_noise, lm_id, step)
 
     def init(t: _Trial) -> _S:
-        start, start_pose = t.start, t.start_pose
-        s_xy = noisy(t.key, start, 1 << 30)
-        pos0 = start_pose[:2]
-        return _S(pose=start_pose, length=jnp.zeros((), fdt), steps=jnp.int32(0),
-                  k=jnp.int32(-1), refs=jnp.full(2, -1, jnp.int32),
-                  refs_xy=jnp.zeros((2, 2), fdt), phase=jnp.int32(CIRCLE),
-                  seq=jnp.zeros(tau, jnp.int32), c=jnp.int32(0), e=start.astype(jnp.int32),
-                  e_xy=s_xy,
-                  motion=tr.circle_motion(pos0, s_xy, params.circle_margin * params.nav_range),
-                  status=jnp.int32(RUNNING), hops=jnp.int32(0),
-                  trace=jnp.full((record, 2), jnp.nan, fdt))
+        return _init(t, landmarks, params, tau, record)
 
     def body(s: _S, t: _Trial) -> _S:
         key_noise, goal, path, n, budget = t.key, t.goal, t.path, t.n, t.budget
@@ -310,59 +403,9 @@ def _machine(landmarks, ids, plans, model, params: NavParams, occ_tab, occlusion
         s_circ = s._replace(phase=jnp.int32(CIRCLE), e_xy=e_xy,
                             motion=tr.circle_motion(pos, e_xy,
                                                     params.circle_margin * params.nav_range))
-        # --- PLAN: choose the link and the QSR commands
-        cur = path[jnp.maximum(s.k, 0)]
-        lc = ids[cur]
-        in_next = (lc[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1)
-        not_ref = (lc != s.refs[0]) & (lc != s.refs[1])
-        cand = in_next & not_ref
-        link_tr = jnp.where(jnp.any(cand), lc[jnp.argmax(cand)], lc[jnp.argmax(in_next)])
-        link = jnp.where(goal_stage, goal, link_tr).astype(jnp.int32)
-        # circle-only strategy (Prop. 2): circle a reference that is also in L_j (or any
-        # reference at the goal: the goal lies within 2R of it)
-        ref_in = jnp.where(goal_stage, jnp.array([True, True]),
-                           (s.refs[:, None] == ids[jnp.maximum(nxt, 0)][None, :]).any(1))
-        use_circle = (params.circle_only > 0.5) & jnp.any(ref_in)
-        link = jnp.where(use_circle, s.refs[jnp.argmax(ref_in)], link).astype(jnp.int32)
-        link_is_ref = (link == s.refs[0]) | (link == s.refs[1])
-        order = ordering_index(lc, s.refs[0], s.refs[1])
-        a_xy, b_xy = s.refs_xy[0], s.refs_xy[1]
-        q_r = jnp.maximum(quad.classify(a_xy, b_xy, pos), 0).astype(jnp.int32)
-        seq = plans[cur, order, q_r]          # the exact POMDP plan for this entry state
-        centre, lo = tr.quadrant_wedge(a_xy, b_xy, seq[0])
-        ref_pos = jnp.where(link == s.refs[0], a_xy, b_xy)
-        s_plan_arc = s._replace(phase=jnp.int32(ARC), seq=seq.astype(jnp.int32),
-                                c=jnp.int32(0), e=link,
-                                motion=tr.arc_motion(pos, centre, params.map_range, lo))
-        s_plan_circ = s._replace(phase=jnp.int32(CIRCLE), e=link, e_xy=ref_pos,
-                                 motion=tr.circle_motion(
-                                     pos, ref_pos, params.circle_margin * params.nav_range))
-        s_plan = where_tree(link_is_ref, s_plan_circ, s_plan_arc)
-        # --- MOVE along the current motion
-        u, mot = tr.motion_control(s.pose, s.motion, v_max, w_max, dt)
-        new_pose = _sim.step(_sim.RoverState(s.pose, jnp.zeros((), fdt)), u,
-                             _sim.RoverParams(dt=dt, max_speed=v_max, max_turn_rate=w_max)).pose
-        mot, finished = tr.advance(mot, u, dt)
-        s_move = s._replace(pose=new_pose, length=s.length + jnp.abs(u[0]) * dt, motion=mot)
-        # arc finished without the link: next command or failure
-        c2 = s.c + 1
-        more = c2 < tau
-        centre2, lo2 = tr.quadrant_wedge(a_xy, b_xy, s.seq[jnp.minimum(c2, tau - 1)])
-        s_next_cmd = s_move._replace(c=c2, motion=tr.arc_motion(new_pose[:2], centre2,
-                                                                params.map_range, lo2))
-        arc_fail = jnp.where(goal_stage, GOAL_NOT_FOUND, LINK_NOT_FOUND)
-        circ_fail = jnp.where(s.k < 0, START_NOT_LOCALIZED, REFS_NOT_FOUND)
-        s_arc_end = where_tree(more, s_next_cmd, s_move._replace(status=jnp.int32(arc_fail)))
-        s_circ_end = s_move._replace(status=jnp.int32(circ_fail))
-        # epoch model: an arc that ends is followed by one look from its end point
-        s_arc_end = where_tree(epochs, s_move._replace(phase=jnp.int32(LOOK)), s_arc_end)
-        s_moved = where_tree(finished & (s.phase == ARC), s_arc_end,
-                       where_tree(finished & (s.phase == CIRCLE), s_circ_end, s_move))
-        # LOOK (epoch model): nothing seen from the arc's end: next command or failure
-        s_look = where_tree(more, s._replace(c=c2, phase=jnp.int32(ARC),
-                                             motion=tr.arc_motion(pos, centre2,
-                                                                  params.map_range, lo2)),
-                            s._replace(status=jnp.int32(arc_fail)))
+        # --- PLAN, MOVE and LOOK
+        s_plan = _plan_step(s, pos, goal, path, nxt, goal_stage, ids, plans, params)
+        s_moved, s_look = _move_step(s, pos, goal_stage, tau, params)
         # --- priority: goal > transition > link seen > plan > move
         out = where_tree(done_goal, s._replace(status=jnp.int32(SUCCESS)),
                    where_tree(trans, s_trans,
@@ -479,7 +522,10 @@ def start_poses(keys, landmarks, starts, offset):
 def navigate(trials: Trials, world: NavMap, params: NavParams,
              model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64, record: int = 0,
              compile_only: bool = False) -> NavResult:
-    """Drive B planned trials on the simulated rover; one ``while_loop`` each, ``vmap``ped.
+    """Drive B planned Link Graph paths on the simulated rover (P §4.3, §4.4.1).
+
+    One ``while_loop`` per trial (the state machine of this module's docstring) on a pool
+    of ``chunk`` lanes.
 
     Args:
         trials: :class:`Trials` — keys ``[B]`` (first), starts, goals, ``paths [B, L]``
@@ -495,6 +541,11 @@ def navigate(trials: Trials, world: NavMap, params: NavParams,
         record: keep the first ``record`` positions of every trial (for plots).
         compile_only: return the pool program compiled for these inputs instead of running
             it (its XLA memory analysis sizes ``chunk``; nothing is driven).
+
+    Returns:
+        :class:`NavResult` of ``[B]`` arrays (``pose [B, 3]``, ``refs [B, 2]``,
+        ``trace [B, record, 2]``), in the order of ``trials``; with ``compile_only`` the
+        compiled program instead.
 
     Raises:
         ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) NaN/inf or coincident
@@ -621,9 +672,17 @@ def replan_inputs(result: NavResult, landmarks, elements: MapElements, graph, go
 
 
 def start_tables(elements: MapElements) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per landmark: its elements ``[N_L, C]``, their members ``[N_L, K]`` and membership
-    ``[N_L, C, K]`` (``-1`` / False padded) — what :func:`localize` needs to recognise a
-    reference pair of any element holding the start landmark."""
+    """Per-landmark tables for the initial localisation (P §4.3.2) of :func:`localize`.
+
+    Args:
+        elements: the map elements (``ids [E, 3]`` over N_L landmarks).
+
+    Returns:
+        ``(elements [N_L, C], members [N_L, K], membership [N_L, C, K])``: each landmark's
+        elements, the members of those elements and which member belongs to which element
+        (``-1`` / ``False`` padded) — what :func:`localize` needs to recognise a reference
+        pair of any element holding the start landmark.
+    """
     ids = np.asarray(elements.ids)
     n = elements.num_landmarks
     els = [np.flatnonzero((ids == lm).any(1)) for lm in range(n)]
@@ -721,7 +780,7 @@ class PairResult(NamedTuple):
 def navigate_pairs(trials: Trials, world: NavMap, params: NavParams,
                    model: _pomdp.SearchPOMDP | None = None, *, chunk: int = 64,
                    record: int = 0) -> PairResult:
-    """Localise, plan from the elements in view, and drive B start/goal trials (batched).
+    """Localise, plan from the elements in view, and drive B start/goal trials (P §4.3, §4.4.1).
 
     The whole planned path is driven on any Link Graph (unit, −log p, zero costs): plans
     follow the successors recorded in ``world.to_go`` and the path buffer is sized from its
@@ -737,9 +796,25 @@ def navigate_pairs(trials: Trials, world: NavMap, params: NavParams,
         params: :class:`NavParams`; model: the search POMDP; chunk: lanes per compiled batch.
         record: keep the first ``record`` positions of every trial (for plots).
 
+    Returns:
+        :class:`PairResult` of ``[B]`` arrays: ``reachable``, ``status``
+        (:data:`FAILURE_REASONS`), ``n_elements`` ``|P|``, ``length`` (distance driven,
+        localisation included) and the :class:`NavResult` ``nav`` of the drives.
+
     Raises:
         ValueError: (:func:`~pqrm_jax.qlink.checks.validate`) as :func:`navigate`, and a goal
             without a row of ``world.to_go``.
+
+    >>> import jax, numpy as np
+    >>> from pqrm_jax import qlink
+    >>> lm = jax.numpy.array([[0., 0.], [10., 0.], [5., 6.], [14., 7.], [20., 0.]])
+    >>> el = qlink.exact_elements(lm, np.array([[0, 1, 2], [1, 2, 3], [1, 3, 4]]))
+    >>> world = qlink.nav_map(lm, el, qlink.link_graph(el, 2), qlink.search_model())
+    >>> keys = jax.random.split(jax.random.key(0), 2)
+    >>> r = navigate_pairs(Trials(keys, [0, 4], [4, 0]), world,
+    ...                    NavParams(map_range=20.0, nav_range=20.0), chunk=2)
+    >>> [FAILURE_REASONS[int(s)] for s in r.status], r.n_elements.tolist()
+    (['success', 'success'], [3, 3])
     """
     keys, starts, goals = trials.keys, trials.starts, trials.goals
     landmarks, elements, graph, to_go, goal_row, tables, plans = world

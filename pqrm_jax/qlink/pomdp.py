@@ -94,7 +94,7 @@ def edge_adjacency(calculus: str = "quadrant") -> np.ndarray:
 
 def search_model(calculus: str = "quadrant", horizon: int = 4, p_move: float = 1.0,
                  detect=None, direct: bool = False) -> SearchPOMDP:
-    """The search POMDP for ``calculus``.
+    """The QSR-level search POMDP of one calculus (P §4.3.3).
 
     Args:
         calculus: the element's QSR.
@@ -104,6 +104,14 @@ def search_model(calculus: str = "quadrant", horizon: int = 4, p_move: float = 1
             adjacency (same / edge-adjacent / other).
         direct: allow every control from every state ("Direct transitions are allowed",
             P §4.4.2) instead of edge-adjacent ones.
+
+    Returns:
+        :class:`SearchPOMDP` with ``feasible [Q, Q]`` bool controls, ``detect [Q, Q]``,
+        ``p_move`` and ``horizon``.
+
+    Raises:
+        ValueError: ``horizon`` not an integer ≥ 1, ``p_move`` outside [0, 1], a
+            ``detect`` table that is not ``[Q, Q]`` probabilities.
 
     >>> m = search_model(horizon=2)
     >>> m.feasible.astype(int).tolist()[0], [round(x, 2) for x in m.detect.tolist()[0]]
@@ -164,7 +172,7 @@ def _check_belief(q_r, belief, q):
 
 
 def solve_exact(model: SearchPOMDP, q_r, belief) -> tuple[jax.Array, jax.Array]:
-    """Exact optimal value and first control for B initial beliefs (batched with ``vmap``).
+    """Exact optimal value and first control of the search POMDP for B beliefs (P §4.3.3).
 
     Args:
         model: the search POMDP.
@@ -229,7 +237,22 @@ def _open_loop_batch(feasible, detect, step_cost, reward, q_r, belief, *, horizo
 
 
 def open_loop_plan(model: SearchPOMDP, q_r, belief) -> tuple[jax.Array, jax.Array]:
-    """Best feasible command sequence ``[B, τ]`` and its value (exact when ``p_move = 1``).
+    """Best feasible command sequence of the search POMDP for B initial beliefs (P §4.3.3).
+
+    Exact when ``p_move = 1`` (the robot state after each control is then known, so the
+    best open-loop sequence is the optimal policy).
+
+    Args:
+        model: the search POMDP (``p_move = 1``).
+        q_r: ``[B]`` int robot states (observed).
+        belief: ``[B, Q]`` distributions of the link's state (the PQRM entry).
+
+    Returns:
+        ``(value [B], commands [B, τ])``: the expected value and the control sequence.
+
+    Raises:
+        ValueError: ``model.p_move != 1``, beliefs that are not ``[B, Q]`` distributions or
+            states outside ``[0, Q)``.
 
     >>> v, seq = open_loop_plan(search_model(horizon=3), [0], [[0.0, 0.0, 0.0, 1.0]])
     >>> seq.tolist(), round(float(v[0]), 2)
@@ -304,13 +327,17 @@ def expected_commands(h: jax.Array) -> jax.Array:
 
 
 def estimate_detection(landmarks, elements, r_map: float, r_nav: float) -> np.ndarray:
-    """``[Q, Q]`` d[q_r, q_l]: fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
+    """The search POMDP's detection table estimated from a world's geometry (P §4.3.3, §Q12).
+
+    ``d[q_r, q_l]`` is the fraction of mapped orderings ``{A, B : C}`` in state ``q_l``
     whose C lies within ``r_nav`` of the radius-``r_map`` quarter arc of ``q_r``
-    (docs/qlink.md §Q12; ``[E, 3]`` element ids, ``[N, 2]`` landmarks).
+    (docs/qlink.md §Q12).
 
     Args:
-        landmarks: ``[N, 2]`` true landmark positions. elements: the map elements.
-        r_map: R, the arc radius. r_nav: the range within which C counts as seen.
+        landmarks: ``[N, 2]`` true landmark positions.
+        elements: the map elements (``ids [E, 3]``).
+        r_map: R, the arc radius.
+        r_nav: the range within which C counts as seen.
 
     Returns:
         ``[Q, Q]`` float64, clipped to [0.01, 0.99].

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
+from .protocol import figure
 from .store import atomic_savefig, atomic_write_text
 
 
@@ -82,12 +83,17 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
                 "the published 0 % rules out for the thesis's simulation; occluders add their "
                 "failures on top of that row (one occluded look at an arc's end decides).")
     else:
-        mech = ("Mechanisms: failures at R′ < R come from elements whose members are more than "
-                "2R′ apart (the circle of radius R′ about the link cannot bring a second member "
-                "into view) and from links outside R′ of every quarter arc; at R′ = R the "
-                "geometry of P §4.3.4 guarantees success without noise, and the few failures "
-                "there are caused by the navigation noise on the measured references (measured "
-                "by ablation: none with σ_nav = 0, docs/qlink.md §results). Partial occlusion by "
+        mech = ("Mechanisms (measured, docs/qlink.md §results, scripts/qlink_08r_mechanism.py): "
+                "from 0.8R down about half of the failed transitions search for a link (or the "
+                "goal) farther than R + R′ from the references' midpoint, out of reach of the "
+                "quarter arcs of radius R (members of an element may be up to 2R apart, "
+                "P §4.4.1); most of the rest, and nearly all at 0.9R, are circle searches about "
+                "the noisily measured link. The 0.8R rate follows the share of such wide "
+                "elements on the planned paths, which the mapping trajectory sets (P leaves it "
+                "open; lanes closer than R apart raise it). At "
+                "R′ = R the geometry of P §4.3.4 guarantees success without noise, and the few "
+                "failures there are caused by the navigation noise on the measured references "
+                "(measured by ablation: none with σ_nav = 0). Partial occlusion by "
                 "discs of ≤ 0.7 m hides a landmark only when another lies almost on the same "
                 "bearing, which is rare at this density, and a robot that senses every step "
                 "soon sees it again, so the occlusion rows stay far below the published 2–16 %.")
@@ -121,7 +127,10 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
     fig.tight_layout()
     atomic_savefig(fig, out / "fig4_6_path_elements.png", dpi=120)
     plt.close(fig)
-    lines += ["", "![Fig. 4.6](fig4_6_path_elements.png)", ""]
+    lines += [""] + figure(
+        "fig4_6_path_elements.png",
+        "Fig. 4.6: number of map elements |P| on the planned path of every start/goal pair "
+        "(histogram over all worlds, one panel per element size β).")
     # ---- Fig. 4.7
     lines += ["## Fig. 4.7 — mean trajectory length vs |P| (successful paths)", "",
               f"Bound (P Prop. 2): (2π+1)R|P| = {(2 * math.pi + 1) * cfg.map_range:.1f} m × |P|.",
@@ -167,12 +176,18 @@ def write_report(out: Path, cfg, rows, summary, published, bands, settings, wall
               "bound is \"1000m longer than the executed trajectories\" (≈ 1.6 km executed). "
               "Ours follows the thesis's own \"typically … π/2 R … and at worst another R\" "
               "per transition, so it is well below 1.6 km at large |P| (a scale mismatch we "
-              "cannot resolve from the text).", "",
-              "![Fig. 4.7](fig4_7_length_vs_elements.png)", ""]
+              "cannot resolve from the text).", ""] + figure(
+        "fig4_7_length_vs_elements.png",
+        "Fig. 4.7: mean driven length of the successful paths against |P|, one curve per "
+        "trial setting (log scale), with the dashed bound (2π+1)R|P| of P Prop. 2.")
     if examples:
         lines += [f"## Example trajectories (world {worlds[0]}, re-driven with the same keys)",
                   ""] + [f"- {e}" for e in examples] + [
-                  "", "![examples](example_trajectories.png)", ""]
+                  ""] + figure(
+        "example_trajectories.png",
+        "Example trials of the first world re-driven with the same keys (panel title: trial "
+        "setting, outcome, |P|): landmarks (dots), the rover's driven path (blue), start "
+        "landmark (green triangle) and goal landmark (red star); axes in metres.")
     lines += ["## Worlds", ""]
     for w, info in summary.items():
         lines.append(f"- world {w}: {info}")

@@ -799,7 +799,8 @@ def example_trajectories(cfg: Config, st: Store, rows: list[dict]) -> list[str]:
         ax.plot(*np.asarray(lm[pair[0, 0]]), "g^", ms=8)
         ax.plot(*np.asarray(lm[pair[0, 1]]), "r*", ms=10)
         outcome = nav.FAILURE_REASONS[int(res.status[0])]
-        ax.set(aspect="equal", title=f"{name}: {outcome}, |P| = {int(res.n_elements[0])}")
+        ax.set(aspect="equal", title=f"{name}: {outcome}, |P| = {int(res.n_elements[0])}",
+               xlabel="x (m)", ylabel="y (m)")
         notes.append(f"{name}, {pair[0].tolist()}: {outcome} (trials.csv: {r['reason']}), "
                      f"{float(res.length[0]):.0f} m")
     fig.tight_layout()
