@@ -38,6 +38,12 @@ def test_tiny_study(tmp_path, request, capsys):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["eps_fixed"] == 0.35 and "decisions" in cfg and cfg["precision"] == "float32"
     assert cfg["layout"]["chunk"] == 4
+    # measured times live apart: timing.json, not results.json
+    assert set(json.loads((out / "results.json").read_text())) == {"results"}
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["total_s"] >= 0 and timing["lane_seconds_mean"] > 0
+    rec = json.loads((out / "chunks" / "env00000.json").read_text())
+    assert len(rec["rows"]) == 4 and not any("lane_seconds" in r for r in rec["rows"])
     assert json.loads((out / "study.json").read_text())["study"] == "qbsp"
     tidy = list(csv.DictReader(open(out / "results.csv")))
     assert tidy[0].keys() == {"study", "unit", "metric", "value"}
@@ -45,6 +51,14 @@ def test_tiny_study(tmp_path, request, capsys):
     rep = (out / "report.md").read_text()
     assert "0.684" in rep and "0.816" in rep and "ratio" in rep
     assert (out / "fig45_plan_exists.png").exists()
+    assert "![Z Fig. 4.5: share of environments" in rep  # figures embedded with captions
+    # --report-only: the same report and claims again from the store alone
+    assert qbsp.main(["--report-only", "--out", str(out)]) == 0
+    assert (out / "report.md").read_text() == rep
+    cs = qbsp.claims(out)
+    assert [c.name for c in cs][:2] == ["plan exists, without compositions",
+                                        "plan exists, with compositions"]
+    assert all(c.verdict.split(":")[0] in ("match", "mismatch", "not checked") for c in cs)
     before = (out / "tests.csv").read_text()
     # resume: nothing recomputed, same rows, the stored chunk kept (a 1000-byte device could
     # not size one: no probe runs); a different configuration is refused
@@ -86,9 +100,7 @@ def test_tiny_study(tmp_path, request, capsys):
 def test_corrupt_model_cache_fails_the_study(tmp_path):
     from pqrm_jax.bsp import models as M
 
-    args = qbsp.argparse.Namespace(tiny=True, reduced=False, envs=None, depth=None,
-                                   chunk=None, samples=None, seed=2022, eps=0.35, size=2.5)
-    key = M.ModelParams(**qbsp.config_for(args)["models"]).key()
+    key = M.ModelParams(**qbsp.config_for(qbsp.configure(["--tiny"])[0])["models"]).key()
     cache = tmp_path / "models"
     cache.mkdir()
     (cache / f"bsp-edc-{key}.npz").write_bytes(b"PK\x03\x04 torn")
@@ -127,8 +139,8 @@ def test_results_independent_of_device_count(tmp_path, request):
     subprocess.run([sys.executable, "-c", code, "--tiny", "--out", str(tmp_path / "four"),
                     "--no-progress", "--eps", "0.35", "--envs", "4", "--chunk", "4",
                     "--models-dir", models], check=True, env=env)
-    res = json.loads((tmp_path / "four" / "results.json").read_text())
-    assert res["timing"]["devices"] == 4
+    timing = json.loads((tmp_path / "four" / "timing.json").read_text())
+    assert timing["devices"] == 4
     ra = list(csv.DictReader(open(tmp_path / "one" / "tests.csv")))
     rb = list(csv.DictReader(open(tmp_path / "four" / "tests.csv")))
     floats = ("executed_cost", "cost1", "cost2", "root_value")
@@ -168,7 +180,7 @@ def test_two_processes_equal_one(tmp_path, request):
     for f in ("tests.csv", "calibration.json", "sweep.json", "environments.jsonl"):
         assert (one / f).read_text() == (two / f).read_text(), f
     assert sorted(p.name for p in one.iterdir()) == sorted(p.name for p in two.iterdir())
-    timing = json.loads((two / "results.json").read_text())["timing"]
+    timing = json.loads((two / "timing.json").read_text())
     assert timing["processes"] == 2 and timing["devices_per_process"] == 1
 
 

@@ -26,8 +26,10 @@ COMMON = ("--out", "--fresh", "--report-only", "--seed", "--no-progress", "--tin
 
 #: studies not yet on the protocol (their modules are being changed by other issues); each
 #: lacks some of COMMON until converted — the test says which, and turns green when done
-NOT_YET = {"mars-yard", "mcclelland-mc",
-           "padgett-mc", "qbsp"}
+NOT_YET: set[str] = set()
+
+#: studies that chunk their work: ``--chunk N`` (0: sized from the memory) is common to them
+CHUNKED = {"padgett-mc", "qbsp", "qlink", "hssh-plus"}
 
 
 def _run(argv, capsys):
@@ -58,7 +60,7 @@ def test_every_study_refuses_nan_and_unknown_flags_naming_them(name, capsys):
 @pytest.mark.parametrize("name", STUDIES)
 def test_every_study_has_the_common_flags(name, capsys):
     text = _help(name, capsys)
-    missing = [f for f in COMMON if f not in text]
+    missing = [f for f in COMMON + (("--chunk",) if name in CHUNKED else ()) if f not in text]
     if name in NOT_YET and missing:
         pytest.xfail(f"{name} is not on the study protocol yet: lacks {missing}")
     assert not missing, missing
@@ -105,6 +107,23 @@ BAD = [
     ("qlink", ["--memory-bytes", "1"], "--memory-bytes"),
     ("hssh-localization", ["--steps", "0"], "--steps"),
     ("hssh-localization", ["--steps", "-5"], "--steps"),
+    ("padgett-mc", ["--runs", "0"], "--runs"),
+    ("padgett-mc", ["--levels", "1"], "--levels"),
+    ("padgett-mc", ["--landmarks", "2"], "--landmarks"),
+    ("padgett-mc", ["--samples", "-1"], "--samples"),
+    ("padgett-mc", ["--chunk", "-2"], "--chunk"),
+    ("padgett-mc", ["--chunk", "1.5"], "--chunk"),
+    ("mars-yard", ["--runs", "0"], "--runs"),
+    ("mars-yard", ["--seed", "-1"], "--seed"),
+    ("mcclelland-mc", ["--runs", "-1"], "--runs"),
+    ("mcclelland-mc", ["--images", "0"], "--images"),
+    ("mcclelland-mc", ["--ns", "2"], "--ns"),
+    ("mcclelland-mc", ["--ns", "31"], "--ns"),
+    ("mcclelland-mc", ["--exact-sample", "-1"], "--exact-sample"),
+    ("qbsp", ["--envs", "0"], "--envs"),
+    ("qbsp", ["--chunk", "-1"], "--chunk"),
+    ("qbsp", ["--depth", "0"], "--depth"),
+    ("qbsp", ["--samples", "0"], "--samples"),
     ("qlink", ["--chunk", "-1"], "--chunk"),
     ("qlink-invivo", ["--seed", "-2"], "--seed"),
     ("hssh-maps", ["--worlds", "0"], "--worlds"),

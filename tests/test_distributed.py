@@ -218,7 +218,7 @@ def test_slurm_environment_is_detected_and_a_unit_failure_reaches_every_process(
 def test_cli_two_processes_equal_one_full_representations(tmp_path):
     """The real command line, all six representations, 2 processes vs 1."""
     args = ["study", "padgett-mc", "--runs", "8", "--levels", "2", "--samples", "16",
-            "--landmarks", "5", "--chunk-runs", "4", "--quiet"]
+            "--landmarks", "5", "--chunk", "4", "--quiet"]
     py = [sys.executable, "-m", "pqrm_jax.cli"]
     (r1,) = _launch([[*py, *args, "--out", str(tmp_path / "one")]], timeout=600)
     port = str(free_port())
@@ -327,7 +327,8 @@ def test_mcclelland_mc_two_processes_equal_one(tmp_path):
     one, two = _one_vs_two(tmp_path, ["study", "mcclelland-mc", "--reduced", "--runs", "3",
                                       "--images", "5", "--ns", "6", "--exact-sample", "0",
                                       "--no-progress"])
-    assert _same_study_files(one, two) == 7  # 3 runs, config, marker, summary, results.csv
+    # 3 runs + their times, config, marker, summary, timing, results.csv
+    assert _same_study_files(one, two) == 11
     assert (two / "report.md").exists()
 
 
@@ -339,7 +340,7 @@ out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60)
 cfg = M.Config(landmarks=10, n=6, images=30, nav_pairs=4, nav_steps=100, traverses=3,
                snapshots=(1, 30))
-M.run_study(cfg, Path(out), no_progress=True, cluster=cluster)
+M.run_study(cfg, Path(out), quiet=True, cluster=cluster)
 """
 
 
@@ -347,7 +348,7 @@ M.run_study(cfg, Path(out), no_progress=True, cluster=cluster)
 def test_mars_yard_two_processes_equal_one(tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
     _driver_one_and_two(one, two, _MARS_DRIVER, timeout=600)
-    assert _same_study_files(one, two) == 6  # 3 traverses, config, marker, results.csv
+    assert _same_study_files(one, two) == 9  # 3 traverses + times, config, marker, results.csv
     assert (two / "fig11.png").exists()  # traverse 0's figures, drawn by process 0
 
 
@@ -369,7 +370,7 @@ from pqrm_jax.studies import distributed, mcclelland_mc as M
 out, n, pid, port = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 cluster = distributed.initialize(f"127.0.0.1:{port}", n, pid, timeout_s=60, heartbeat_s=5)
 cfg = M.Config(runs=4, images=5, ns=(6, 8), timed_runs=0, exact_sample=0)
-M.run_study(cfg, Path(out), progress=False, cluster=cluster)
+M.run_study(cfg, Path(out), quiet=True, cluster=cluster)
 print("done", cluster.process_id)
 """
 
@@ -386,7 +387,7 @@ def test_mcclelland_mc_killed_process_then_resume(tmp_path):
     written = {p.name for p in (two / "runs").glob("n*_r*.npz")}
     assert 1 <= len(written) < 8
     _driver_one_and_two(one, two, _MCC_DRIVER)
-    assert _same_study_files(one, two) == 10  # 8 runs, config, marker
+    assert _same_study_files(one, two) == 18  # 8 runs + their times, config, marker
 
 
 _UNITS_DRIVER = """

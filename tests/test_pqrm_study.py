@@ -26,7 +26,7 @@ def test_cli_study_report_and_resume(tmp_path):
     n_levels = len(padgett_mc.Config(levels=2).sigma_levels())
     assert [d["level"] for d in full] == list(range(n_levels))
     report = (out / "report.md").read_text()
-    assert "| claim | published | measured | criterion | verdict |" in report
+    assert "| claim | published | measured | interval | verdict |" in report
     assert "worst-case EDC mean entropy" in report and "lune" in report
     for fig in ("fig2_6_neighbor_distance.png", "fig2_7_entropy.png", "fig2_16_topn.png",
                 "fig2_8_error_locations.png", "fig2_10_entropy_representations.png"):
@@ -116,7 +116,7 @@ def test_sparse_equals_dense_at_the_study_size():
 def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp_path):
     """chunk_runs=None sizes the chunk from the device memory (here a fake figure passed as
     ``memory_bytes``); a resume keeps the stored chunk; a chunk, given or chosen, that does
-    not fit is refused with a message naming --chunk-runs before it runs."""
+    not fit is refused with a message naming --chunk before it runs."""
     import dataclasses
 
     from pqrm_jax.studies import chunking
@@ -144,9 +144,9 @@ def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp
     # program), and a memory too small for one run
     two = dataclasses.replace(cfg, chunk_runs=2)
     need = chunking.program_bytes(padgett_mc.chunk_program(two, 2)[0])
-    with pytest.raises(StudyError, match="a chunk of 2 runs .* lower --chunk-runs"):
+    with pytest.raises(StudyError, match=r"a chunk of 2 runs .* lower --chunk\b"):
         padgett_mc.run_study(two, tmp_path / "big", quiet=True,
                              memory_bytes=int(0.9 * need / chunking.FRACTION))
     assert not (tmp_path / "big" / "levels.jsonl").exists()
-    with pytest.raises(StudyError, match="--chunk-runs"):
+    with pytest.raises(StudyError, match=r"--chunk\b"):
         padgett_mc.run_study(cfg, tmp_path / "tiny", quiet=True, memory_bytes=1000)

@@ -32,8 +32,16 @@ def test_mcclelland_mc_report_and_resume(tmp_path):
                for s in summary.values())
     assert "Exact sets (z3 oracle" in (a / "report.md").read_text()
     assert summary["8"]["removed_pct_final"] > summary["6"]["removed_pct_final"]
+    # measured times live apart: timing.json, never summary.json or results.csv
+    timing = json.loads((a / "timing.json").read_text())["per_n"]
+    assert timing["6"]["run_wall_s_mean"] > 0 and "peak_slope" in json.loads(
+        (a / "timing.json").read_text())
+    assert not any("wall" in k or "time" in k for s in summary.values() for k in s)
+    assert "wall" not in (a / "results.csv").read_text()
     full = _runs(a)
     assert set(full) == {f"n{n}_r{r}.npz" for n in (6, 8) for r in (0, 1)}
+    assert not any("wall" in r or "update_time" in r for r in full.values())
+    assert {p.name for p in (a / "times").glob("*.npz")} == set(full)  # the times apart
     # resume: only the missing run is recomputed
     kept = a / "runs" / "n6_r0.npz"
     mtime = kept.stat().st_mtime_ns
@@ -55,6 +63,9 @@ def test_mars_yard_reduced(tmp_path):
         assert (tmp_path / f).exists(), f
     tr = json.loads((tmp_path / "traverse_0.json").read_text())
     assert tr["truth_kept"] is True
+    # the measured wall time lives apart from the stored row (identical runs: identical rows)
+    assert "wall_s" not in tr
+    assert json.loads((tmp_path / "traverse_0.times.json").read_text())["wall_s"] > 0
     removed = np.asarray(tr["removed_pct"])
     assert np.all(np.diff(removed) >= -1e-6) and removed[-1] > removed[0]
     with pytest.raises(StoreError, match="different config"):  # the full preset

@@ -68,7 +68,7 @@ def listen(name, **kw):
 monitoring.register_event_listener(listen)
 from pqrm_jax import cli
 sys.argv = ["pqrm-jax", "study", "padgett-mc", "--runs", "2", "--levels", "2", "--samples", "8",
-            "--landmarks", "4", "--chunk-runs", "2", "--quiet", "--out", sys.argv[1]]
+            "--landmarks", "4", "--chunk", "2", "--quiet", "--out", sys.argv[1]]
 rc = cli.main()
 print("EVENTS", events["miss"], events["hit"], jax.config.jax_compilation_cache_dir, rc)
 """

@@ -11,9 +11,18 @@ import pytest
 
 from pqrm_jax.cli import main
 from pqrm_jax.compositions import simulation
-from pqrm_jax.studies import compositions, fdc_design, protocol, serge
+from pqrm_jax.studies import (
+    compositions,
+    fdc_design,
+    mars_yard,
+    mcclelland_mc,
+    padgett_mc,
+    protocol,
+    qbsp,
+    serge,
+)
 
-CONVERTED = (compositions, fdc_design, serge)
+CONVERTED = (compositions, fdc_design, serge, padgett_mc, mcclelland_mc, mars_yard, qbsp)
 
 
 def _tiny2():
@@ -76,8 +85,44 @@ def test_presets_and_flags_build_the_config(mod):
     value = getattr(mod.Config(), field)
     cfg, _ = mod.configure(["--tiny"], overrides={field: value})
     assert getattr(cfg, field) == value
-    # the stored config is JSON and holds every field (prose apart)
-    assert set(mod.Config().to_json()) == {f.name for f in dataclasses.fields(mod.Config)}
+    # the stored config is JSON and holds every field (prose apart); padgett-mc and qbsp
+    # store their own expanded form (every parameter and decision, as earlier versions did)
+    if isinstance(mod.Config(), protocol.StudyConfig):
+        assert set(mod.Config().to_json()) == {f.name for f in dataclasses.fields(mod.Config)}
+    else:
+        assert isinstance(mod.Config().to_json(), dict)
+
+
+@pytest.mark.parametrize("name", ["mcclelland-mc", "mars-yard"])
+def test_tiny_run_report_only_and_claims_through_the_protocol(name, tmp_path, capsys):
+    """A converted study's ``--tiny`` through the one driver (``protocol.main_for``): the
+    report holds the protocol's claims table and captioned figures; ``--report-only``
+    rewrites it from the store alone; ``claims`` reads the store; a resume computes nothing
+    new; every number measured is a claim row or a headline of ``sweep_summary``."""
+    from pqrm_jax.studies import discover
+
+    mod, out = discover()[name], tmp_path / "o"
+    assert main(["study", name, "--tiny", "--no-progress", "--out", str(out)]) == 0
+    text = (out / "report.md").read_text()
+    assert "| claim | published | measured | interval | verdict |" in text
+    figs = [ln for ln in text.splitlines() if ln.startswith("![")]
+    assert figs and all(not ln.startswith("![fig") for ln in figs)  # real captions
+    cs = mod.claims(out)
+    assert cs and all(isinstance(c, protocol.Claim) for c in cs)
+    assert cs[0].name == "true state never removed" and cs[0].verdict == protocol.MATCH
+    (out / "report.md").unlink()
+    assert main(["study", name, "--report-only", "--out", str(out)]) == 0
+    assert (out / "report.md").read_text() == text  # the same report from the store alone
+    summary = mod.sweep_summary(out)
+    assert set(summary["claims"]) == {c.name for c in cs}
+    def units():  # the stored units (mars-yard recomputes traverse 0 for its figures)
+        return {p.name: p.stat().st_mtime_ns for p in [*out.rglob("*.npz"),
+                                                       *out.glob("traverse_*.json")]
+                if not p.name.startswith("traverse_0.")}
+
+    before = units()
+    assert main(["study", name, "--tiny", "--no-progress", "--out", str(out)]) == 0
+    assert units() == before  # resumed: nothing recomputed
 
 
 def test_claims_render_the_same_in_every_report(tmp_path):

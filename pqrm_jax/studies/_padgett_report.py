@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import protocol
 from .padgett_common import BD_BINS, SIGMA_E, load_results
 
 LUNE = (6, 7, 12, 13)  # EDC states 7, 8, 13, 14 (0-based indices)
@@ -207,7 +208,7 @@ def _random_nd(cfg):
         return None
 
 
-def claims(cfg, lines, arrays) -> list[tuple[str, str, str, str, str]]:
+def claim_rows(cfg, lines, arrays) -> list[tuple[str, str, str, str, str]]:
     """Rows (claim, published, measured, criterion, verdict)."""
     rows = []
     reps = cfg["representations"]
@@ -358,7 +359,7 @@ def write_report(out: Path) -> Path:
     if not lines:
         raise SystemExit(f"no finished levels in {out}")
     figs = make_figures(out, cfg, lines, arrays)
-    rows = claims(cfg, lines, arrays)
+    rows = claim_rows(cfg, lines, arrays)
     timing = {}
     if (out / "timing.json").exists():
         timing = json.loads((out / "timing.json").read_text())
@@ -373,9 +374,8 @@ def write_report(out: Path) -> Path:
                   f"for {timing['levels_computed']} levels on {timing['devices']} device(s).")
     md += ["", "Open choices (not stated by the seed) are in `config.json` → `notes`.", "",
            "## Published claim vs measured", "",
-           "| claim | published | measured | criterion | verdict |", "|---|---|---|---|---|"]
-    for r in rows:
-        md.append("| " + " | ".join(str(x).replace("|", "/") for x in r) + " |")
+           *protocol.claims_table(protocol.Claim(*(str(x).replace("|", "/") for x in r))
+                                  for r in rows)]
     md += ["", "## Per-level summary (EDC)", "",
            "| σ_R [m] | σ_N | mapped triplets | updates / triplet | H_mean | std | error | "
            "P(ML) | neighbour d | conflicts / update |", "|---" * 10 + "|"]
@@ -387,7 +387,7 @@ def write_report(out: Path) -> Path:
                   f"{r['neighbor_mean']:.3f} | {r['conflicts_per_update']:.4f} |")
     md += ["", "## Figures", ""]
     for f in figs:
-        md += [f"![{CAPTIONS.get(f, f)}]({f})", "", f"*{CAPTIONS.get(f, f)}*", ""]
+        md += protocol.figure(f, CAPTIONS[f])
     md += ["Notes: a *conflict* is an eq. 2.10 product that is zero for every state (finite S "
            "gives zero likelihood to states the sampled cloud missed); the prior is kept "
            "(documented in `pqrm_jax.pqrm.map`). Error locations are sub-sampled for plotting; "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._padgett_report import claims
+from ._padgett_report import claim_rows
 from .padgett_common import load_results
 
 __all__ = ["sweep_summary"]
@@ -56,5 +56,5 @@ def sweep_summary(out: Path) -> dict:
         out_d["lr_worst_fraction"] = float(np.mean([w == "lr" for w in worst_at]))
     out_d["worst_normH"] = max(norm, key=norm.get)
     out_d["best_normH"] = min(norm, key=norm.get)
-    out_d["claims"] = {row[0]: row[4] for row in claims(cfg, lines, arrays)}
+    out_d["claims"] = {row[0]: row[4] for row in claim_rows(cfg, lines, arrays)}
     return out_d

@@ -29,7 +29,7 @@ HELP = "held-out triplet prediction with vs without composition propagation (Z e
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
+class Config(protocol.StudyConfig):
     """Every result-changing setting of the study (each knob's reason in :data:`REASONS`)."""
 
     calculus: str = "edc"
@@ -41,9 +41,6 @@ class Config:
     rounds: int = 2
     seed: int = 2024
 
-    def to_json(self) -> dict:
-        """The JSON form stored in ``config.json``."""
-        return protocol.config_json(self)
 
 
 REASONS = {

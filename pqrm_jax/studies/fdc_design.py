@@ -76,7 +76,7 @@ def search(calc: str = "double_cross", images: int = 7, candidates: int = 256,
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
+class Config(protocol.StudyConfig):
     """Every setting of the design search (each knob's reason in :data:`REASONS`)."""
 
     calc: str = "double_cross"
@@ -86,9 +86,6 @@ class Config:
     min_free: int = 3
     seed: int = 0
 
-    def to_json(self) -> dict:
-        """The JSON form stored in ``config.json``."""
-        return protocol.config_json(self)
 
 
 REASONS = {

@@ -8,6 +8,10 @@ RNG cost per image), Fig. 11 (RNG estimate after images 1, 15, 30, 50, edges col
 w_ij), the wall time of the whole traverse (M: 250 s in C#), and closed-loop navigation
 along the final RNG estimate between random start/goal pairs (success rate, path length vs
 straight line), also along the true RNG for reference.
+
+The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
+``configure``, ``run_study``, ``report``, ``claims``; the common flags; ``--sweep``); setup
+and engineering: docs/studies.md §mars-yard.
 """
 
 from __future__ import annotations
@@ -15,19 +19,25 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import protocol
+
 NAME = "mars-yard"
 HELP = "Mars-Yard-like traverse (M§VIII.C, Figs. 10-11) + RNG navigation (M§VII.B)"
 
 
-@dataclasses.dataclass
-class Config:
+@dataclasses.dataclass(frozen=True)
+class Config(protocol.StudyConfig):
+    """Every result-changing setting of the study (each knob's reason in :data:`REASONS`)."""
+
     landmarks: int = 30
     size: float = 30.0
     images: int = 50
@@ -42,7 +52,58 @@ class Config:
     bearing_tol: float | None = None
 
 
-REDUCED = dict(nav_pairs=48, traverses=2)
+
+REASONS = {
+    "landmarks": "30 landmarks in the yard (M§VIII.C)",
+    "size": "a 30 m × 30 m yard, the JPL Mars Yard's scale",
+    "images": "50 imaging poses 1–2 m apart, as M's traverse",
+    "n": "the nearest 18 landmarks measured per pose (M: 'the nearest 18 landmarks were then "
+         "used')",
+    "nav_pairs": "random start/goal pairs per traverse for the navigation success rate",
+    "nav_steps": "rover steps per navigation attempt before it counts as a failure",
+    "traverses": "independent yards and traverses (M shows one; 5 give a spread)",
+    "seed": "the root seed of yards, traverses and navigation pairs",
+    "snapshots": "the images after which Fig. 11 draws the RNG estimate (M: 1, 15, 30, 50)",
+    "bearing_tol": "None: the rounding of the float32 bearings, so the true state is never "
+                   "dropped (docs/qrm.md §camera)",
+}
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "tiny": {"landmarks": 10, "n": 6, "images": 30, "nav_pairs": 4, "nav_steps": 100,
+             "traverses": 1, "snapshots": (1, 30)},
+    "reduced": {"nav_pairs": 48, "traverses": 2},
+    "full": {},
+}
+REDUCED = PRESETS["reduced"]  # the old name
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
+    p.add_argument("--runs", type=protocol.positive_int, default=None,
+                   help="number of traverses (default 5)")
+    a = p.parse_args(argv)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, {"traverses": "runs"},
+                                overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    # images ≥ 30: the report compares the removed % after images 1, 15, 30 and the last
+    for key, lo in (("traverses", 1), ("landmarks", 3), ("images", 30), ("nav_pairs", 1),
+                    ("nav_steps", 1)):
+        if getattr(cfg, key) < lo:
+            p.error(f"argument {'--runs' if key == 'traverses' else key}: must be an integer "
+                    f"≥ {lo}, got {getattr(cfg, key)}")
+    if not 3 <= cfg.n <= cfg.landmarks:
+        p.error(f"n must lie in 3..landmarks ({cfg.landmarks}), got {cfg.n}")
+    if not (np.isfinite(cfg.size) and cfg.size > 0):
+        p.error(f"size must be a positive, finite number, got {cfg.size}")
+    if not cfg.snapshots or not all(1 <= t <= cfg.images for t in cfg.snapshots):
+        p.error(f"snapshots must be images in 1..{cfg.images}, got {list(cfg.snapshots)}")
+    if cfg.bearing_tol is not None and not (np.isfinite(cfg.bearing_tol)
+                                            and cfg.bearing_tol >= 0):
+        p.error(f"bearing_tol must be None or a finite number ≥ 0, got {cfg.bearing_tol}")
+    return cfg, a
 
 
 def _world(cfg: Config, i: int):
@@ -167,50 +228,24 @@ def _plots(out: Path, cfg: Config, tr: dict, nav: dict):
     plt.close(fig)
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="out/mars-yard")
-    from .protocol import positive_int
-
-    p.add_argument("--runs", type=positive_int, help="number of traverses (default 5)")
-    p.add_argument("--reduced", action="store_true", help="~1–2 min preset")
-    p.add_argument("--no-progress", "--quiet", action="store_true",
-                   help="no progress bars (--quiet: deprecated alias)")
-    from . import distributed, protocol
-
-    protocol.add_fresh(p)
-    p.add_argument("--seed", type=protocol.nonneg_int, help="root seed (default 0)")
-    distributed.add_arguments(p)
-    a = p.parse_args(argv)
-
-    cfg = Config(**REDUCED) if a.reduced else Config()
-    if a.seed is not None:
-        cfg.seed = a.seed
-    if a.runs is not None:
-        if a.runs < 1:
-            p.error(f"--runs must be ≥ 1, got {a.runs}")
-        cfg.traverses = a.runs
-    cluster = distributed.initialize_from(a)  # before any JAX computation
-    protocol.fresh_start(a, a.out, NAME, cluster, legacy=LEGACY)
-    run_study(cfg, Path(a.out), no_progress=a.no_progress, cluster=cluster)
-    return 0
-
-
 LEGACY = ("config.json", "traverse_*.json", "report.md", "*.png", "study.json", "results.csv",
           "*.corrupt")
-_ROW_FIELDS = ("traverse", "wall_s", "removed_pct", "constrained_pct", "not_adjacent_pct",
+_ROW_FIELDS = ("traverse", "removed_pct", "constrained_pct", "not_adjacent_pct",
                "rng_cost", "truth_kept", "nav_estimated", "nav_true")
 
 
-def run_study(cfg: Config, out: Path, *, no_progress: bool = False, cluster=None) -> list[dict]:
-    """Run (or resume) the traverses into ``out``, then the report; returns the rows.
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> list[dict]:
+    """Run (or resume) the traverses into ``out``; returns the rows (:func:`report` then
+    writes ``report.md``).
 
     With a multi-process ``cluster`` (:mod:`.distributed`, already initialised) every process
     calls this with the same ``cfg``: differing configs are refused, process 0 alone opens the
     store and lists the traverses left, the processes compute them in rounds
     (:func:`.distributed.map_units`; traverse 0, recomputed for the figures, always falls to
-    process 0) and process 0 writes the rows, figures and report. The rows equal a
-    one-process run's bit for bit except the measured ``wall_s``.
+    process 0) and process 0 writes the rows and figures. The rows equal a
+    one-process run's bit for bit; the measured ``wall_s`` is stored apart
+    (``traverse_I.times.json``).
     """
     from tqdm.auto import tqdm
 
@@ -218,13 +253,13 @@ def run_study(cfg: Config, out: Path, *, no_progress: bool = False, cluster=None
     from .store import Store, tidy_rows
 
     cluster = cluster or distributed.current()
-    distributed.agree(cluster, dataclasses.asdict(cfg), f"{NAME} config")
+    distributed.agree(cluster, cfg.to_json(), f"{NAME} config")
     st, stored = None, {}
 
     def left():
         nonlocal st
-        st = Store.open(out, NAME, dataclasses.asdict(cfg), selection=("traverses",),
-                        legacy=LEGACY)
+        st = Store.open(out, NAME, dict(cfg.to_json(), reasons=REASONS),
+                        selection=("traverses",), legacy=LEGACY, fresh=fresh)
         for i in range(1, cfg.traverses):  # traverse 0 is recomputed for the figures
             row = st.read_json(f"traverse_{i}.json", _ROW_FIELDS,
                                check=lambda r, i=i: (r["traverse"] == i
@@ -241,18 +276,22 @@ def run_study(cfg: Config, out: Path, *, no_progress: bool = False, cluster=None
             row, tr, nav = _traverse(cfg, i)
             if i == 0 and st is not None:  # map_units gives item 0 to process 0
                 _plots(st.out, cfg, tr, nav)
-            return row
+            return {"row": row, "wall_s": tr["wall"]}
 
         new = distributed.map_units(compute, todo, cluster, codec="json")
-        for k, row in tqdm(new, total=len(todo), desc=NAME,
-                           disable=no_progress or not cluster.is_main):
+        for k, rec in tqdm(new, total=len(todo), desc=NAME,
+                           disable=quiet or not cluster.is_main):
             if st is not None:
-                st.write_json(f"traverse_{todo[k]}.json", row, indent=None)
-                stored[todo[k]] = row
+                i = todo[k]
+                st.write_json(f"traverse_{i}.json", rec["row"], indent=None)
+                # the measured time apart from the results (identical runs: identical rows)
+                st.write_json(f"traverse_{i}.times.json", {"traverse": i,
+                                                           "wall_s": rec["wall_s"]},
+                              indent=None)
+                stored[i] = rec["row"]
         if st is None:
             return []
         rows = [stored[i] for i in range(cfg.traverses)]
-        _write_report(out, cfg, rows, st)
         st.write_results_csv(tidy_rows(rows, unit=lambda r: f"traverse_{r['traverse']}",
                                        skip=("traverse",)))
         return rows
@@ -265,7 +304,7 @@ def _traverse(cfg: Config, i: int) -> tuple[dict, dict, dict]:
     """Traverse ``i``'s stored row, with its traverse and navigation results (for figures)."""
     tr = run_traverse(cfg, i)
     nav = run_navigation(cfg, jnp.asarray(tr["lm"]), tr["final"], jax.random.key(100 + i))
-    row = {"traverse": i, "wall_s": tr["wall"],
+    row = {"traverse": i,
            "removed_pct": tr["met"]["removed_pct"].tolist(),
            "constrained_pct": tr["met"]["constrained_pct"].tolist(),
            "not_adjacent_pct": tr["met"]["not_adjacent_pct"].tolist(),
@@ -275,14 +314,85 @@ def _traverse(cfg: Config, i: int) -> tuple[dict, dict, dict]:
     return row, tr, nav
 
 
+def stored_config(out: Path) -> Config:
+    """The :class:`Config` stored in ``out/config.json`` (the stored run's settings)."""
+    from .store import StudyError
+
+    try:
+        d = json.loads((Path(out) / "config.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise StudyError(f"{out} holds no {NAME} study (config.json: {exc}); run the study "
+                         "first") from None
+    names = {f.name for f in dataclasses.fields(Config)}
+    return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
+                     if k in names})
+
+
+def _rows(out: Path, cfg: Config) -> list[dict]:
+    from .store import StudyError, read_json
+
+    rows = [read_json(Path(out) / f"traverse_{i}.json", _ROW_FIELDS, quarantine=False)
+            for i in range(cfg.traverses)]
+    missing = [i for i, r in enumerate(rows) if r is None]
+    if missing:
+        raise StudyError(f"{out}: traverses {missing} are not stored; run the study first")
+    # with the measured wall time (``traverse_I.times.json``; older rows held it themselves)
+    times = [read_json(Path(out) / f"traverse_{i}.times.json", ("wall_s",), quarantine=False)
+             for i in range(cfg.traverses)]
+    return [dict(r, wall_s=t["wall_s"] if t else r.get("wall_s", float("nan")))
+            for r, t in zip(rows, times, strict=True)]
+
+
+def _claims(rows: list[dict]) -> list[protocol.Claim]:
+    n = len(rows)
+    kept = sum(bool(r["truth_kept"]) for r in rows)
+    mono = all(np.all(np.diff(r["removed_pct"]) >= -1e-6) for r in rows)
+    final = float(np.mean([r["removed_pct"][-1] for r in rows]))
+    return [
+        protocol.Claim("true state never removed", "never (M§VIII.A soundness)",
+                       f"{kept} of {n} traverses", (n, n), protocol.verdict_in(kept, n, n)),
+        protocol.Claim("removed % only grows along the traverse (M Fig. 10a)",
+                       "monotone, slower than the Monte Carlo", final, None,
+                       protocol.MATCH if mono else protocol.MISMATCH),
+        protocol.Claim("wall time of the whole traverse", "250 s (C#, M§VIII.C)",
+                       f"{np.mean([r['wall_s'] for r in rows]):.2f} s", None,
+                       f"{protocol.NOT_CHECKED}: a timing of another implementation"),
+    ]
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """M§VIII.C's claims against the stored traverses."""
+    return _claims(_rows(Path(out), stored_config(out)))
+
+
+def report(out: Path) -> Path:
+    """``report.md`` from the stored traverses and figures (under the store's lock)."""
+    from .store import Store
+
+    out = Path(out)
+    with Store.open(out, NAME, None, legacy=LEGACY) as st:
+        cfg = stored_config(out)
+        _write_report(out, cfg, _rows(out, cfg), st)
+    return out / "report.md"
+
+
 def _write_report(out: Path, cfg: Config, rows: list[dict], st) -> None:
     walls = [r["wall_s"] for r in rows]
     ne = [r["nav_estimated"] for r in rows]
     nt = [r["nav_true"] for r in rows]
     lines = [f"# {NAME}: Mars-Yard-like traverse (M§VIII.C) and RNG navigation (M§VII.B)", "",
              f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
-             "![fig10](fig10.png)", "", "![fig11](fig11.png)", "",
-             "![navigation](navigation.png)", "",
+             "## Claims", "", *protocol.claims_table(_claims(rows)), "",
+             *protocol.figure("fig10.png", "M Fig. 10 for traverse 0: per image, (a) the "
+                              "EDC states removed (% of the whole map), (b) the open states "
+                              "not adjacent to the truth (%), (c) the total RNG edge cost."),
+             *protocol.figure("fig11.png", "M Fig. 11 for traverse 0: the RNG estimate after "
+                              "the snapshot images (edges coloured by their cost w_ij, black: "
+                              "w = 0), mapped landmarks blue, unseen ones grey, the poses so "
+                              "far green and the current one red."),
+             *protocol.figure("navigation.png", "Six navigation runs of traverse 0 along the "
+                              "estimated RNG (coloured paths, dots at the starts) over the true "
+                              "RNG (grey) and the landmarks (circles)."),
              "| traverse | wall s (50 images, measure + update) | removed % img 1 / 15 / 30 / 50 "
              "| constrained % final | RNG cost peak → final | truth kept | nav success est. / "
              "true RNG | length ratio est. / true |", "|---|---|---|---|---|---|---|---|"]
@@ -322,4 +432,8 @@ def _write_report(out: Path, cfg: Config, rows: list[dict], st) -> None:
               "along the estimate can be shorter than along the true RNG.",
               "- The true state is never removed ('truth kept')."]
     st.write_text("report.md", "\n".join(lines) + "\n")
-    print("\n".join(lines[8:]))
+    print("\n".join(lines[lines.index("## Claims"):]))
+
+
+main = protocol.main_for(sys.modules[__name__])
+sweep_summary = protocol.summary_for(sys.modules[__name__])

@@ -4,6 +4,8 @@ Runs the camera QRM on random 30-landmark layouts with 50 imaging poses, measuri
 nearest landmarks per pose for n ∈ {6, 9, 12, 18, 24, 30}, and reports the M§VIII.A metrics
 per image; every finished (n, run) is stored, so a killed study resumes.
 
+The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
+``configure``, ``run_study``, ``report``, ``claims``; the common flags; ``--sweep``).
 Setup, metrics and engineering: docs/studies.md §mcclelland-mc. As N processes on
 ``jax.distributed`` (``--coordinator/--processes/--process-id``, the environment or Slurm;
 :mod:`pqrm_jax.studies.distributed`) the (n, run) units are split over the processes and
@@ -18,16 +20,21 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
+
+from . import protocol
 
 NAME = "mcclelland-mc"
 HELP = "McClelland's QRM Monte Carlo study (M§VIII.B, Fig. 7): n nearest of 30 landmarks"
 
 
-@dataclasses.dataclass
-class Config:
+@dataclasses.dataclass(frozen=True)
+class Config(protocol.StudyConfig):
+    """Every result-changing setting of the study (each knob's reason in :data:`REASONS`)."""
+
     runs: int = 100
     images: int = 50
     landmarks: int = 30
@@ -44,7 +51,65 @@ class Config:
     bearing_tol: float | None = None
 
 
-REDUCED = dict(runs=3, images=20, ns=(6, 12, 18, 30), timed_runs=1)
+
+REASONS = {
+    "runs": "M§VIII.B averages random layouts; 100 runs give the per-image means a standard "
+            "error well under the differences between the n rows",
+    "images": "50 imaging poses per run, as M Fig. 7",
+    "landmarks": "30 landmarks, as M§VIII.B",
+    "size": "a 100 m square: only the layout's shape matters (the QRM is scale-free)",
+    "ns": "the n nearest landmarks measured per pose, M Fig. 7's rows",
+    "timed_runs": "runs per n whose per-update times are measured for Fig. 7d (timings only)",
+    "seed": "the root seed of the layouts and poses",
+    "exact_sample": "first-image triples per n also decided by the exact z3 oracle, to tell "
+                    "the kernel's undecided states from the exact sets (issue #14)",
+    "bearing_tol": "None: the rounding of the float32 bearings, so the true state is never "
+                   "dropped (docs/qrm.md §camera)",
+}
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "tiny": {"runs": 1, "images": 6, "ns": (6, 8), "timed_runs": 1, "exact_sample": 2},
+    "reduced": {"runs": 3, "images": 20, "ns": (6, 12, 18, 30), "timed_runs": 1},
+    "full": {},
+}
+REDUCED = PRESETS["reduced"]  # the old name
+
+_FLAGS = {"runs": "runs", "images": "images", "ns": "ns", "exact_sample": "exact_sample"}
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    p = protocol.parser(NAME, HELP, seed=Config.seed)
+    p.add_argument("--runs", type=protocol.positive_int, default=None,
+                   help="random layouts per n (default 100)")
+    p.add_argument("--images", type=protocol.positive_int, default=None,
+                   help="imaging poses per run (default 50)")
+    p.add_argument("--ns", type=protocol.positive_int, nargs="+", default=None,
+                   help="nearest landmarks measured per pose, each in 3..landmarks "
+                        "(default 6 9 12 18 24 30)")
+    p.add_argument("--exact-sample", type=protocol.nonneg_int, dest="exact_sample",
+                   default=None,
+                   help="first-image triples per n decided exactly (z3) for the report "
+                        "(default 24)")
+    a = p.parse_args(argv)
+    if a.ns is not None:
+        a.ns = tuple(a.ns)
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, _FLAGS, overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    bad = [n for n in cfg.ns if not 3 <= n <= cfg.landmarks]
+    if bad or not cfg.ns:
+        p.error(f"argument --ns: each n must lie in 3..{cfg.landmarks} (the landmarks), "
+                f"got {list(cfg.ns)}")
+    for flag, v, lo in (("--runs", cfg.runs, 1), ("--images", cfg.images, 1),
+                        ("--exact-sample", cfg.exact_sample, 0),
+                        ("timed_runs", cfg.timed_runs, 0), ("landmarks", cfg.landmarks, 3)):
+        if v < lo:
+            p.error(f"argument {flag}: must be an integer ≥ {lo}, got {v}")
+    if not (np.isfinite(cfg.size) and cfg.size > 0):
+        p.error(f"size must be a positive, finite number, got {cfg.size}")
+    return cfg, a
 
 
 def _layout(cfg: Config, run: int):
@@ -77,7 +142,8 @@ def _time_updates(cfg: Config, lm, poses, n: int) -> np.ndarray:
     return np.asarray(out)
 
 
-def run_study(cfg: Config, out: Path, progress: bool = True, cluster=None) -> None:
+def run_study(cfg: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False) -> None:
     """Run (and resume) the study into ``out``; every (n, run) is its own file, written
     atomically and read back in full (a corrupt one is set aside and recomputed).
 
@@ -85,8 +151,8 @@ def run_study(cfg: Config, out: Path, progress: bool = True, cluster=None) -> No
     calls this with the same ``cfg``: differing configs are refused on every process, process
     0 alone opens the store and lists the units left, the processes compute them in rounds
     (process p the p-th unit of each round, :func:`.distributed.map_units`) and process 0
-    writes each one; the stored runs are those of one process bit for bit, except the
-    measured times ``wall`` and ``update_time``.
+    writes each one; the stored runs are those of one process bit for bit (the measured
+    ``wall`` and ``update_time`` are stored apart, in ``times/``).
     """
     from tqdm.auto import tqdm
 
@@ -94,14 +160,15 @@ def run_study(cfg: Config, out: Path, progress: bool = True, cluster=None) -> No
     from .store import Store
 
     cluster = cluster or distributed.current()
-    distributed.agree(cluster, dataclasses.asdict(cfg), f"{NAME} config")
+    distributed.agree(cluster, cfg.to_json(), f"{NAME} config")
     units = [(n, r) for n in cfg.ns for r in range(cfg.runs)]
     st = None
 
     def left():
         nonlocal st
-        st = Store.open(out, NAME, dataclasses.asdict(cfg),
-                        selection=("runs", "ns", "timed_runs", "exact_sample"), legacy=LEGACY)
+        st = Store.open(out, NAME, dict(cfg.to_json(), reasons=REASONS),
+                        selection=("runs", "ns", "timed_runs", "exact_sample"), legacy=LEGACY,
+                        fresh=fresh)
         return [st.read_npz(f"runs/n{n}_r{r}.npz", RUN_FIELDS) is None for n, r in units]
 
     try:
@@ -109,19 +176,30 @@ def run_study(cfg: Config, out: Path, progress: bool = True, cluster=None) -> No
         todo = [u for u, m in zip(units, mask, strict=True) if m]
         done = distributed.map_units(lambda u: run_unit(cfg, *u), todo, cluster, codec="npz")
         for i, rec in tqdm(done, total=len(todo), desc=NAME,
-                           disable=not progress or not cluster.is_main):
+                           disable=quiet or not cluster.is_main):
             if st is not None:
                 n, r = todo[i]
-                st.write_npz(f"runs/n{n}_r{r}.npz", rec, compressed=False)  # atomic
+                # the measured times apart (identical runs: identical run records); the
+                # run record last, as the unit's "done" mark
+                times = {k: rec[k] for k in TIMED if k in rec}
+                st.write_npz(f"times/n{n}_r{r}.npz", times, compressed=False)
+                st.write_npz(f"runs/n{n}_r{r}.npz",
+                             {k: v for k, v in rec.items() if k not in times},
+                             compressed=False)  # atomic
     finally:
         if st is not None:
             st.close()
 
 
 LEGACY = ("config.json", "runs", "report.md", "fig7.png", "summary.json", "study.json",
-          "results.csv")
+          "results.csv", "timing.json", "times")
+#: the summary's measured times (``timing.json``, not ``summary.json`` or ``results.csv``)
+TIMES = ("*_s", "*_s_mean", "update_time_*")
 RUN_FIELDS = ("removed_pct", "constrained_pct", "not_adjacent_pct", "rng_cost", "first_open",
-              "first_proven", "truth_kept", "inconsistent", "wall")
+              "first_proven", "truth_kept", "inconsistent")
+#: a run's measured times, stored apart in ``times/n{n}_r{run}.npz`` (older versions kept them
+#: in the run record, which is still read)
+TIMED = ("wall", "update_time")
 
 
 def run_unit(cfg: Config, n: int, r: int) -> dict[str, np.ndarray]:
@@ -173,8 +251,14 @@ def load(out: Path, cfg: Config) -> dict:
 
     res = {}
     for n in cfg.ns:
-        recs = [read_npz(out / "runs" / f"n{n}_r{r}.npz", RUN_FIELDS) for r in range(cfg.runs)]
-        recs = [x for x in recs if x is not None]
+        recs = []
+        for r in range(cfg.runs):
+            rec = read_npz(out / "runs" / f"n{n}_r{r}.npz", RUN_FIELDS)
+            if rec is None:
+                continue
+            rec |= read_npz(out / "times" / f"n{n}_r{r}.npz", ("wall",)) or {}
+            rec.setdefault("wall", np.asarray(np.nan))  # a times file lost: no time
+            recs.append(rec)
         if not recs:
             continue
         res[n] = {k: np.stack([r[k] for r in recs]) for k in recs[0]
@@ -193,7 +277,78 @@ def _fit_slope(ns, t):
     return float(np.polyfit(np.log(ns[ok]), np.log(t[ok]), 1)[0])
 
 
-def report(out: Path, cfg: Config) -> dict:
+def stored_config(out: Path) -> Config:
+    """The :class:`Config` stored in ``out/config.json`` (the stored run's settings)."""
+    from .store import StudyError
+
+    try:
+        d = json.loads((Path(out) / "config.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise StudyError(f"{out} holds no {NAME} study (config.json: {exc}); run the study "
+                         "first") from None
+    names = {f.name for f in dataclasses.fields(Config)}
+    return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
+                     if k in names})
+
+
+def report(out: Path) -> Path:
+    """``report.md``, ``fig7.png``, ``summary.json`` and ``results.csv`` from the stored runs
+    (under the store's lock)."""
+    from .store import Store
+
+    out = Path(out)
+    with Store.open(out, NAME, None, legacy=LEGACY):
+        summarise(out, stored_config(out))
+    return out / "report.md"
+
+
+def _claims(per_n: dict[int, dict]) -> list[protocol.Claim]:
+    """M§VIII.B's claims against the per-n summary (the report's table)."""
+    ns = sorted(per_n)
+    cs = []
+    kept = sum(bool(per_n[n]["truth_kept"]) for n in ns)
+    cs.append(protocol.Claim("true state never removed", "never (M§VIII.A soundness)",
+                             f"{kept} of {len(ns)} n", (len(ns), len(ns)),
+                             protocol.verdict_in(kept, len(ns), len(ns))))
+    ex = [per_n[n]["exact_first_image"]["exact_half_frac"] for n in ns
+          if "exact_first_image" in per_n[n]]
+    half = float(np.mean(ex)) if ex else float(np.mean([per_n[n]["first_half_removed_frac"]
+                                                        for n in ns]))
+    cs.append(protocol.Claim(
+        "first measurement removes ≥ half the states", "in almost all cases (read: ≥ 90 %)",
+        half, (0.9, 1.0), protocol.verdict_in(half, 0.9, 1.0)))
+    big = [n for n in ns if n >= 18]
+    if big:
+        na = max(per_n[n]["not_adjacent_pct_final"] for n in big)
+        cs.append(protocol.Claim("open states cluster at the truth for n ≥ 18 (Fig. 7b)",
+                                 "< 45 % not adjacent", na, (0.0, 45.0),
+                                 protocol.verdict_in(na, 0.0, 45.0)))
+    for n in (n for n in ns if n <= 9):
+        na = per_n[n]["not_adjacent_pct_final"]
+        cs.append(protocol.Claim(f"n = {n} stays in the 'uniform' band (Fig. 7b)", "45–90 %",
+                                 na, (45.0, 90.0), protocol.verdict_in(na, 45.0, 90.0)))
+    if 18 in per_n and 30 in per_n:
+        r = per_n[18]["removed_pct_final"] / max(per_n[30]["removed_pct_final"], 1e-12)
+        cs.append(protocol.Claim("n = 18 ends nearly as well as n = 30",
+                                 "nearly as well (read: final removed % within 5 %)", r,
+                                 (0.95, 1.05), protocol.verdict_in(r, 0.95, 1.05)))
+    return cs
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """The published claims (M§VIII.B) against ``out/summary.json`` (written by
+    :func:`report`)."""
+    from .store import StudyError, read_json
+
+    doc = read_json(Path(out) / "summary.json", ("per_n",), quarantine=False)
+    if doc is None:
+        raise StudyError(f"{out} holds no {NAME} summary (summary.json); run the study first")
+    return _claims({int(n): s for n, s in doc["per_n"].items()})
+
+
+def summarise(out: Path, cfg: Config) -> dict:
+    """The per-n summary of the stored runs; writes ``fig7.png``, ``summary.json``,
+    ``results.csv`` and ``report.md``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -265,14 +420,34 @@ def report(out: Path, cfg: Config) -> dict:
         summary[n] = s
     peaks = [summary[n].get("update_time_peak_s", np.nan) for n in ns]
     slope = _fit_slope(ns, peaks)
-    from .store import atomic_write_json, atomic_write_text, tidy_rows, write_results_csv
+    from .store import (
+        atomic_write_json,
+        atomic_write_text,
+        is_measured,
+        tidy_rows,
+        write_results_csv,
+    )
 
-    atomic_write_json(out / "summary.json", {"per_n": summary, "peak_slope": slope})
+    # measured times apart from the results (two identical runs: identical results files)
+    timed = {n: {k: v for k, v in s.items() if is_measured(k, TIMES)} for n, s in summary.items()}
+    atomic_write_json(out / "summary.json", {"per_n": {
+        n: {k: v for k, v in s.items() if not is_measured(k, TIMES)} for n, s in summary.items()}})
+    atomic_write_json(out / "timing.json", {"per_n": timed, "peak_slope": slope})
     write_results_csv(out / "results.csv", NAME, tidy_rows(
-        [{"n": n, **s} for n, s in summary.items()], unit=lambda r: f"n={r['n']}", skip=("n",)))
+        [{"n": n, **s} for n, s in summary.items()], unit=lambda r: f"n={r['n']}", skip=("n",),
+        measured=TIMES))
     lines = [f"# {NAME}: QRM Monte Carlo study (M§VIII.B, Fig. 7)", "",
              f"Config: `{json.dumps(dataclasses.asdict(cfg))}`", "",
-             "![fig7](fig7.png)", "",
+             "## Claims", "", *protocol.claims_table(_claims(summary)), "",
+             "The update-time slope (M: 3.5 in C#) is a timing of another implementation on "
+             "another machine: reported below, not checked.", "",
+             *protocol.figure("fig7.png", "M Fig. 7 reproduced: per image (x axis), the mean "
+                              "over runs (band: ± one standard deviation) of (a) the incorrect "
+                              "states removed, (b) the open states not adjacent to the truth, "
+                              "(c) the RNG edge cost, (d) the time per update (log scale, timed "
+                              "runs only) and the fully constrained edges, one line per n; the "
+                              "last panel is the distribution of open states after a "
+                              "relation's first measurement (dotted: half of the 20 states)."),
              "| n | runs | removed % (img 1) | removed % (final) | constrained % | not-adjacent % "
              "| RNG cost peak → final | first meas. ≥ half removed (all kept / witnessed only) "
              "| truth kept | peak update s |",
@@ -323,53 +498,5 @@ def report(out: Path, cfg: Config) -> dict:
     return summary
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    p.add_argument("--out", default="out/mcclelland-mc")
-    from .protocol import nonneg_int, positive_int
-
-    p.add_argument("--runs", type=positive_int)
-    p.add_argument("--images", type=positive_int)
-    p.add_argument("--ns", type=positive_int, nargs="+")
-    p.add_argument("--exact-sample", type=nonneg_int, dest="exact_sample",
-                   help="first-image triples per n decided exactly (z3) for the report")
-    p.add_argument("--reduced", action="store_true", help="~1–2 min preset (3 runs, 20 images)")
-    p.add_argument("--report-only", action="store_true")
-    p.add_argument("--no-progress", "--quiet", action="store_true",
-                   help="no progress bars (--quiet: deprecated alias)")
-    from . import distributed, protocol
-
-    protocol.add_fresh(p)
-    p.add_argument("--seed", type=nonneg_int, help="root seed (default 0)")
-    distributed.add_arguments(p)
-    a = p.parse_args(argv)
-    cfg = Config(**REDUCED) if a.reduced else Config()
-    if a.seed is not None:
-        cfg.seed = a.seed
-    for k in ("runs", "images", "exact_sample"):
-        if getattr(a, k) is not None:
-            setattr(cfg, k, getattr(a, k))
-    if a.ns:
-        cfg.ns = tuple(a.ns)
-    if cfg.runs < 1 or cfg.images < 1 or any(n < 3 or n > cfg.landmarks for n in cfg.ns):
-        print("runs and images must be >= 1 and every n in 3..landmarks", file=sys.stderr)
-        return 2
-    out = Path(a.out)
-    if a.report_only:
-        from .store import Store
-
-        with Store.open(out, NAME, None, legacy=LEGACY):
-            summary = report(out, cfg)
-    else:
-        cluster = distributed.initialize_from(a)  # before any JAX computation
-        protocol.fresh_start(a, out, NAME, cluster, legacy=LEGACY)
-        run_study(cfg, out, progress=not a.no_progress, cluster=cluster)
-        if not cluster.is_main:
-            return 0
-        summary = report(out, cfg)
-    for n, s in summary.items():
-        print(f"n={n:2d}: removed {s['removed_pct_final']:.1f}%  constrained "
-              f"{s['constrained_pct_final']:.1f}%  not-adj {s['not_adjacent_pct_final']:.1f}%"
-              f"  first≥half {100 * s['first_half_removed_frac']:.1f}%")
-    print(f"report: {out / 'report.md'}")
-    return 0
+main = protocol.main_for(sys.modules[__name__])
+sweep_summary = protocol.summary_for(sys.modules[__name__])

@@ -6,6 +6,10 @@ reports entropy, error rates, P(ML state), neighbour distance, confusion matrice
 locations against the published numbers. The open choices (number of landmarks, samples per
 update) are recorded in ``config.json``; a killed study resumes at the first unfinished level.
 
+The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
+``configure``, ``run_study``, ``report``, ``claims``; the common flags incl. ``--chunk``;
+``--sweep``).
+
 Setup, recorded choices and engineering: docs/studies.md §padgett-mc. As N processes on
 ``jax.distributed`` (``--coordinator/--processes/--process-id``, the environment or Slurm;
 :mod:`pqrm_jax.studies.distributed`) the chunks of each level are split over the processes and
@@ -31,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import calculi
+from . import protocol
 from .padgett_common import (
     BD_BINS,
     LINE_FIELDS,
@@ -307,13 +312,13 @@ def chunk_program(cfg: Config, chunk: int, *, dense: bool = False,
     Compiled ahead of time so that its size (XLA's memory analysis) is checked against the
     device's memory before anything runs: a chunk needing more than
     :data:`~pqrm_jax.studies.chunking.FRACTION` of ``memory_bytes`` (default: what the
-    device has available) is refused with a message naming ``--chunk-runs``.
+    device has available) is refused with a message naming ``--chunk``.
     """
     from . import chunking
 
     compiled, sharding = _compiled_chunk(cfg, chunk, dense=dense)
     chunking.check_fits(chunking.program_bytes(compiled), chunking.budget(memory_bytes),
-                        option="--chunk-runs",
+                        option="--chunk",
                         what=f"{NAME}: a chunk of {chunk} runs "
                              f"({chunk // len(jax.local_devices())} per device)")
     return compiled, sharding
@@ -346,7 +351,7 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
         return chunking.program_bytes(compiled)
 
     return chunking.auto(probe, total=cfg.runs, devices=ndev, per_probe=per_device,
-                         memory_bytes=memory_bytes, whole=full, option="--chunk-runs")
+                         memory_bytes=memory_bytes, whole=full, option="--chunk")
 
 
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
@@ -359,7 +364,7 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
     on every process, so the result is bit-identical to a one-process run. ``chunk_runs=None``
     sizes the chunks from the device memory (:func:`auto_chunk`; ``memory_bytes``
     overrides what the device reports); a chunk that does not fit fails before it runs, with
-    a message naming ``--chunk-runs``.
+    a message naming ``--chunk``.
     """
     from . import distributed
 
@@ -396,7 +401,7 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
 
 
 def memory_error(exc: BaseException, cfg: Config, chunk: int):
-    """A :class:`~pqrm_jax.studies.store.StudyError` naming ``--chunk-runs`` when ``exc`` is
+    """A :class:`~pqrm_jax.studies.store.StudyError` naming ``--chunk`` when ``exc`` is
     the device running out of memory for one chunk, else None.
 
     >>> memory_error(RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 9 GiB"),
@@ -412,7 +417,7 @@ def memory_error(exc: BaseException, cfg: Config, chunk: int):
         return None
     dev = jax.local_devices()[0]
     return StudyError(f"{NAME}: a chunk of {chunk} runs does not fit in the memory of "
-                      f"{dev.device_kind} ({dev.platform}); lower --chunk-runs (now "
+                      f"{dev.device_kind} ({dev.platform}); lower --chunk (now "
                       f"{cfg.chunk_runs}, per device {chunk // len(jax.local_devices())} "
                       f"runs): {text.splitlines()[0][:200]}")
 
@@ -564,7 +569,7 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
     every process computes its chunks of each level (:func:`run_level`) and process 0 writes.
     ``cfg.chunk_runs=None`` takes the stored chunk or one sized from the device memory
     (:func:`resolve_chunk`; ``memory_bytes`` overrides the device's figure); a chunk that does
-    not fit is refused before it runs, naming ``--chunk-runs``.
+    not fit is refused before it runs, naming ``--chunk``.
     """
     from tqdm.auto import tqdm
 
@@ -627,27 +632,16 @@ def run_study(cfg: Config, out: Path, *, quiet: bool = False, fresh: bool = Fals
             st.close()
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--runs", type=int, help="Monte Carlo runs per noise level (paper: 1000)")
-    p.add_argument("--levels", type=int, help="main noise levels σ_R = 0..100 m (paper: 21)")
-    p.add_argument("--samples", type=int, help="samples per triplet per update (default 256)")
-    p.add_argument("--landmarks", type=int, help="landmarks per world (default 10)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--chunk-runs", type=int,
-                   help="runs per compiled call (default: sized from the device memory)")
-    p.add_argument("--out", default="out/padgett-mc", help="output directory")
-    p.add_argument("--reduced", action="store_true",
-                   help="quick preset: 100 runs per level (a few minutes on 2 cores)")
-    p.add_argument("--fresh", action="store_true", help="discard results already in --out")
-    p.add_argument("--report-only", action="store_true",
-                   help="only rewrite report.md and figures from the stored results")
-    p.add_argument("--quiet", "--no-progress", action="store_true", help="no progress bar")
-    from . import distributed
+#: the presets (``--tiny``, ``--reduced``; ``full`` = P's 1000 runs per level)
+PRESETS: dict[str, dict] = {
+    "tiny": {"runs": 4, "levels": 2, "num_samples": 16, "num_landmarks": 4,
+             "representations": ("edc",)},
+    "reduced": {"runs": 100},
+    "full": {},
+}
 
-    distributed.add_arguments(p)
-    return p
+_FLAGS = {"runs": "runs", "levels": "levels", "num_samples": "samples",
+          "num_landmarks": "landmarks"}
 
 
 def configure(argv: list[str], overrides: dict | None = None
@@ -658,30 +652,33 @@ def configure(argv: list[str], overrides: dict | None = None
     :mod:`pqrm_jax.studies.sweep`); the bounds are checked on the final config, naming the
     flag or the overridden field.
     """
-    p = _parser()
+    p = protocol.parser(NAME, HELP, seed=0, chunk=True)
+    p.add_argument("--runs", type=protocol.positive_int,
+                   help="Monte Carlo runs per noise level (default 1000, as P; reduced 100)")
+    p.add_argument("--levels", type=protocol.positive_int,
+                   help="main noise levels σ_R = 0..100 m (≥ 2; default 21, as P)")
+    p.add_argument("--samples", type=protocol.positive_int,
+                   help="samples per triplet per update (default 256)")
+    p.add_argument("--landmarks", type=protocol.positive_int,
+                   help="landmarks per world (≥ 3; default 10)")
     args = p.parse_args(argv)
-    cfg = Config()
-    if args.reduced:
-        cfg.runs = 100
+    overrides = dict(overrides or {})
+    cfg = protocol.apply_preset(Config, PRESETS, args.preset, args, _FLAGS)
+    cfg = dataclasses.replace(cfg, seed=args.seed, chunk_runs=args.chunk or None)
+    cfg = dataclasses.replace(cfg, **overrides)
     # (flag, Config field, smallest value, why)
-    bounds = (("--runs", "runs", 1, ""), ("--chunk-runs", "chunk_runs", 1, ""),
+    bounds = (("--runs", "runs", 1, ""), ("--chunk", "chunk_runs", 1, ""),
               ("--samples", "num_samples", 1, ""),
               ("--landmarks", "num_landmarks", 3, " (a triplet needs 3 landmarks)"),
-              ("--levels", "levels", 2, " (the report compares σ_R = 0 with the next level)"))
-    for flag, attr, _, _ in bounds:
-        val = getattr(args, flag[2:].replace("-", "_"))
-        if val is not None:
-            setattr(cfg, attr, val)
-    cfg.seed = args.seed
-    overrides = dict(overrides or {})
-    cfg = dataclasses.replace(cfg, **overrides)
+              ("--levels", "levels", 2, " (the report compares σ_R = 0 with the next level)"),
+              ("--seed", "seed", 0, ""), ("max_error_points", "max_error_points", 0, ""))
     for flag, attr, lo, why in bounds:
         if getattr(cfg, attr) is not None and getattr(cfg, attr) < lo:  # chunk_runs: None=auto
             p.error(f"{attr if attr in overrides else flag} must be ≥ {lo}{why}, "
                     f"got {getattr(cfg, attr)}")
     for attr in ("max_range", "dtheta_deg", "world_size", "loop_radius", "max_sigma_r"):
-        if not getattr(cfg, attr) > 0:
-            p.error(f"{attr} must be > 0, got {getattr(cfg, attr)}")
+        if not (math.isfinite(getattr(cfg, attr)) and getattr(cfg, attr) > 0):
+            p.error(f"{attr} must be > 0 and finite, got {getattr(cfg, attr)}")
     unknown = [r for r in cfg.representations if r not in REPS]
     if unknown or not cfg.representations:
         p.error(f"representations must be a non-empty subset of {', '.join(REPS)}, got "
@@ -696,38 +693,32 @@ def sweep_summary(out: Path) -> dict:
     return summary(out)
 
 
-def main(argv: list[str] | None = None) -> int:
-    cfg, args = configure(list(sys.argv[1:] if argv is None else argv))
-    out = Path(args.out)
-    from . import distributed
+def report(out: Path) -> Path:
+    """``report.md`` and the figures from the stored levels (under the store's lock)."""
     from ._padgett_report import write_report
     from .store import Store
 
-    if args.report_only:
-        with Store.open(out, NAME, None, legacy=LEGACY):
-            path = write_report(out)
-        print(f"report: {path}")
-        return 0
-    cluster = distributed.initialize_from(args)  # before any JAX computation
-    if cluster.distributed:
-        run_study(cfg, out, quiet=args.quiet, fresh=args.fresh, cluster=cluster)
-        if not cluster.is_main:
-            return 0
-        with Store.open(out, NAME, None, legacy=LEGACY):
-            path = write_report(out)
-    else:
-        cfg = resolve_chunk(cfg, out, fresh=args.fresh, cluster=cluster)
-        with open_store(cfg, out, fresh=args.fresh) as st:
-            run_study(cfg, out, quiet=args.quiet, store=st)
-            path = write_report(out)
-    print(f"report: {path}")
-    return 0
+    with Store.open(Path(out), NAME, None, legacy=LEGACY):
+        return write_report(Path(out))
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """Each published claim of P §2.3.1 (docs/decisions.md §3) against the stored levels."""
+    from ._padgett_report import claim_rows
+
+    cfg, lines, arrays = load_results(Path(out))
+    return [protocol.Claim(name, pub, measured, criterion, verdict)
+            for name, pub, measured, criterion, verdict in claim_rows(cfg, lines, arrays)]
+
+
+main = protocol.main_for(sys.modules[__name__])
 
 
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main(sys.argv[1:]))
 
 
-__all__ = ["Config", "configure", "sweep_summary", "run_study", "run_level", "auto_chunk",
+__all__ = ["Config", "PRESETS", "claims", "configure", "report", "sweep_summary", "run_study",
+           "run_level", "auto_chunk",
            "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
            "load_results", "main", "boundary_distance"]

@@ -2,6 +2,11 @@
 
 ``pqrm-jax study qbsp --out DIR [--reduced | --tiny] [--envs N] [--size S] [--chunk C]``
 
+The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
+``configure``, ``run_study``, ``report``, ``claims``; the common flags incl. ``--chunk``;
+``--sweep``); :func:`config_for` turns a :class:`Config` into the stored configuration (every
+parameter and decision).
+
 Random environments of 8–12 landmarks (units of R), a composable initial belief by
 nearest-landmark growth, a random target triplet of the initial belief; every environment is
 run four times (cost eq. 4.29 / eq. 4.30 × without / with compositions) with receding-horizon
@@ -26,14 +31,14 @@ refuses a second process on the same ``--out``, ``study.json`` marks the directo
 study, every file is written atomically): ``config.json`` (every parameter and decision, the
 precision and the lane layout), ``calibration.json`` (the chosen ``eps_obs`` and the grid
 rates), ``environments.jsonl`` (landmarks, initial-belief triplets, target, frame, start),
-``chunks/env*.json`` (one checked record per environment, the resume unit: a torn or garbage
-one is named in a warning, set aside and recomputed alone), ``tests.csv`` (one row per test),
-``results.json``, the tidy ``results.csv`` (``study, unit, metric, value``: one row per test ×
-number and the Table 4.1 summary), ``report.md`` (published vs measured with 95 % intervals and
-match/mismatch), figures ``*.png``. Discrete outcomes do not depend on ``--chunk`` or the device
-count, but float costs may differ at rounding, so both are part of the stored config (a resume
-with another layout is refused). A model or table cache that cannot be read fails the study
-with a :class:`~pqrm_jax.studies.store.StudyError`.
+``chunks/env*.json`` (one checked record per environment, the resume unit: a torn or garbage one
+is named in a warning, set aside and recomputed alone), ``tests.csv`` (one row per test),
+``results.json``, ``timing.json`` (the measured times), the tidy ``results.csv`` (``study, unit,
+metric, value``: one row per test × number and the Table 4.1 summary), ``report.md`` (published
+vs measured with 95 % intervals and match/mismatch), figures ``*.png``. Discrete outcomes do not
+depend on ``--chunk`` or the device count, but float costs may differ at rounding, so both are
+part of the stored config (a resume with another layout is refused). A model or table cache that
+cannot be read fails the study with a :class:`~pqrm_jax.studies.store.StudyError`.
 
 As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
 environment or Slurm; :mod:`pqrm_jax.studies.distributed`) process ``p`` computes the
@@ -46,13 +51,16 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from . import distributed
+from . import distributed, protocol
 from .store import Store, StudyError, flatten_metrics, tidy_rows
 
 NAME = "qbsp"
@@ -126,52 +134,160 @@ EXTENSIONS = {
 }
 
 
-def _extensions(args) -> dict:
-    on = [k for k in EXTENSIONS if getattr(args, k, False)]
+def _extensions(cfg) -> dict:
+    on = [k for k in EXTENSIONS if getattr(cfg, k, False)]
     return {"extensions": {k: EXTENSIONS[k] for k in on}} if on else {}
 
 
-def config_for(args) -> dict:
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """The study's settings (the full study by default; :data:`PRESETS` for the others).
+
+    :func:`config_for` expands it into the stored configuration (every parameter and
+    decision with its reason, :data:`DECISIONS`, :data:`EXTENSIONS`).
+    """
+
+    envs: int = 3000  # environments of the held-out tests (Z: not stated; 3000 → ±1.5 %)
+    calib_envs: int = 300  # environments of the calibration seed
+    samples: int = 4000  # model samples per cell of the observation models
+    depth: int = 2  # planner depth L (receding horizon)
+    t_max: int = 12  # planning sessions per execution before it counts as a failure
+    seed: int = 2022  # root seed: tests on seed, calibration on seed + 10000, sweep + 20000
+    eps: float | None = None  # eps_obs fixed by --eps (no calibration); None: calibrated
+    size: float = 2.5  # environment size S/R (docs/bsp.md §calibration: not the knob)
+    models_pool: int = 1 << 20  # sample pool of the observation models
+    models_seed: int = 0  # seed of the observation models
+    sweep_envs: int = 200  # environments per size of the plan-exists sweep
+    sweep_sizes: tuple[float, ...] = (1.5, 2.5, 3.5, 5.0)  # S/R of the sweep
+    sweep_depths: tuple[int, ...] = (1, 2, 3)  # planner depths L of the sweep
+    nondetection: bool = False  # EXTENSIONS["nondetection"] (ablation, off)
+    nothing_seen: bool = False  # EXTENSIONS["nothing_seen"] (ablation, off)
+    scale_model: str = "composed"  # docs/bsp.md §Z-10
+    on_no_plan: str = "continue"  # docs/bsp.md §execution
+    chunk: int | None = None  # environments per call (None: sized from the memory)
+
+    def to_json(self) -> dict:
+        """The stored configuration (:func:`config_for`)."""
+        return config_for(self)
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "tiny": {"envs": 8, "calib_envs": 8, "samples": 600, "depth": 1, "t_max": 4,
+             "models_pool": 1 << 18, "models_seed": 3, "sweep_envs": 4,
+             "sweep_sizes": (2.5, 4.0), "sweep_depths": (1,)},  # the tests' models
+    "reduced": {"envs": 300, "calib_envs": 100, "samples": 2000, "sweep_envs": 60},
+    "full": {},
+}
+
+
+def config_for(cfg: Config) -> dict:
     """The study configuration (every parameter; calibration filled in later)."""
-    if args.tiny:
-        base = dict(envs=8, calib_envs=8, samples=600, depth=1, chunk=None, t_max=4)
-    elif args.reduced:
-        base = dict(envs=300, calib_envs=100, samples=2000, depth=2, chunk=None, t_max=12)
-    else:  # chunk None: sized from the device memory (auto_chunk)
-        base = dict(envs=3000, calib_envs=300, samples=4000, depth=2, chunk=None, t_max=12)
-    for k in ("envs", "depth", "chunk", "samples"):
-        if getattr(args, k, None) is not None:
-            base[k] = getattr(args, k)
-    tiny_models = dict(pool=1 << 18, seed=3) if args.tiny else {}  # = the tests' models
     return {
-        "envs": base["envs"], "calib_envs": base["calib_envs"], "landmarks": [8, 12],
-        "seed": args.seed, "calib_seed": args.seed + 10_000,
-        "eps_grid": [0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5], "eps_fixed": args.eps,
-        "size": args.size,
+        "envs": cfg.envs, "calib_envs": cfg.calib_envs, "landmarks": [8, 12],
+        "seed": cfg.seed, "calib_seed": cfg.seed + 10_000,
+        "eps_grid": [0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5], "eps_fixed": cfg.eps,
+        "size": cfg.size,
         "R": 1.0, "r_min": 0.05, "L_max": 12,
         "models": {"calculus": "edc", "n_f": 5, "window": 3.0, "sigma_m": 0.05,
-                   "sigma_z": 0.05, "r_min": 0.05, "samples": base["samples"],
-                   "pool": 1 << 20, "seed": 0, "target_half_width": 1.5} | tiny_models,
-        "planner": {"depth": base["depth"], "n_actions": 4, "n_beta": 3, "lam": 1.0e5, "rho": 10.0,
+                   "sigma_z": 0.05, "r_min": 0.05, "samples": cfg.samples,
+                   "pool": cfg.models_pool, "seed": cfg.models_seed,
+                   "target_half_width": 1.5},
+        "planner": {"depth": cfg.depth, "n_actions": 4, "n_beta": 3, "lam": 1.0e5, "rho": 10.0,
                     "n_z": 1},
-        "execution": {"t_max": base["t_max"], "sigma_m": 0.05, "sigma_z": 0.05,
+        "execution": {"t_max": cfg.t_max, "sigma_m": 0.05, "sigma_z": 0.05,
                       "pqrm_samples": 64, "eps_obs": 0.01,
                       # a later session's "no plan" does not end the lane (measured,
                       # docs/bsp.md §execution)
-                      "on_no_plan": getattr(args, "on_no_plan", "continue")},
+                      "on_no_plan": cfg.on_no_plan},
         "initial_measurement_samples": 256,
         # how frame scales are derived (docs/bsp.md §Z-10): "composed" in both modes
         # (default) or "belief" (the mode's own rows; the previous model)
-        "scale_model": getattr(args, "scale_model", "composed"),
+        "scale_model": cfg.scale_model,
         # plan exists vs S/R and vs the depth L (no execution; own seed, docs/bsp.md §sweep)
-        "sweep": ({"seed": args.seed + 20_000, "envs": 4, "sizes": [2.5, 4.0],
-                   "depths": [1]} if args.tiny else
-                  {"seed": args.seed + 20_000, "envs": 60 if args.reduced else 200,
-                   "sizes": [1.5, 2.5, 3.5, 5.0], "depths": [1, 2, 3]}),
-        "chunk": base["chunk"],
+        "sweep": {"seed": cfg.seed + 20_000, "envs": cfg.sweep_envs,
+                  "sizes": list(cfg.sweep_sizes), "depths": list(cfg.sweep_depths)},
+        "chunk": cfg.chunk,
         "decisions": DECISIONS,
         "published": PUBLISHED,
-    } | _extensions(args)
+    } | _extensions(cfg)
+
+
+def _probability(raw: str) -> float:
+    """A probability in [0, 1] (argparse type of ``--eps``)."""
+    v = protocol.finite_float(raw)
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a probability in [0, 1] (the "
+                                         f"observability threshold eps_obs), got {raw!r}")
+    return v
+
+
+def configure(argv: list[str], overrides: dict | None = None
+              ) -> tuple[Config, argparse.Namespace]:
+    """The study's Config and parsed flags (every number checked before any work)."""
+    ap = protocol.parser(NAME, HELP, seed=Config.seed, chunk=True)
+    ap.add_argument("--envs", type=protocol.positive_int,
+                    help="environments (default 3000; reduced 300; tiny 8)")
+    ap.add_argument("--memory-bytes", type=protocol.positive_int,
+                    help="device memory the automatic chunk is sized for and checked against "
+                         "(default: what the device reports)")
+    ap.add_argument("--depth", type=protocol.positive_int,
+                    help="planner depth L (≥ 1; L = 0 plans nothing)")
+    ap.add_argument("--samples", type=protocol.positive_int, help="model samples per cell")
+    ap.add_argument("--size", type=protocol.positive_float, help="environment size S/R "
+                    "(default 2.5)")
+    ap.add_argument("--eps", type=_probability, help="fix eps_obs (no calibration)")
+    ap.add_argument("--nondetection", action="store_true", default=None,
+                    help="EXTENSION beyond the thesis (ablation): negative-information update "
+                         "of candidates not seen (docs/bsp.md §non-detection)")
+    ap.add_argument("--nothing-seen", dest="nothing_seen", action="store_true", default=None,
+                    help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
+                         "in the planner instead of renormalised candidate weights "
+                         "(docs/bsp.md §nothing-seen)")
+    ap.add_argument("--scale-model", dest="scale_model", choices=("composed", "belief"),
+                    help="frame scales from measured and composed rows in both modes "
+                         "(default composed) or from each mode's own belief (the previous "
+                         "model; docs/bsp.md §Z-10)")
+    ap.add_argument("--on-no-plan", dest="on_no_plan", choices=("stop", "continue"),
+                    help="after a later session's 'no plan' the lane goes on (default "
+                         "continue) or ends as a failure (the previous rule; docs/bsp.md "
+                         "§execution)")
+    ap.add_argument("--models-dir", type=Path, help="model cache directory")
+    a = ap.parse_args(argv)
+    a.chunk = a.chunk or None
+    flags = {k: k for k in ("envs", "depth", "samples", "size", "eps", "nondetection",
+                            "nothing_seen", "scale_model", "on_no_plan", "chunk")}
+    cfg = protocol.apply_preset(Config, PRESETS, a.preset, a, flags, overrides)
+    if "seed" not in (overrides or {}):
+        cfg = dataclasses.replace(cfg, seed=a.seed)
+    o = set(overrides or {})
+    for key, v, lo in (("envs", cfg.envs, 1), ("calib_envs", cfg.calib_envs, 1),
+                       ("depth", cfg.depth, 1), ("samples", cfg.samples, 1),
+                       ("t_max", cfg.t_max, 1), ("sweep_envs", cfg.sweep_envs, 1),
+                       ("chunk", cfg.chunk or 1, 1), ("models_pool", cfg.models_pool, 1),
+                       ("seed", cfg.seed, 0)):
+        if v < lo:
+            ap.error(f"argument {key if key in o else '--' + key}: must be an integer ≥ {lo}, "
+                     f"got {v}")
+    if not (np.isfinite(cfg.size) and cfg.size > 0):
+        ap.error(f"argument --size: must be a positive, finite S/R, got {cfg.size}")
+    if cfg.eps is not None and not (np.isfinite(cfg.eps) and 0.0 <= cfg.eps <= 1.0):
+        ap.error(f"argument --eps: must be a probability in [0, 1] (the observability "
+                 f"threshold eps_obs), got {cfg.eps}")
+    if not cfg.sweep_sizes or not all(np.isfinite(x) and x > 0 for x in cfg.sweep_sizes):
+        ap.error(f"sweep_sizes must be positive, finite S/R, got {list(cfg.sweep_sizes)}")
+    if not cfg.sweep_depths or min(cfg.sweep_depths) < 1:
+        ap.error(f"sweep_depths must be depths ≥ 1, got {list(cfg.sweep_depths)}")
+    if cfg.scale_model not in ("composed", "belief"):
+        ap.error(f"scale_model must be composed or belief, got {cfg.scale_model!r}")
+    if cfg.on_no_plan not in ("stop", "continue"):
+        ap.error(f"on_no_plan must be stop or continue, got {cfg.on_no_plan!r}")
+    full = config_for(cfg)
+    try:  # a size too small for the landmarks at their minimum spacing: refused up front
+        make_env(full, full["calib_seed"], 0, full["size"])
+    except RuntimeError as exc:
+        ap.error(f"argument --size: {cfg.size} is too small for {full['landmarks']} landmarks "
+                 f"{full['r_min']} R apart ({exc})")
+    return cfg, a
 
 
 def _env_rng(seed: int, e: int) -> np.random.Generator:
@@ -567,11 +683,12 @@ def analyse(rows: list[dict], n_env: int, seed: int = 0) -> dict:
 
 def _verdict(pub: float, lo: float, hi: float) -> str:
     if not np.isfinite(lo):
-        return "n/a (too few tests)"
+        return f"{protocol.NOT_CHECKED}: too few tests"
     return "match" if lo <= pub <= hi else "mismatch"
 
 
-def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
+def report_text(st: Store, cfg: dict, res: dict, timing: dict) -> str:
+    """Writes ``report.md`` (Table 4.1 as the claims table, checks, sweep, calibration)."""
     P = PUBLISHED
     lines = ["# Qualitative BSP with/without compositions (Z §4.3, Table 4.1)", "",
              f"{res['n_env']} environments × 2 modes × 2 costs; S/R = {cfg['size']}, "
@@ -583,24 +700,7 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
                   "thesis's model; docs/bsp.md §non-detection):", ""]
         lines += [f"- {k}: {v}" for k, v in cfg["extensions"].items()]
         lines += [""]
-    lines += ["| quantity | published | measured | 95 % interval | verdict |",
-              "|---|---|---|---|---|"]
-
-    def row(name, pub, val, lo, hi, fmt="{:.3f}"):
-        lines.append(f"| {name} | {fmt.format(pub)} | {fmt.format(val)} | "
-                     f"[{fmt.format(lo)}, {fmt.format(hi)}] | {_verdict(pub, lo, hi)} |")
-
-    for mode in ("without", "with"):
-        v, lo, hi = res[f"exists_{mode}"]
-        tag = " (calibrated)" if mode == "with" and cfg["calibration"]["knob"] else ""
-        row(f"plan exists, {mode} compositions{tag}", P[f"exists_{mode}"], v, lo, hi)
-    for cost in (1, 2):
-        v, lo, hi = res[f"cost{cost}_comparable_different"]
-        row(f"comparable & different share (cost {cost})", P["comparable_different"], v, lo, hi)
-    for cost in (1, 2):
-        v, lo, hi = res[f"cost{cost}_ratio"]
-        pr = P[f"cost{cost}_with"] / P[f"cost{cost}_without"]
-        row(f"executed cost {cost}, with/without ratio", pr, v, lo, hi)
+    lines += protocol.claims_table(_claims(cfg, res))
     pub_ratio = P["exists_without"] / P["exists_with"]
     ours = res["exists_without"][0] / max(res["exists_with"][0], 1e-12)
     topo = (res.get("sweep") or {}).get("topological")
@@ -659,12 +759,43 @@ def report(st: Store, cfg: dict, res: dict, timing: dict) -> str:
               f"grid rates (with compositions, calibration seed): {cfg['calibration']['rates']}",
               "", "## Time", "", f"{json.dumps(timing)}", "",
               "Verdict = the published value lies inside our 95 % interval (Wilson for shares, "
-              "bootstrap for ratios). Figures: fig45_plan_exists.png, cost_hist.png, "
-              "plan_exists_vs_n.png, plan_exists_vs_eps.png, "
-              "plan_exists_vs_size_and_depth.png, fig46_*.png."]
+              "bootstrap for ratios).", "", "## Figures", ""]
+    for name, caption in FIGURES.items():
+        if st.path(name).exists():
+            lines += protocol.figure(name, caption)
     text = "\n".join(lines) + "\n"
     st.write_text("report.md", text)
     return text
+
+
+#: the report's figures (drawn by :func:`figures` when there is something to draw) and what
+#: each shows
+FIGURES = {
+    "fig45_plan_exists.png": "Z Fig. 4.5: share of environments where a plan exists without "
+                             "and with compositions (bars, measured) against Table 4.1 "
+                             "(black marks, published).",
+    "cost_hist.png": "Executed cost of the tests that reached the goal, without (grey) and "
+                     "with (blue) compositions, for cost 1 (left) and cost 2 (right).",
+    "plan_exists_vs_n.png": "Share of environments where a plan exists against the number of "
+                            "landmarks, without (grey) and with (blue) compositions.",
+    "plan_exists_vs_size_and_depth.png": "Plan exists on the sweep seed against the "
+                                         "environment size S/R (left, frame graph) and "
+                                         "against the planner depth L (right, tree root "
+                                         "below λ), without (grey) and with (blue) "
+                                         "compositions.",
+    "plan_exists_vs_eps.png": "Calibration: plan exists with compositions on the calibration "
+                              "seed against the observability threshold eps_obs (dots) and "
+                              "the published 81.6 % (dotted); the study takes the closest.",
+    "fig46a_only_with.png": "Z Fig. 4.6a analogue: the first environment where only the "
+                            "planner with compositions reaches the goal (cost 1); left "
+                            "without, right with compositions: landmarks (letters), "
+                            "initial-belief triplets (grey), goal triplet (green), starting "
+                            "frame (orange), executed path with its frames (red).",
+    "fig46b_shorter_with.png": "Z Fig. 4.6b analogue: the first environment where both reach "
+                               "the goal and the path with compositions is cheaper (cost 2); "
+                               "drawn as Fig. 4.6a (goal green, starting frame orange, "
+                               "executed path red).",
+}
 
 
 def figures(st: Store, cfg: dict, rows: list[dict], envs: list, res: dict) -> None:
@@ -803,7 +934,7 @@ TEST_COLUMNS = ["env", "n", "mode", "cost", "plan_exists", "tree_exists", "reach
                 "actions"]
 ROW_FIELDS = ("env", "n", "mode", "cost", "plan_exists", "tree_exists", "reached",
               "executed_cost", "steps", "cost1", "cost2", "conflicts", "root_value", "frames",
-              "actions", "path", "lane_seconds")
+              "actions", "path")  # (older records also hold the measured lane_seconds)
 COMBOS = {(m, c) for m in ("without", "with") for c in (1, 2)}
 CALIBRATION_FIELDS = ("knob", "how", "rates", "eps_obs")
 SWEEP_FIELDS = ("sizes", "depths", "eps_obs", "envs", "exists", "tree_exists")
@@ -854,71 +985,26 @@ def _dependencies(cfg: dict, models_dir: Path | None):
     return mp, models, D1
 
 
-def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog=f"pqrm-jax study {NAME}", description=HELP)
-    ap.add_argument("--out", default="out/qbsp", type=Path,
-                    help="the study directory (default out/qbsp)")
-    g = ap.add_mutually_exclusive_group()
-    g.add_argument("--reduced", action="store_true", help="300 environments (2 CPU cores)")
-    g.add_argument("--tiny", action="store_true", help="test-size run (8 environments)")
-    ap.add_argument("--envs", type=int)
-    ap.add_argument("--chunk", type=int, help="environments per compiled call (4 lanes each; "
-                    "default: sized from the device memory; a resume keeps the stored one)")
-    ap.add_argument("--memory-bytes", type=int, help="device memory the automatic chunk is "
-                    "sized for and checked against (default: what the device reports)")
-    ap.add_argument("--depth", type=int)
-    ap.add_argument("--samples", type=int, help="model samples per cell")
-    ap.add_argument("--size", type=float, default=2.5, help="environment size S/R")
-    ap.add_argument("--eps", type=float, help="fix eps_obs (no calibration)")
-    ap.add_argument("--seed", type=int, default=2022)
-    ap.add_argument("--nondetection", action="store_true",
-                    help="EXTENSION beyond the thesis (ablation): negative-information update "
-                         "of candidates not seen (docs/bsp.md §non-detection)")
-    ap.add_argument("--nothing-seen", dest="nothing_seen", action="store_true",
-                    help="EXTENSION beyond the thesis (ablation): a 'nothing seen' branch "
-                         "in the planner instead of renormalised candidate weights "
-                         "(docs/bsp.md §nothing-seen)")
-    ap.add_argument("--scale-model", dest="scale_model", choices=("composed", "belief"),
-                    default="composed", help="frame scales from measured and composed rows in "
-                    "both modes (default) or from each mode's own belief (the previous "
-                    "model; docs/bsp.md §Z-10)")
-    ap.add_argument("--on-no-plan", dest="on_no_plan", choices=("stop", "continue"),
-                    default="continue", help="after a later session's 'no plan' the lane "
-                    "goes on (default) or ends as a failure (the previous rule; "
-                    "docs/bsp.md §execution)")
-    ap.add_argument("--models-dir", type=Path, help="model cache directory")
-    ap.add_argument("--no-progress", "--quiet", action="store_true",
-                    help="no progress bars (--quiet: deprecated alias)")
-    from . import protocol
+def run_study(config: Config, out: Path, *, quiet: bool = False, cluster=None,
+              fresh: bool = False, memory_bytes: int | None = None,
+              models_dir: Path | None = None) -> int:
+    """Run (or resume) the study into ``out``: calibration, the four tests of every
+    environment (one checked record each, the resume unit), the sweep, then ``tests.csv``,
+    ``results.json``, ``results.csv``, the figures and ``report.md`` (process 0).
 
-    protocol.add_fresh(ap)
-    distributed.add_arguments(ap)
-    a = ap.parse_args(argv)
-    cfg = config_for(a)
-    if cfg["envs"] < 1 or (cfg["chunk"] is not None and cfg["chunk"] < 1):
-        ap.error("--envs and --chunk must be positive")
-    if cfg["planner"]["depth"] < 1:
-        ap.error("--depth must be >= 1 (L = 0 plans nothing)")
-    if a.samples is not None and a.samples < 1:
-        ap.error(f"--samples must be a positive integer, got {a.samples}")
-    if not (np.isfinite(a.size) and a.size > 0):
-        ap.error(f"--size must be a positive, finite S/R, got {a.size}")
-    if a.eps is not None and not (np.isfinite(a.eps) and 0.0 <= a.eps <= 1.0):
-        ap.error(f"--eps must be a probability in [0, 1] (the observability threshold "
-                 f"eps_obs), got {a.eps}")
-    try:  # a size too small for the landmarks at their minimum spacing: refused up front
-        make_env(cfg, cfg["calib_seed"], 0, cfg["size"])
-    except RuntimeError as exc:
-        ap.error(f"--size {a.size} is too small for {cfg['landmarks']} landmarks "
-                 f"{cfg['r_min']} R apart ({exc})")
-
+    ``memory_bytes`` overrides the device memory the automatic chunk is sized for;
+    ``models_dir`` is the model cache (default: the library's).
+    """
     from tqdm.auto import tqdm
 
     from ..bsp import models as M
 
+    out = Path(out)
+    cfg = config_for(config)
     t_start = time.perf_counter()
-    cluster = distributed.initialize_from(a)  # before any JAX computation
-    protocol.fresh_start(a, a.out, NAME, cluster, legacy=())
+    cluster = cluster or distributed.current()
+    if fresh and cluster.is_main:
+        Store.wipe(out, NAME, legacy=())
     chunk = cfg.pop("chunk")
     cfg["models_key"] = M.ModelParams(**cfg["models"]).key()
     # the calibrated threshold is a result (calibration.json), not a setting
@@ -927,29 +1013,29 @@ def main(argv: list[str]) -> int:
 
     # the user's chunk, else the stored one (a resume keeps its layout), else sized from
     # the device memory on process 0 (a probe program of one environment), broadcast
-    chunk = chunking.resolve(chunk, a.out, lambda: auto_chunk(
-        cfg, *_dependencies(cfg, a.models_dir)[1:], a.memory_bytes), cluster=cluster)
+    chunk = chunking.resolve(chunk, out, lambda: auto_chunk(
+        cfg, *_dependencies(cfg, models_dir)[1:], memory_bytes), cluster=cluster)
     # lane layout: batch width and devices (per process) change float bits of the costs at
     # rounding; the process count does not (each chunk is computed whole on one process)
     cfg["layout"] = {"chunk": chunk, "devices": lane_devices(4 * chunk)}
     distributed.agree(cluster, cfg, "qbsp config")
     main_ = cluster.is_main
-    progress = main_ and not a.no_progress
-    ctx = (Store.open(a.out, NAME, cfg, selection=("envs",),
+    progress = main_ and not quiet
+    ctx = (Store.open(out, NAME, cfg, selection=("envs",),
                       legacy=("config.json", "calibration.json", "environments.jsonl",
-                              "chunks", "tests.csv", "results.json", "report.md", "*.png"))
+                              "chunks", "tests.csv", "results.json", "timing.json",
+                              "report.md", "*.png"))
            if main_ else contextlib.nullcontext(None))
     with ctx as st:
         cfg = st.config if main_ else json.loads(json.dumps(cfg))
-        _, models, D1 = _dependencies(cfg, a.models_dir)
+        _, models, D1 = _dependencies(cfg, models_dir)
         t_models = time.perf_counter() - t_start
         t0 = time.perf_counter()
-        n_env = cfg["envs"] if a.envs is None else a.envs
-        n_env = min(n_env, cfg["envs"])
+        n_env = cfg["envs"]
         # process 0 reads what is stored; everyone learns it (one process: no collective)
         cal = None
-        if a.eps is not None:
-            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": a.eps}
+        if config.eps is not None:
+            cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": config.eps}
         elif main_:
             cal = st.read_json("calibration.json", CALIBRATION_FIELDS)
         have_cal = distributed.broadcast(np.asarray([cal is not None], np.int8), cluster)[0]
@@ -980,23 +1066,24 @@ def main(argv: list[str]) -> int:
         t0 = time.perf_counter()
         bar = tqdm(total=sum(map(len, work)), desc="qbsp lanes", unit="env",
                    disable=not progress)
+        lane_s: list[float] = []  # measured seconds per lane, this invocation (timing.json)
 
         def compute(w: int):
             return run_chunk_arrays(cfg, models, D1, [envs[i] for i in work[w]], work[w],
-                                    a.memory_bytes)
+                                    memory_bytes)
 
         def done(w: int, res) -> None:
             bar.update(len(work[w]) * cluster.num_processes)
             if not cluster.distributed and main_:  # write as we go (resume unit)
                 _store_rows(st, work[w], chunk_rows(*res, [envs[i] for i in work[w]],
-                                                    work[w]), have)
+                                                    work[w]), have, lane_s)
 
         results = distributed.map_chunks(compute, len(work), cluster, done=done)
         bar.close()
         if cluster.distributed and main_:
-            for ids, (out, dt) in zip(work, results, strict=True):
-                _store_rows(st, ids, chunk_rows(out, float(dt), [envs[i] for i in ids], ids),
-                            have)
+            for ids, (arrays, dt) in zip(work, results, strict=True):
+                _store_rows(st, ids, chunk_rows(arrays, float(dt), [envs[i] for i in ids],
+                                                ids), have, lane_s)
         t_lanes = time.perf_counter() - t0
         if not main_:
             return 0
@@ -1023,20 +1110,115 @@ def main(argv: list[str]) -> int:
         timing = {"models_s": round(t_models, 1), "calibration_s": round(t_calib, 1),
                   "lanes_s": round(t_lanes, 1), "sweep_s": round(t_sweep, 1),
                   "total_s": round(time.perf_counter() - t_start, 1),
-                  "lane_seconds_mean": float(np.mean([r["lane_seconds"] for r in rows])),
+                  "lane_seconds_mean": float(np.mean(lane_s)) if lane_s else None,
                   "processes": cluster.num_processes,
                   "devices_per_process": len(jax.local_devices()),
                   "devices": len(jax.devices())}
-        st.write_text("results.json", json.dumps({"results": res, "timing": timing},
-                                                 indent=1, default=float))
+        # measured times apart from the results (two identical runs: identical results.json)
+        st.write_text("results.json", json.dumps({"results": res}, indent=1, default=float))
+        st.write_json("timing.json", timing)
         st.write_results_csv(results_table(rows, res))
-        figures(st, cfg, rows, envs, res)
-        print(report(st, cfg, res, timing))
+        _render(st, cfg, rows, envs, res, timing, print_report=not quiet)
     return 0
 
 
-def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict) -> None:
+def _render(st: Store, cfg: dict, rows: list[dict], envs: list, res: dict, timing: dict, *,
+            print_report: bool = False) -> None:
+    figures(st, cfg, rows, envs, res)
+    text = report_text(st, cfg, res, timing)
+    if print_report:
+        print(text)
+
+
+def _stored(out: Path) -> tuple[dict, dict, dict]:
+    """(configuration with the calibration, results, timing) of a finished study in ``out``."""
+    from .store import read_json
+
+    cfg = read_json(out / "config.json", ("envs", "execution"), quarantine=False)
+    if cfg is not None and cfg.get("eps_fixed") is not None:  # --eps: nothing calibrated
+        cal = {"knob": None, "how": "fixed by --eps", "rates": {}, "eps_obs": cfg["eps_fixed"]}
+    else:
+        cal = read_json(out / "calibration.json", CALIBRATION_FIELDS, quarantine=False)
+    doc = read_json(out / "results.json", ("results",), quarantine=False)
+    if cfg is None or cal is None or doc is None:
+        raise StudyError(f"{out} holds no finished {NAME} study (config.json, "
+                         "calibration.json and results.json); run the study first")
+    cfg["execution"]["eps_obs"] = cal["eps_obs"]
+    cfg["calibration"] = cal
+    timing = read_json(out / "timing.json", (), quarantine=False) or doc.get("timing", {})
+    return cfg, doc["results"], timing
+
+
+def report(out: Path) -> Path:
+    """``report.md`` and the figures again from the stored results (``--report-only``)."""
+    out = Path(out)
+    with Store.open(out, NAME, None, legacy=()) as st:
+        cfg, res, timing = _stored(out)
+        n_env = res["n_env"]
+        recs = [st.read_json(f"chunks/env{i:05d}.json", ("env", "rows"),
+                             check=lambda r, i=i: env_record_ok(r, i)) for i in range(n_env)]
+        if any(r is None for r in recs):
+            raise StudyError(f"{out}: some environment records are missing; run the study "
+                             "to complete them")
+        rows = [r for rec in recs for r in rec["rows"]]
+        envs = [make_env(cfg, cfg["seed"], e, cfg["size"]) for e in range(n_env)]
+        _render(st, cfg, rows, envs, res, timing)
+    return out / "report.md"
+
+
+def _claims(cfg: dict, res: dict) -> list[protocol.Claim]:
+    """Z Table 4.1 against the measured values: the verdict is a match when the published
+    value lies in the measured 95 % interval (Wilson for shares, bootstrap for ratios)."""
+    P = PUBLISHED
+    cs = []
+
+    def claim(name, pub, val, lo, hi):
+        cs.append(protocol.Claim(name, f"{pub:.3f}", float(val), (float(lo), float(hi)),
+                                 _verdict(pub, lo, hi)))
+
+    for mode in ("without", "with"):
+        v, lo, hi = res[f"exists_{mode}"]
+        tag = " (calibrated)" if mode == "with" and cfg["calibration"]["knob"] else ""
+        claim(f"plan exists, {mode} compositions{tag}", P[f"exists_{mode}"], v, lo, hi)
+    for cost in (1, 2):
+        v, lo, hi = res[f"cost{cost}_comparable_different"]
+        claim(f"comparable & different share (cost {cost})", P["comparable_different"], v,
+              lo, hi)
+    for cost in (1, 2):
+        v, lo, hi = res[f"cost{cost}_ratio"]
+        claim(f"executed cost {cost}, with/without ratio",
+              P[f"cost{cost}_with"] / P[f"cost{cost}_without"], v, lo, hi)
+    return cs
+
+
+def claims(out: Path) -> list[protocol.Claim]:
+    """Z Table 4.1's published values against the stored results (:func:`_claims`)."""
+    cfg, res, _ = _stored(Path(out))
+    return _claims(cfg, res)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``pqrm-jax study qbsp``: configure, then run (which writes the report) or
+    ``--report-only``; exit 0 (a mismatch with Table 4.1 is a result)."""
+    config, a = configure(list(argv or []))
+    if a.report_only:
+        print(f"wrote {report(Path(a.out))}")
+        return 0
+    cluster = distributed.initialize_from(a)  # before any JAX computation
+    return run_study(config, Path(a.out), quiet=a.no_progress, cluster=cluster,
+                     fresh=a.fresh, memory_bytes=a.memory_bytes, models_dir=a.models_dir)
+
+
+sweep_summary = protocol.summary_for(sys.modules[__name__])
+
+
+def _store_rows(st: Store, ids: list[int], rows: list[dict], have: dict,
+                lane_s: list[float]) -> None:
+    """Each environment's record (the resume unit) without the measured ``lane_seconds``,
+    which go to ``lane_s`` (this invocation's times, for ``timing.json``)."""
+    lane_s += [r["lane_seconds"] for r in rows if r["env"] in ids]
     for i in ids:
-        rec = {"env": i, "rows": [r for r in rows if r["env"] == i]}
+        rec = {"env": i, "rows": [{k: v for k, v in r.items() if k != "lane_seconds"}
+                                  for r in rows if r["env"] == i]}
         st.write_json(f"chunks/env{i:05d}.json", rec, indent=None)
         have[i] = json.loads(json.dumps(rec))  # the rows as stored

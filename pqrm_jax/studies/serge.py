@@ -39,7 +39,7 @@ PUBLISHED = {
 
 
 @dataclasses.dataclass(frozen=True)
-class Config:
+class Config(protocol.StudyConfig):
     """Every result-changing setting (each knob's reason in :data:`REASONS`).
 
     ``reduced`` selects the reduced plan (2 folds run, a few μ and σ values, 2000 hallway
@@ -53,9 +53,6 @@ class Config:
     trials: int = 0
     seed: int = 0
 
-    def to_json(self) -> dict:
-        """The JSON form (the plan's fields are stored as :func:`_meta`)."""
-        return protocol.config_json(self)
 
 
 REASONS = {
