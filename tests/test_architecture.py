@@ -327,16 +327,14 @@ KEY_NOT_FIRST = {
 }
 
 
-def test_the_prng_key_comes_first():
-    """Planners, executives and samplers take the key first (gymnax, blackjax), batched
-    executives their ``keys`` (one per lane) first; new public functions may not add to
-    :data:`KEY_NOT_FIRST`."""
+def face_signatures():
+    """``("face.name", signature)`` of every public function of the library's faces (not the
+    CLI or the studies); classes, modules and objects without a signature are skipped."""
     import inspect
     import types
 
     import pqrm_jax
 
-    found = set()
     for face in pqrm_jax.SUBPACKAGES:
         if face in ("cli", "studies"):
             continue
@@ -346,12 +344,21 @@ def test_the_prng_key_comes_first():
             if isinstance(obj, types.ModuleType) or inspect.isclass(obj) or not callable(obj):
                 continue
             try:
-                params = list(inspect.signature(obj).parameters)
+                yield f"{face}.{n}", inspect.signature(obj)
             except (TypeError, ValueError):
                 continue
-            keys = [i for i, p in enumerate(params) if p in ("key", "rng_key", "keys")]
-            if keys and keys[0] != 0:
-                found.add(f"{face}.{n}")
+
+
+def test_the_prng_key_comes_first():
+    """Planners, executives and samplers take the key first (gymnax, blackjax), batched
+    executives their ``keys`` (one per lane) first; new public functions may not add to
+    :data:`KEY_NOT_FIRST`."""
+    found = set()
+    for name, sig in face_signatures():
+        params = list(sig.parameters)
+        keys = [i for i, p in enumerate(params) if p in ("key", "rng_key", "keys")]
+        if keys and keys[0] != 0:
+            found.add(name)
     assert found - set(KEY_NOT_FIRST) == set(), found - set(KEY_NOT_FIRST)
 
 
@@ -393,26 +400,13 @@ MAX_POSITIONAL = 12
 
 def test_public_signatures_stay_short():
     import inspect
-    import types
-
-    import pqrm_jax
 
     long = {}
-    for face in pqrm_jax.SUBPACKAGES:
-        if face in ("cli", "studies"):
-            continue
-        mod = importlib.import_module(f"pqrm_jax.{face}")
-        for n in mod.__all__:
-            obj = getattr(mod, n)
-            if isinstance(obj, types.ModuleType) or inspect.isclass(obj) or not callable(obj):
-                continue
-            try:
-                params = inspect.signature(obj).parameters.values()
-            except (TypeError, ValueError):
-                continue
-            pos = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-            if len(pos) > MAX_POSITIONAL:
-                long[f"{face}.{n}"] = len(pos)
+    for name, sig in face_signatures():
+        pos = [p for p in sig.parameters.values()
+               if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+        if len(pos) > MAX_POSITIONAL:
+            long[name] = len(pos)
     assert long == {}, long
     from pqrm_jax import bsp
 

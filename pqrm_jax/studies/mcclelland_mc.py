@@ -279,16 +279,7 @@ def _fit_slope(ns, t):
 
 def stored_config(out: Path) -> Config:
     """The :class:`Config` stored in ``out/config.json`` (the stored run's settings)."""
-    from .store import StudyError
-
-    try:
-        d = json.loads((Path(out) / "config.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise StudyError(f"{out} holds no {NAME} study (config.json: {exc}); run the study "
-                         "first") from None
-    names = {f.name for f in dataclasses.fields(Config)}
-    return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
-                     if k in names})
+    return Config.stored(out, NAME)
 
 
 def report(out: Path) -> Path:

@@ -229,6 +229,27 @@ class StudyConfig:
         """The JSON form stored in ``config.json`` (:func:`config_json`)."""
         return config_json(self)
 
+    @classmethod
+    def stored(cls, out: str | Path, name: str):
+        """The config stored in ``out/config.json`` by a run of study ``name``: its fields of
+        this class (lists back to tuples; other stored keys, e.g. prose, are ignored).
+
+        Raises:
+            StudyError: when ``out`` holds no readable ``config.json``.
+        """
+        import json
+
+        from .store import StudyError
+
+        try:
+            d = json.loads((Path(out) / "config.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise StudyError(f"{out} holds no {name} study (config.json: {exc}); run the "
+                             "study first") from None
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
+                      if k in names})
+
 
 def fresh_start(args: argparse.Namespace, out: str | Path, name: str, cluster=None, *,
                 legacy: tuple[str, ...] = ()) -> None:
