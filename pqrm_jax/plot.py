@@ -1,9 +1,11 @@
 """Figures of the maps every system builds (matplotlib; each function returns its ``Axes``).
 
 * :func:`draw_relational_map` — a PQRM ``MapState`` or a QRM ``QRMMap`` over its landmarks: one
-  triangle per landmark triple, filled by the uncertainty of its relation (PQRM: entropy of
-  the row in bits; QRM: log2 of the size of the state set), solid edges where the most likely
-  state equals the true one, red dashes where it does not (P §2.4 map accuracy, M §VIII.A).
+  mark per landmark triple at the centroid of its triangle (outlined in light grey), coloured
+  by the uncertainty of its relation (PQRM: entropy of the row in bits; QRM: log2 of the size
+  of the state set), a circle where the most likely state equals the true one, a red-edged
+  diamond where it does not (P §2.4 map accuracy, M §VIII.A). Triangles of a dense map share
+  their edges, so a per-triple mark, not an edge style or an overlapping fill, carries it.
 * :func:`draw_link_graph` — a Q-Link Link Graph over its landmarks (P §4.3.2): elements at the
   centroid of their landmarks, edges, a planned element path and a driven trajectory.
 * :func:`draw_local_topology` — an HSSH local topology over its occupancy grid (B ch. 5–6):
@@ -30,7 +32,12 @@ from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 
 __all__ = ["draw_relational_map", "draw_link_graph", "draw_local_topology",
-           "draw_topological_map"]
+           "draw_topological_map", "CORRECT", "WRONG", "NO_STATE"]
+
+#: legend labels of :func:`draw_relational_map`'s three kinds of triple mark
+CORRECT = "ML state = true state"
+WRONG = "ML state wrong or not unique"
+NO_STATE = "layout on a boundary (no true state)"
 
 
 def _axes(ax: Axes | None, size=(6, 5)) -> Axes:
@@ -75,16 +82,17 @@ def _map_rows(state, calculus: str, n: int, triplets):
 
 
 def draw_relational_map(landmarks, state, *, calculus: str = "edc", triplets=None,
-                   ax: Axes | None = None, max_triangles: int = 60, title: str | None = None
-                   ) -> Axes:
+                        ax: Axes | None = None, max_triangles: int = 60,
+                        title: str | None = None) -> Axes:
     """A PQRM or QRM map over its landmarks ``[N, 2]``.
 
-    For each unordered triple ``{i < j < k}`` the relation ``ij:k`` is shown: the triangle is
-    filled by its uncertainty (bits; 0 = certain), its edges are solid black when the most
-    likely state (PQRM: arg max of the row; QRM: the single state of a singleton set) is the
-    true state of the landmark layout, red dashed when it is not or not unique (grey dotted
-    where the layout itself lies on a boundary of an open calculus and has no state). At most
-    ``max_triangles`` triangles, the most certain first (unmapped triples are skipped).
+    For each unordered triple ``{i < j < k}`` the relation ``ij:k`` is shown by one mark at
+    the centroid of the triangle ``ijk`` (the triangle itself is outlined in light grey),
+    coloured by its uncertainty (bits; 0 = certain): a circle where the most likely state
+    (PQRM: arg max of the row; QRM: the single state of a singleton set) is the true state of
+    the landmark layout, a red-edged diamond where it is not or is not unique, a grey square
+    where the layout itself lies on a boundary of an open calculus and has no state. At most
+    ``max_triangles`` triples, the most certain first (unmapped triples are skipped).
 
     Args:
         landmarks: ``[N, 2]`` positions.
@@ -93,8 +101,12 @@ def draw_relational_map(landmarks, state, *, calculus: str = "edc", triplets=Non
         calculus: the representation to show (a key of ``state.probs`` for PQRM).
         triplets: ``[T, 3]`` rows of a sparse PQRM map (default: all ordered triplets).
         ax: axes to draw into (a new figure when None).
-        max_triangles: cap on the triangles drawn.
+        max_triangles: cap on the triples drawn.
         title: axes title (default: map kind, calculus, accuracy).
+
+    Returns:
+        The ``Axes``; its marks are the collections labelled :data:`CORRECT`,
+        :data:`WRONG` and :data:`NO_STATE` (one point per triple).
     """
     from .calculi import get
     from .triplets import ordered_triplets
@@ -109,16 +121,24 @@ def draw_relational_map(landmarks, state, *, calculus: str = "edc", triplets=Non
     idx = np.flatnonzero(keep)
     idx = idx[np.argsort(unc[idx], kind="stable")][:max_triangles]
     ax = _axes(ax)
-    cmap = plt.get_cmap("viridis_r")
-    for r in idx[::-1]:
-        tri = lm[trip[r]]
-        ok = ml[r] >= 0 and ml[r] == true[r]
-        ax.fill(tri[:, 0], tri[:, 1], color=cmap(unc[r] / hmax), alpha=0.35, lw=0)
-        color, ls = ("0.5", ":") if true[r] < 0 else ("k", "-") if ok else ("tab:red", "--")
-        ax.plot(*np.vstack([tri, tri[:1]]).T, color=color, ls=ls, lw=0.8 if ok else 1.2)
-    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, hmax))
-    ax.figure.colorbar(sm, ax=ax, label="uncertainty of ij:k (bits)")
+    tri = lm[trip[idx]]                                        # [K, 3, 2]
+    ax.add_collection(LineCollection(np.concatenate([tri, tri[:, :1]], 1), colors="0.8",
+                                     linewidths=0.5, zorder=1))
+    cen = tri.mean(axis=1) if len(idx) else np.zeros((0, 2))
+    cmap, norm = plt.get_cmap("viridis_r"), plt.Normalize(0, hmax)
+    ok = (ml[idx] >= 0) & (ml[idx] == true[idx])
+    none = true[idx] < 0
+    for sel, marker, edge, label in ((ok & ~none, "o", "k", CORRECT),
+                                     (~ok & ~none, "D", "tab:red", WRONG),
+                                     (none, "s", "0.5", NO_STATE)):
+        if sel.any():
+            ax.scatter(cen[sel, 0], cen[sel, 1], c=unc[idx][sel], cmap=cmap, norm=norm,
+                       marker=marker, s=48, edgecolors=edge, linewidths=1.2, zorder=4,
+                       label=label)
+    ax.figure.colorbar(plt.cm.ScalarMappable(cmap=cmap, norm=norm), ax=ax,
+                       label="uncertainty of ij:k (bits)")
     _landmarks(ax, lm)
+    ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=7, frameon=False)
     judged = keep & (true >= 0)  # a layout on a boundary of an open calculus has no state
     acc = float(np.mean(ml[judged] == true[judged])) if judged.any() else float("nan")
     kind = "QRM" if hasattr(state, "rel") else "PQRM"
@@ -164,7 +184,7 @@ def draw_link_graph(landmarks, elements, graph, *, planned=None, driven=None,
             ax.plot(*d[0], "g^", ms=8, zorder=6)
             ax.plot(*d[-1], "gs", ms=7, zorder=6)
     _landmarks(ax, lm)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=7, frameon=False)
     ax.set_title(title or f"Link Graph: {len(ids)} elements, {len(src)} edges "
                  f"(β = {graph.beta})", fontsize=10)
     return ax
@@ -251,7 +271,7 @@ def draw_topological_map(hypothesis, layout=None, *, ax: Axes | None = None,
     ax.autoscale_view()
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=7, frameon=False)
     ax.set_title(title or f"topological map: {m} places, {g.number_of_edges()} corridors",
                  fontsize=10)
     return ax

@@ -4,8 +4,10 @@
 
 Each notebook runs top to bottom in a fresh kernel (as tests/test_notebooks.py runs it), in a
 temporary working directory. The stored outputs are kept small: execution timing metadata is
-dropped, PNG images are re-encoded at most 700 px wide, text outputs are cut at 4000
-characters, and a notebook whose outputs exceed 400 kB in total is refused (fix the notebook).
+dropped, PNG images are re-encoded at most 700 px wide with a 256-colour palette, text outputs
+are cut at 4000 characters, and a notebook whose outputs exceed 400 kB in total is refused (fix
+the notebook). A notebook that fails is left unchanged and named; the others are refreshed
+(exit status 1 if any failed). tests/test_notebooks.py checks the stored outputs.
 """
 
 from __future__ import annotations
@@ -30,7 +32,14 @@ def _small_png(data: str) -> str:
 
     img = Image.open(io.BytesIO(base64.b64decode(data)))
     if img.width > MAX_WIDTH:
-        img = img.resize((MAX_WIDTH, round(img.height * MAX_WIDTH / img.width)))
+        img = img.resize((MAX_WIDTH, round(img.height * MAX_WIDTH / img.width)),
+                         Image.Resampling.LANCZOS)
+    if img.mode in ("RGBA", "LA", "P"):  # flatten on white (matplotlib's figure background)
+        rgba = img.convert("RGBA")
+        img = Image.new("RGB", rgba.size, "white")
+        img.paste(rgba, mask=rgba.getchannel("A"))
+    # a 256-colour palette: plots have few colours, and this keeps stored notebooks small
+    img = img.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
     buf = io.BytesIO()
     img.save(buf, format="PNG", optimize=True)
     return base64.b64encode(buf.getvalue()).decode()
@@ -63,10 +72,18 @@ def refresh(path: Path) -> int:
 
 def main(argv: list[str]) -> int:
     names = argv or sorted(p.name for p in (ROOT / "notebooks").glob("*.ipynb"))
-    for name in names:
-        size = refresh(ROOT / "notebooks" / name)
+    failed = []
+    for name in names:  # a failing notebook is left unchanged; the others are refreshed
+        try:
+            size = refresh(ROOT / "notebooks" / name)
+        except Exception as exc:  # noqa: BLE001  (nbclient's and our errors alike)
+            print(f"{name}: NOT refreshed: {type(exc).__name__}: {exc}", flush=True)
+            failed.append(name)
+            continue
         print(f"{name}: outputs stored ({size / 1000:.0f} kB)", flush=True)
-    return 0
+    if failed:
+        print("failed:", " ".join(failed), file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from pqrm_jax import hssh, io, plot, pqrm, qlink, qrm, sim  # noqa: E402
+from pqrm_jax import calculi, hssh, io, plot, pqrm, qlink, qrm, sim  # noqa: E402
 from pqrm_jax import hssh_global as hg  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
@@ -36,6 +36,11 @@ def _lines(ax, color):
     return [ln for ln in ax.lines if matplotlib.colors.same_color(ln.get_color(), color)]
 
 
+def _marks(ax, label):
+    """Number of triple marks of one kind drawn by ``draw_relational_map``."""
+    return sum(len(c.get_offsets()) for c in ax.collections if c.get_label() == label)
+
+
 def test_pqrm_and_qrm_maps(tmp_path):
     lm = io.load_landmarks(DATA / "landmarks.csv")
     n = lm.shape[0]
@@ -50,11 +55,40 @@ def test_pqrm_and_qrm_maps(tmp_path):
     _save(ax, tmp_path, "pqrm_map")
     # the true QRM map: every relation certain and correct -> no red triangle, 0 bits
     ax = plot.draw_relational_map(lm, qrm.true_map(jnp.asarray(lm), "edc"), calculus="edc")
-    assert "ML state correct 100%" in ax.get_title() and not _lines(ax, "tab:red")
+    assert "ML state correct 100%" in ax.get_title()
+    # (one triple of the example layout lies on an EDC boundary: it has no true state)
+    assert _marks(ax, plot.CORRECT) == 55 and _marks(ax, plot.NO_STATE) == 1
+    assert _marks(ax, plot.WRONG) == 0
     _save(ax, tmp_path, "qrm_true_map")
-    # an empty QRM map: every relation open -> every triangle red (no unique state)
+    # an empty QRM map: every relation open -> every triple a wrong (not unique) mark
     ax = plot.draw_relational_map(lm, qrm.empty_map(n, "edc"), calculus="edc", max_triangles=10)
-    assert len(_lines(ax, "tab:red")) == 10 and "correct 0%" in ax.get_title()
+    assert _marks(ax, plot.WRONG) == 10 and _marks(ax, plot.CORRECT) == 0
+    assert "correct 0%" in ax.get_title()
+    plt.close(ax.figure)
+
+
+def test_relational_map_marks_every_triple_once_at_its_centroid():
+    """Each drawn triple is one mark at its triangle's centroid, whatever the overlap of
+    triangles (edges are shared by n - 2 triangles in a dense map); half-wrong map -> the
+    marks split exactly as the correctness of the rows."""
+    lm = io.load_landmarks(DATA / "landmarks.csv")
+    n = lm.shape[0]
+    m = qrm.true_map(jnp.asarray(lm), "edc")
+    rel = np.asarray(m.rel).copy()
+    edc = calculi.get("edc")
+    tri = [(i, j, k) for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)
+           if int(edc.classify(*lm[[i, j, k]])) >= 0]   # layouts with a true state
+    assert len(tri) == 55
+    wrong = tri[::2]
+    for i, j, k in wrong:          # open every state of ij:k: not unique -> wrong mark
+        rel[i, j, k] = (1 << 20) - 1
+    ax = plot.draw_relational_map(lm, m._replace(rel=jnp.asarray(rel)), calculus="edc",
+                                  max_triangles=56)
+    assert _marks(ax, plot.WRONG) == len(wrong)
+    assert _marks(ax, plot.CORRECT) == len(tri) - len(wrong)
+    got = {tuple(np.round(p, 6)) for c in ax.collections if c.get_label() == plot.WRONG
+           for p in c.get_offsets()}
+    assert got == {tuple(np.round(np.asarray(lm, float)[list(t)].mean(0), 6)) for t in wrong}
     plt.close(ax.figure)
 
 

@@ -7,10 +7,11 @@ The study protocol of :mod:`pqrm_jax.studies.protocol` (``Config``, ``PRESETS``,
 ``configure``, ``run_study``, ``report``, ``claims``; the common flags; ``--sweep``). Each
 (fraction, σ) cell is one unit: it is appended to ``cells.jsonl`` in the store as soon as it is
 computed, so a killed run keeps its finished cells and a re-run computes only the others. At
-the end ``results.json`` (every cell), the tidy ``results.csv`` and ``report.md`` (the claims
-table) are written; ``--json`` also writes ``results.json``'s content to another path. As N
-processes on ``jax.distributed`` (the cluster flags; :mod:`pqrm_jax.studies.distributed`) the
-cells are split over the processes and process 0 writes them.
+the end ``results.json`` (every cell), the tidy ``results.csv``, ``heldout.png`` and
+``report.md`` (the claims table and the captioned figure) are written; ``--json`` also
+writes ``results.json``'s content to another path. As N processes on ``jax.distributed``
+(the cluster flags; :mod:`pqrm_jax.studies.distributed`) the cells are split over the
+processes and process 0 writes them.
 """
 
 from __future__ import annotations
@@ -221,13 +222,60 @@ def claims(out: Path) -> list[protocol.Claim]:
     return cs
 
 
+_SCORES = (("heldout/uniform", "no propagation (uniform rows)"),
+           ("heldout/marginal", "prior-only guess (observed frequencies)"),
+           ("heldout/propagated", "propagated (Z eq. 2.4)"))
+
+
+def _figure(out: Path, recs: list[dict]) -> str:
+    """``heldout.png``: held-out error and NLL against the held-out fraction, one colour per
+    score, one line style per σ; returns its file name."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .store import atomic_savefig
+
+    sigmas = sorted({float(r["sigma"]) for r in recs})
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for ax, metric, label in zip(axes, ("error", "nll"),
+                                 ("held-out ML error rate", "held-out NLL (nats)"), strict=True):
+        for c, (key, what) in enumerate(_SCORES):
+            for si, sigma in enumerate(sigmas):
+                pts = sorted((float(r["fraction"]), r[key][metric]) for r in recs
+                             if float(r["sigma"]) == sigma)
+                x, y = zip(*pts, strict=True)
+                ax.plot(x, y, marker="osD^"[si % 4], ls=("-", "--", ":", "-.")[si % 4],
+                        color=f"C{c}", mfc="none", ms=6,
+                        label=f"{what}, σ = {sigma:g}" if len(sigmas) > 1 else what)
+        ax.set_xlabel("fraction of triplets held out")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 3), fontsize=8,
+               frameon=False)
+    fig.tight_layout(rect=(0, 0.06 + 0.05 * ((len(labels) - 1) // 3), 1, 1))
+    atomic_savefig(fig, Path(out) / "heldout.png", dpi=100)
+    plt.close(fig)
+    return "heldout.png"
+
+
 def report(out: Path) -> Path:
-    """``report.md``: the claims table and every cell's scores."""
+    """``report.md`` (the claims table, a figure and every cell's scores) and ``heldout.png``."""
     from .store import atomic_write_text
 
     recs = _results(out)
+    fig = _figure(Path(out), recs)
     lines = [f"# {NAME}: held-out triplets with vs without propagation (Z eq. 2.4)", "",
-             "## Claims", "", *protocol.claims_table(claims(out)), "", "## Cells", "",
+             "## Claims", "", *protocol.claims_table(claims(out)), "",
+             *protocol.figure(fig, (
+                 "Held-out triplets' ML error rate (left) and negative log-likelihood of the "
+                 "true state (right, nats) against the fraction of triplets held out, for the "
+                 "three predictions of a held-out row (colours; line style and marker: noise σ "
+                 "of the cell): the uniform row, the observed state frequencies and the "
+                 "propagated row; lower is better.")),
+             "## Cells", "",
              "| fraction | σ | score | error | entropy | NLL | coverage |",
              "|---|---|---|---|---|---|---|"]
     for r in recs:

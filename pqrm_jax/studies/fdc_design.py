@@ -232,17 +232,23 @@ def _write(out: Path, results: list[dict], cs: list) -> None:
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
     P = np.asarray(best["poses"])
     ax[0].plot(LANDMARKS[:, 0], LANDMARKS[:, 1], "ko", ms=10)
+    ax[0].plot(P[:, 0], P[:, 1], "g^")
     for i, (x, y, _) in enumerate(P):
-        ax[0].plot(x, y, "g^")
         ax[0].annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4))
     ax[0].set_aspect("equal")
-    ax[0].set_title(f"4 landmarks, 7 imaging points (seed {best['seed']})")
+    ax[0].set_xlabel("x")
+    ax[0].set_ylabel("y")
+    # no legend box (it would cover a landmark or a pose): the title names the marks
+    ax[0].set_title(f"4 landmarks (●), 7 imaging points (▲, in order; seed {best['seed']})")
     x = np.arange(1, len(P) + 1)
     ax[1].plot(x, best["open_pct_of_all_states"], "b-o", label="open FDC states [%]")
     ax[1].plot(x, [r["constrained_pct"] for r in best["rows"]], "r-s",
                label="fully constrained edges [%]")
-    ax[1].axhline(100.0 / 6, color="b", ls="--", label="fully converged map")
+    # drawn over the curves (the open-states curve ends on it) in another colour
+    ax[1].axhline(100.0 / 6, color="0.3", ls=":", lw=1.5, zorder=3,
+                  label="fully converged map (1 of 6 states open)")
     ax[1].set_xlabel("image")
+    ax[1].set_ylabel("%")
     ax[1].legend()
     ax[1].set_title("MT Fig. 1.6a analogue")
     fig.tight_layout()
@@ -252,7 +258,14 @@ def _write(out: Path, results: list[dict], cs: list) -> None:
              f"Calculus `{calc}`; {runs} greedy searches, {len(ok)} satisfy both MT "
              "properties (fully constrained after image 7; no edge fully constrained before "
              "image 4).", "", "## Claims", "", *protocol.claims_table(cs), "",
-             "![design](fdc_design.png)", "",
+             *protocol.figure("fdc_design.png", (
+                 f"Left: the 4 landmarks (black circles) and the 7 imaging points (green, "
+                 f"numbered in imaging order) of the search with seed {best['seed']} "
+                 + ("(the first that satisfies both MT properties). " if ok else
+                    "(no search satisfies both MT properties; the first is shown). ")
+                 + "Right: after each image, the open FDC states as a percentage of all "
+                 "states (blue; grey dotted: a fully converged map, one state of six open per "
+                 "relation) and the fully constrained edges (red) (cf. MT Fig. 1.6a).")),
              "| seed | constrained % per image | open % per image | ok |", "|---|---|---|---|"]
     for r in results:
         cons = ", ".join(f"{x['constrained_pct']:.0f}" for x in r["rows"])

@@ -270,12 +270,19 @@ def _series(summary, d, sweep, metric):
     return np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
 
 
+def _examples(datasets) -> list[tuple[str, int, float]]:
+    """(dataset, μ, σ) of the region maps of ``fig_3_8_maps.png`` (the datasets present)."""
+    examples = [("hallway", 18, 2.0), ("hallway", 10, 2.0), ("lab", 55, 0.01), ("lab", 10, 2.0)]
+    return [e for e in examples if e[0] in datasets]
+
+
 def _figures(summary, scenes, grids, out: Path, meta) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import jax
     import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
 
     from ..serge import initial_cells, serge
     from .store import atomic_savefig
@@ -293,13 +300,13 @@ def _figures(summary, scenes, grids, out: Path, meta) -> None:
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
     axes[0, 0].legend()
-    fig.suptitle("SERGE 5-fold CV (cf. Padgett Fig. 3.7)")
+    fig.suptitle(f"SERGE {meta['folds']}-fold CV, {len(meta['folds_run'])} folds run "
+                 "(cf. Padgett Fig. 3.7)")
     fig.tight_layout()
     atomic_savefig(fig, out / "fig_3_7_cv.png", dpi=110)
     plt.close(fig)
 
-    examples = [("hallway", 18, 2.0), ("hallway", 10, 2.0), ("lab", 55, 0.01), ("lab", 10, 2.0)]
-    examples = [e for e in examples if e[0] in scenes]
+    examples = _examples(scenes)
     if not examples:
         return
     fig, axes = plt.subplots(1, len(examples), figsize=(5 * len(examples), 4.5))
@@ -309,11 +316,22 @@ def _figures(summary, scenes, grids, out: Path, meta) -> None:
         p = initial_cells(jax.random.PRNGKey(0), sc.beliefs(), g, unseparated="attach")
         trials = meta["trials"] or (4 if meta["reduced"] else 20) * sc.k
         r = serge(jax.random.PRNGKey(7), p, min(mu, sc.k), sigma, trials=trials)
-        ax.imshow(r.cell_labels.reshape(g.shape).T, origin="lower", extent=g.extent(),
-                  cmap="tab20", interpolation="nearest", aspect="auto")
+        lab = np.asarray(r.cell_labels).reshape(g.shape).T
+        ax.imshow(lab, origin="lower", extent=g.extent(), cmap="tab20",
+                  interpolation="nearest", aspect="auto")
+        # region borders as thin white lines: tab20 repeats its colours beyond 20 regions
+        x0, x1, y0, y1 = g.extent()
+        dx, dy = (x1 - x0) / lab.shape[1], (y1 - y0) / lab.shape[0]
+        seg = [((x0 + (j + 1) * dx, y0 + i * dy), (x0 + (j + 1) * dx, y0 + (i + 1) * dy))
+               for i, j in zip(*np.nonzero(lab[:, :-1] != lab[:, 1:]), strict=True)]
+        seg += [((x0 + j * dx, y0 + (i + 1) * dy), (x0 + (j + 1) * dx, y0 + (i + 1) * dy))
+                for i, j in zip(*np.nonzero(lab[:-1] != lab[1:]), strict=True)]
+        ax.add_collection(LineCollection(seg, colors="white", linewidths=0.6))
         pts = np.concatenate(sc.points)
         ax.plot(pts[:, 0], pts[:, 1], "k.", ms=1)
         ax.set_title(f"{d}: μ={mu}, σ={sigma} → {r.n_regions} SRs")
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
     fig.tight_layout()
     atomic_savefig(fig, out / "fig_3_8_maps.png", dpi=110)
     plt.close(fig)
@@ -392,8 +410,19 @@ def _report(summary, rows, out: Path, meta) -> None:
         lines.append(f"| {d} | {sweep} | {mu} | {sigma:g} | {v['n_regions']:.1f} | "
                      f"{v['log_likelihood']:.3f} | {v['error_rate']:.2%} | {v['max_error']:.2%} | "
                      f"{v['seconds']:.2f} |")
-    lines += ["", "Figures: `fig_3_7_cv.png` (cf. P Fig. 3.7), `fig_3_8_maps.png` (cf. Fig. 3.8).",
-              ""]
+    lines += ["", "## Figures", "", *protocol.figure("fig_3_7_cv.png", (
+        "Means over the cross-validation folds, one line per dataset: number of spatial "
+        "regions (SRs), test log-likelihood and error rate (rows) against μ at σ = 2 (left) "
+        "and against σ at μ = 20 (right) (cf. P Fig. 3.7)."))]
+    examples = _examples({r["dataset"] for r in rows})
+    if examples:
+        shown = "; ".join(f"{d} μ = {mu}, σ = {sigma:g}" for d, mu, sigma in examples)
+        lines += protocol.figure("fig_3_8_maps.png", (
+            f"The spatial regions SERGE finds ({shown}; left to right): each grid cell "
+            "coloured by its region (white lines: region borders), the data points of the "
+            "scene's K beliefs as black dots, x and y in the scene's coordinates; each title "
+            "gives the number of SRs (cf. P "
+            "Fig. 3.8)."))
     from .store import atomic_write_text
 
     atomic_write_text(out / "report.md", "\n".join(lines))

@@ -386,14 +386,18 @@ def _figures(st, axes: list[Axis], records: list[dict]) -> list[str]:
                 ordered = sorted(groups.items(), key=lambda t: t[0])
             except TypeError:  # values of mixed types: by their text
                 ordered = sorted(groups.items(), key=lambda t: str(t[0]))
-            for g, rs in ordered:
+            for gi, (g, rs) in enumerate(ordered):
                 ys = []
                 for v in a.values:
                     hit = [_numeric(r["summary"]).get(m, math.nan) for r in rs
                            if _cell_value(r, a.key) == v]
                     ys.append(hit[0] if hit else math.nan)
                 lab = ", ".join(f"{b.key}={_fmt(x)}" for b, x in zip(others, g, strict=True))
-                ax.plot(range(len(labels)), ys, "o-", lw=1, ms=3, alpha=0.7,
+                # equal curves stay visible: hollow markers shrinking with the group
+                # index (concentric where points coincide) and a dash pattern per group
+                ax.plot(range(len(labels)), ys, marker="osD^v<>p"[gi % 8], mfc="none",
+                        ms=3 + 2 * max(min(len(groups), 6) - 1 - gi, 0),
+                        ls=("-", "--", ":", "-.")[gi % 4], lw=1, alpha=0.8,
                         label=lab if len(groups) <= 8 else None)
             ax.set_xticks(range(len(labels)), labels, rotation=30 if len(labels) > 4 else 0)
             ax.set_xlabel(a.key)
@@ -467,5 +471,12 @@ def write_sweep_report(st, study: str, axes: list[Axis], records: list[dict]) ->
             shown = ", ".join(f"`{x}`" for x in ok[:12]) + (" …" if len(ok) > 12 else "")
             lines.append(f"| {c} | {len(ok)}/{len(records)} | {shown or 'none'} |")
     if figs:
-        lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figs]
+        from .protocol import figure
+
+        lines += ["", "## Figures", ""]
+        for m, f in zip(metrics, figs, strict=True):  # one figure per metric, same order
+            lines += figure(f, f"`{m}` of every finished cell (y) against each swept axis "
+                            "(x, one panel per axis with more than one value); one line per "
+                            "combination of the other axes' values, named in the legend when "
+                            "there are at most 8.")
     return st.write_text("sweep_report.md", "\n".join(lines) + "\n")
