@@ -35,6 +35,18 @@ def test_cli_study_report_and_resume(tmp_path):
     assert cfg["num_landmarks"] == 4 and cfg["num_samples"] == 16 and "notes" in cfg
     zero = full[0]["reps"]["edc"]
     assert zero["entropy_mean"] == 0.0 and zero["error_mean"] == 0.0  # σ_R = 0: exact map
+    # the claims of a run without the ranked representations, or whose metrics do not vary
+    # over the levels, are "not checked" (they crashed the report of such a sweep cell)
+    from pqrm_jax.studies import _padgett_report as R
+
+    cfg_, lines_, arrays_ = R.load_results(out)
+    some = {**cfg_, "representations": ["edc"]}
+    for ln in lines_:
+        ln["reps"] = {"edc": {**ln["reps"]["edc"], "error_mean": 0.5, "p_ml_mean": 0.5}}
+    rows = {r[0]: r[-1] for r in R.claim_rows(some, lines_, arrays_)}
+    assert rows["normalised entropy: best EDC-lune-merged, worst LR"].startswith("not checked")
+    assert rows["P(ML state) falls as the error rate rises (Fig. 2.11b)"].startswith(
+        "not checked")
     # interrupt: lose the last two levels and tear the last line, then resume
     lines = (out / "levels.jsonl").read_text().splitlines()
     (out / "levels.jsonl").write_text("\n".join(lines[:-2]) + "\n" + lines[-2][:20])
