@@ -32,6 +32,18 @@ def test_mcclelland_mc_report_and_resume(tmp_path):
                for s in summary.values())
     assert "Exact sets (z3 oracle" in (a / "report.md").read_text()
     assert summary["8"]["removed_pct_final"] > summary["6"]["removed_pct_final"]
+    # the study protocol (as test_study_protocol checks for mars-yard): the claims table and
+    # captioned figures; --report-only rewrites the same report from the store alone
+    text = (a / "report.md").read_text()
+    assert "| claim | published | measured | interval | verdict |" in text
+    figs = [ln for ln in text.splitlines() if ln.startswith("![")]
+    assert figs and all(not ln.startswith("![fig") for ln in figs)
+    cs = mcclelland_mc.claims(a)
+    assert cs[0].name == "true state never removed" and cs[0].verdict == "match"
+    assert set(mcclelland_mc.sweep_summary(a)["claims"]) == {c.name for c in cs}
+    (a / "report.md").unlink()
+    assert mcclelland_mc.main(["--report-only", "--out", str(a)]) == 0
+    assert (a / "report.md").read_text() == text
     # measured times live apart: timing.json, never summary.json or results.csv
     timing = json.loads((a / "timing.json").read_text())["per_n"]
     assert timing["6"]["run_wall_s_mean"] > 0 and "peak_slope" in json.loads(

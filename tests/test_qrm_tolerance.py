@@ -174,7 +174,10 @@ KINDS = ("uniform", "far_cluster", "collinear", "equal_bearings", "equidistant",
          "camera_at_landmark")
 
 
-@pytest.mark.parametrize("dtype", ["float32", "float64"])
+# float32 is the dtype whose rounding dropped truths (the near-ray class); the float64 run
+# of the same property is slow-marked to keep the default suite within its budget (the
+# full two-dtype evidence: benchmarks/bench_qrm_tolerance.py)
+@pytest.mark.parametrize("dtype", ["float32", pytest.param("float64", marks=pytest.mark.slow)])
 @settings(max_examples=3, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_scenes_of_every_kind_keep_the_exact_truth(dtype, seed):

@@ -93,7 +93,8 @@ def test_presets_and_flags_build_the_config(mod):
         assert isinstance(mod.Config().to_json(), dict)
 
 
-@pytest.mark.parametrize("name", ["mcclelland-mc", "mars-yard"])
+# mcclelland-mc goes through the same checks in tests/test_qrm_studies.py (one run there)
+@pytest.mark.parametrize("name", ["mars-yard"])
 def test_tiny_run_report_only_and_claims_through_the_protocol(name, tmp_path, capsys):
     """A converted study's ``--tiny`` through the one driver (``protocol.main_for``): the
     report holds the protocol's claims table and captioned figures; ``--report-only``
