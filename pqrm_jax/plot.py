@@ -158,6 +158,12 @@ def draw_link_graph(landmarks, elements, graph, *, planned=None, driven=None,
         planned: optional element path ``[L]`` (``-1`` padding allowed; a ``Plan.path`` row).
         driven: optional trajectory ``[K, 2]`` (NaN rows are skipped; a ``NavResult.trace``
             row).
+        ax: the axes to draw into (None: a new figure).
+        title: the axes title.
+
+    Returns:
+        The ``Axes``: elements at their landmarks' centroids, Link Graph edges, the planned
+        element path and the driven trajectory, each with a legend label.
     """
     lm = np.asarray(landmarks, float)
     ids = np.asarray(elements.ids)
@@ -199,6 +205,12 @@ def draw_local_topology(grid, topology, *, unknown=None, robot_cell=None, ax: Ax
         topology: the ``LocalTopology``.
         unknown: optional ``[H, W]`` bool unknown cells (drawn grey).
         robot_cell: optional ``(row, col)`` of the robot.
+        ax: the axes to draw into (None: a new figure).
+        title: the axes title.
+
+    Returns:
+        The ``Axes``: the grid, the pruned skeleton, the numbered gateways with their
+        outward directions, the core centre and the robot, each with a legend label.
     """
     from .hssh import occupancy_from_grid
 
@@ -240,7 +252,18 @@ def draw_topological_map(hypothesis, layout=None, *, ax: Axes | None = None,
                     title: str | None = None) -> Axes:
     """An HSSH map hypothesis (B ch. 8): places and corridors, drawn at ``layout`` ``[m, 3]``
     (x, y, heading of each place; e.g. a row of ``hssh_global.relax``'s ``chi``) or, when
-    None, at a spring layout of its place graph (the topology alone)."""
+    None, at a spring layout of its place graph (the topology alone).
+
+    Args:
+        hypothesis: the ``MapHypothesis`` (places, stars, corridor edges).
+        layout: ``[m, 3]`` place poses (x, y, heading), or None for a spring layout.
+        ax: the axes to draw into (None: a new figure).
+        title: the axes title.
+
+    Returns:
+        The ``Axes``: places as numbered points, corridors as lines between them; the axis
+        labels say whether the positions are metric (a layout) or not (spring layout).
+    """
     import networkx as nx
 
     from .io import networkx_graph

@@ -147,6 +147,18 @@ def load_landmarks(path: str | Path, dtype=np.float32) -> np.ndarray:
     ``[N, 2]`` array. ``.npz``: the array ``landmarks``. At least three landmarks (a ternary
     relation needs three).
 
+    Args:
+        path: the ``.csv``, ``.npy`` or ``.npz`` file.
+        dtype: the floating dtype of the result (float32 by default; float64 for the
+            float64 mappers).
+
+    Returns:
+        [N, 2] landmark positions, row ``i`` = landmark ``i``.
+
+    Raises:
+        DataError: naming the file and the field: a missing column, a non-number or NaN/inf,
+            ids not ``0..N-1``, a wrong array shape, fewer than three landmarks.
+
     >>> import tempfile, os
     >>> p = os.path.join(tempfile.mkdtemp(), "lm.csv")
     >>> _ = open(p, "w").write("id,x,y\\n1,4,0\\n0,0,0\\n2,2,3\\n")
@@ -175,6 +187,17 @@ def load_poses(path: str | Path, dtype=np.float32) -> np.ndarray:
     CSV columns ``x``, ``y`` and ``theta`` (or ``yaw`` / ``heading``), rows in time order (an
     optional ``t`` / ``step`` column must then increase). ``.npy``: ``[P, 3]``; ``.npz``: the
     array ``poses``.
+
+    Args:
+        path: the ``.csv``, ``.npy`` or ``.npz`` file.
+        dtype: the floating dtype of the result.
+
+    Returns:
+        [P, 3] poses in time order.
+
+    Raises:
+        DataError: naming the file and the field (missing column, NaN/inf, times that do not
+            increase, wrong shape, no pose).
     """
     p = _path(path)
     if p.suffix in (".npy", ".npz"):
@@ -221,6 +244,18 @@ def load_observations(path: str | Path, num_landmarks: int) -> Observations:
     CSV in long form, one row per seen landmark: ``step, landmark, x, y`` with ``x, y`` the
     landmark in the robot frame (x ahead, y left). Steps are ``0..T-1`` (a step without rows
     sees nothing).
+
+    Args:
+        path: the CSV file.
+        num_landmarks: N, the number of landmarks of the map (ids ``0..N-1``; ≥ 3).
+
+    Returns:
+        :class:`Observations` with ``pos`` [T, N, 2] (robot frame) and ``visible`` [T, N].
+
+    Raises:
+        DataError: naming the file and the column (missing, NaN, negative step, an id out of
+            range, a landmark listed twice in one step).
+        ValueError: when ``num_landmarks`` is not an int ≥ 3.
     """
     p = _path(path)
     T, step, lm, (x, y) = _long_table(p, num_landmarks, (("x",), ("y",)))
@@ -238,6 +273,19 @@ def load_bearings(path: str | Path, num_landmarks: int) -> Bearings:
     heading; wrapped into ``(-pi, pi]``) and either ``range`` (any unit: only the order is
     used) or ``rank`` (0 = nearest of the step). Ties in range are broken by landmark id, as
     in :func:`pqrm_jax.sim.camera`.
+
+    Args:
+        path: the CSV file.
+        num_landmarks: N, the number of landmarks of the map (ids ``0..N-1``; ≥ 3).
+
+    Returns:
+        :class:`Bearings` with ``bearings`` [T, N] (radians), ``range_rank`` [T, N] (−1 where
+        unseen) and ``visible`` [T, N].
+
+    Raises:
+        DataError: naming the file and the column (missing, NaN, negative range, ranks that
+            are not ``0..k-1`` in a step, an id out of range, a landmark listed twice).
+        ValueError: when ``num_landmarks`` is not an int ≥ 3.
     """
     p = _path(path)
     header, _ = _read_csv(p)

@@ -146,6 +146,21 @@ def _decode(d, arrays, where: str):
 def save_map(path: str | Path, obj) -> Path:
     """Write ``obj`` (a map of any pqrm-jax system) to ``path`` (``.npz``) atomically.
 
+    The file holds a JSON header (format, format version, kind, library version) and the
+    map's arrays; :func:`load_map` reads it back equal.
+
+    Args:
+        path: the file to write; must end in ``.npz``.
+        obj: a PQRM or QRM map, Q-Link elements or Link Graph, an HSSH local topology or map
+            hypotheses (any NamedTuple / dataclass of arrays the format can hold).
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: when ``path`` does not end in ``.npz``, or ``obj`` holds something the
+            format cannot store.
+
     >>> import tempfile, os, jax.numpy as jnp
     >>> from pqrm_jax import qrm
     >>> p = save_map(os.path.join(tempfile.mkdtemp(), "m.npz"), qrm.empty_map(4, "lr"))
@@ -199,7 +214,18 @@ def _open(path: Path):
 
 
 def map_kind(path: str | Path) -> str:
-    """The ``kind`` of a saved map (its class path) without loading its arrays' contents."""
+    """The ``kind`` of a saved map (its class path) without loading its arrays' contents.
+
+    Args:
+        path: a file written by :func:`save_map`.
+
+    Returns:
+        The class path, e.g. ``"pqrm_jax.qrm.hypergraph.QRMMap"``.
+
+    Raises:
+        DataError: naming the file and the field when it is not a saved map of a known
+            format version.
+    """
     return _open(Path(path))[0]["kind"]
 
 
@@ -209,6 +235,13 @@ def load_map(path: str | Path, kind: str | None = None):
     Args:
         path: the ``.npz`` file.
         kind: when given, the class name (``"QRMMap"``) or full path the file must hold.
+
+    Returns:
+        The map, of the class it was saved from.
+
+    Raises:
+        DataError: naming the file and the field (not a saved map, an unknown format
+            version, another ``kind`` than asked for).
     """
     p = Path(path)
     header, arrays = _open(p)
@@ -221,7 +254,18 @@ def load_map(path: str | Path, kind: str | None = None):
 def networkx_graph(obj, **kwargs) -> nx.Graph:
     """A networkx graph of a map: ``LinkGraph`` (elements via ``elements=``), ``MapHypothesis``
     (places; edge attributes ``gate`` and ``arrive``), ``LocalTopology`` (its pruned skeleton
-    tree), or a graph returned unchanged."""
+    tree), or a graph returned unchanged.
+
+    Args:
+        obj: the map (or a networkx graph).
+        **kwargs: ``elements=`` the Q-Link elements of a ``LinkGraph`` (node attributes).
+
+    Returns:
+        A ``networkx.Graph``.
+
+    Raises:
+        TypeError: for an object with no graph view.
+    """
     if isinstance(obj, nx.Graph):
         return obj
     name = type(obj).__name__
@@ -252,7 +296,19 @@ def _graphml_value(v):
 
 def write_graphml(obj, path: str | Path, **kwargs) -> Path:
     """Write :func:`networkx_graph` of ``obj`` as GraphML (tuple nodes and non-scalar attributes
-    become JSON strings, which GraphML can hold)."""
+    become JSON strings, which GraphML can hold).
+
+    Args:
+        obj: the map (or a networkx graph).
+        path: the ``.graphml`` file to write.
+        **kwargs: passed to :func:`networkx_graph`.
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError: for an object with no graph view.
+    """
     g = networkx_graph(obj, **kwargs)
     h = g.__class__()
     h.graph.update({k: _graphml_value(v) for k, v in g.graph.items()})

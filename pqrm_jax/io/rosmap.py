@@ -93,7 +93,18 @@ def _tokens(data: bytes, path: Path):
 
 
 def read_pgm(path: str | Path) -> np.ndarray:
-    """A PGM image (``P5`` binary or ``P2`` ASCII, maxval <= 65535) as ``[H, W]`` uint8/uint16."""
+    """A PGM image (``P5`` binary or ``P2`` ASCII, maxval <= 65535) as ``[H, W]`` uint8/uint16.
+
+    Args:
+        path: the ``.pgm`` file.
+
+    Returns:
+        [H, W] pixel values, top row first (uint8 for maxval < 256, else uint16).
+
+    Raises:
+        DataError: naming the file and the header field (missing file, magic, size,
+            maxval, too few pixels).
+    """
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -182,6 +193,16 @@ def load_ros_map(yaml_path: str | Path) -> OccupancyGrid:
     Errors (:class:`~pqrm_jax.io.DataError`) name the YAML or image file and the key or header
     field that is wrong (missing ``resolution``, ``origin`` not ``[x, y, yaw]``, NaN, a bad
     PGM magic number, too few pixels, ...).
+
+    Args:
+        yaml_path: the map's YAML file (its ``image`` is relative to it).
+
+    Returns:
+        :class:`OccupancyGrid` with the [H, W] occupied / unknown masks (row 0 = the top of
+        the map, as the image), the occupancy probabilities, resolution and origin.
+
+    Raises:
+        DataError: naming the file and the key or header field.
     """
     p = Path(yaml_path)
     d = _read_yaml(p)
@@ -242,7 +263,21 @@ def load_ros_map(yaml_path: str | Path) -> OccupancyGrid:
 def write_ros_map(yaml_path: str | Path, occupied, unknown=None, *, resolution: float = 0.05,
                   origin=(0.0, 0.0, 0.0)) -> Path:
     """Write a trinary ROS map: ``NAME.yaml`` + ``NAME.pgm`` (0 occupied, 254 free, 205 unknown),
-    the values and thresholds ``map_saver`` writes."""
+    the values and thresholds ``map_saver`` writes.
+
+    Args:
+        yaml_path: the YAML file to write (the image goes beside it with suffix ``.pgm``).
+        occupied: [H, W] bool, occupied cells.
+        unknown: [H, W] bool, unknown cells (None: none).
+        resolution: metres per cell.
+        origin: ``(x, y, yaw)`` of the lower-left cell.
+
+    Returns:
+        The YAML path written.
+
+    Raises:
+        ValueError: when ``occupied`` is not 2-D.
+    """
     p = Path(yaml_path)
     occ = np.asarray(occupied, bool)
     if occ.ndim != 2:
