@@ -1,4 +1,4 @@
-"""Which issue-26 change moved the hssh-maps wall agreement (docs/hssh_global.md §results).
+"""Which issue-26 change moved the hssh-maps wall agreement (docs/hssh_global.md, "Results").
 
     .venv/bin/python scripts/hssh_cone_experiment.py            # both parts (~2 min on 2 cores)
 

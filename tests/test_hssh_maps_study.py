@@ -31,7 +31,7 @@ def test_reduced_study(tmp_path):
     # relaxed poses may do worse here: revisit jitter exceeds the odometry error (docs)
     # dead reckoning alone: 0.77 since issue 26 — measured: the 45° side-obstacle cone moves
     # this world's gateways (B's 90° cone: 0.94; the dead-end drive: ±0.01; noise-free: 0.98;
-    # docs/hssh_global.md §results)
+    # docs/hssh_global.md, "Results")
     assert sim[0]["map_agree_odometry"] > 0.7 and sim[0]["map_agree_relaxed"] > 0.3
     # re-localisation at revisits shrinks the place-frame jitter the loop springs carry
     assert sim[0]["reloc_used"] > 0.5
