@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from fractions import Fraction
 from pathlib import Path
 
 import jax
@@ -43,6 +42,7 @@ from _env import device_info  # noqa: E402  benchmarks/_env.py
 from pqrm_jax import qrm, sim  # noqa: E402
 from pqrm_jax.qrm import camera as C  # noqa: E402
 from pqrm_jax.qrm.spec import CYCLIC, popcount, qrm_spec  # noqa: E402
+from pqrm_jax.tables.exact import exact_interior_state  # noqa: E402
 
 N = 6  # landmarks per layout, all measured (n = N): 20 triples, 60 relations per image
 KINDS = ("uniform", "far_cluster", "collinear_1e-5", "collinear_1e-7", "collinear_1e-9",
@@ -100,19 +100,7 @@ def scene(kind: str, rng: np.random.Generator, images: int):
 
 def exact_state(spec, P, X, Y, Z) -> int:
     """True state index of XY:Z from exact coordinates (rational), −1 on a boundary."""
-    p = [[Fraction(float(c)) for c in P[i]] for i in (X, Y, Z)]
-    Dx, Dy = p[1][0] - p[0][0], p[1][1] - p[0][1]
-    Ex, Ey = p[2][0] - p[0][0], p[2][1] - p[0][1]
-    g = (Dx * Dx + Dy * Dy, Ex * Dy - Ey * Dx, Ex * Dx + Ey * Dy, Ex * Ex + Ey * Ey)
-    signs = []
-    for row in np.asarray(spec.lin):
-        val = sum(Fraction(float(c)) * x for c, x in zip(row, g, strict=True) if c != 0)
-        if val == 0:
-            return -1
-        signs.append(1 if val > 0 else -1)
-    idx = sum((s + 1) * 3**k for k, s in enumerate(signs))
-    atom = int(spec.pattern_atom[idx])
-    return int(spec.atom_state[atom]) if atom >= 0 else -1
+    return exact_interior_state(spec.calc, *(tuple(float(c) for c in P[i]) for i in (X, Y, Z)))
 
 
 def programs(dtype, tols):

@@ -18,8 +18,6 @@ for the rounded bearings.
 
 from __future__ import annotations
 
-from fractions import Fraction
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -32,24 +30,14 @@ from pqrm_jax.qrm import camera as C
 from pqrm_jax.qrm import hypergraph as H
 from pqrm_jax.qrm import pipeline as P
 from pqrm_jax.qrm.spec import CYCLIC, popcount, qrm_spec
+from pqrm_jax.tables.exact import exact_interior_state
 
 SPEC = qrm_spec("edc")
 
 
 def exact_state(P3, X, Y, Z) -> int:
     """True state of XY:Z from the exact (rational) coordinates; −1 on a boundary."""
-    p = [[Fraction(float(c)) for c in P3[i]] for i in (X, Y, Z)]
-    Dx, Dy = p[1][0] - p[0][0], p[1][1] - p[0][1]
-    Ex, Ey = p[2][0] - p[0][0], p[2][1] - p[0][1]
-    g = (Dx * Dx + Dy * Dy, Ex * Dy - Ey * Dx, Ex * Dx + Ey * Dy, Ex * Ex + Ey * Ey)
-    signs = []
-    for row in np.asarray(SPEC.lin):
-        val = sum(Fraction(float(c)) * x for c, x in zip(row, g, strict=True) if c != 0)
-        if val == 0:
-            return -1
-        signs.append(1 if val > 0 else -1)
-    atom = int(SPEC.pattern_atom[sum((s + 1) * 3**k for k, s in enumerate(signs))])
-    return int(SPEC.atom_state[atom]) if atom >= 0 else -1
+    return exact_interior_state(SPEC.calc, *(tuple(float(c) for c in P3[i]) for i in (X, Y, Z)))
 
 
 def _ray_triple(seed: int) -> np.ndarray:

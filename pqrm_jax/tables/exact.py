@@ -69,6 +69,14 @@ def exact_state(calc: Calculus, X, Y, Z) -> int:
     return int(calc.sign_table[pattern_index(s)])
 
 
+def exact_interior_state(calc: Calculus, X, Y, Z) -> int:
+    """State index of ``XY:Z`` in rational arithmetic when ``Z`` lies off every boundary of
+    the calculus (no constraint vanishes, ``X ≠ Y``), else −1: the ground truth of a relation
+    that no rounding of a measurement may lose (the camera-set evidence, issue 27)."""
+    s = exact_signs(calc, X, Y, Z)
+    return -1 if isinstance(s, str) or 0 in s else int(calc.sign_table[pattern_index(s)])
+
+
 def atom_lookup(calc: Calculus, atoms: list) -> np.ndarray:
     """Pattern index → atom number (−1 if the pattern is not an atom)."""
     lut = np.full(3**calc.k, -1, np.int32)
