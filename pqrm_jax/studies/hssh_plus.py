@@ -100,23 +100,6 @@ def _grid(corpus: str) -> dict:
                                                 "noise": NOISE}
 
 
-MIN_MEMORY_BYTES = 1 << 16
-"""The smallest ``--memory-bytes`` accepted (64 KiB): below it no study program fits (the
-smallest one, one 29 × 29 grid of this study's cellular stages, needs 22 KB, and a chunk may
-use only :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget), so a smaller value is a
-typo, refused before any work."""
-
-
-def memory_bytes_arg(raw: str) -> int:
-    """``--memory-bytes`` (argparse type, also qlink's): an integer ≥
-    :data:`MIN_MEMORY_BYTES`."""
-    v = protocol.positive_int(raw)
-    if v < MIN_MEMORY_BYTES:
-        raise argparse.ArgumentTypeError(f"must be at least {MIN_MEMORY_BYTES} bytes (64 KiB), "
-                                         f"got {raw!r}")
-    return v
-
-
 def _parser() -> argparse.ArgumentParser:
     p = protocol.parser(NAME, HELP, seed=Config.seed, chunk=True)
     p.add_argument("--sizes", default=None,
@@ -133,7 +116,7 @@ def _parser() -> argparse.ArgumentParser:
                         "off the centre; pqrm_jax.hssh.shapes) and write shapes_report.md")
     p.add_argument("--shapes-per-kind", type=protocol.positive_int, default=60,
                    help="random cases per shape with --shapes")
-    p.add_argument("--memory-bytes", type=memory_bytes_arg, default=None,
+    p.add_argument("--memory-bytes", type=protocol.memory_bytes_arg, default=None,
                    help="device memory the chunk is sized for and checked against (default: "
                         "what the device reports)")
     return p

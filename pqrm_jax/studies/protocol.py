@@ -63,7 +63,8 @@ __all__ = ["Claim", "MATCH", "MISMATCH", "NOT_CHECKED", "PRESET_NAMES", "StudyCo
            "add_fresh",
            "apply_preset", "fresh_start",
            "check_argv_finite", "claims_summary", "claims_table", "config_json",
-           "default_out", "figure", "finite_float", "fraction", "main_for", "nonneg_float",
+           "default_out", "figure", "MIN_MEMORY_BYTES", "memory_bytes_arg",
+           "finite_float", "fraction", "main_for", "nonneg_float",
            "nonneg_int", "parser", "positive_float", "positive_int", "summary_for",
            "verdict_in"]
 
@@ -96,6 +97,23 @@ def positive_int(raw: str) -> int:
 def nonneg_int(raw: str) -> int:
     """An integer ≥ 0 (argparse type)."""
     return _number(raw, int, "an integer ≥ 0", lambda v: v >= 0)
+
+
+MIN_MEMORY_BYTES = 1 << 16
+"""The smallest ``--memory-bytes`` accepted (64 KiB): below it no study program fits (the
+smallest one, one 29 × 29 grid of hssh-plus's cellular stages, needs 22 KB, and a chunk may
+use only :data:`~pqrm_jax.studies.chunking.FRACTION` of the budget), so a smaller value is a
+typo, refused before any work."""
+
+
+def memory_bytes_arg(raw: str) -> int:
+    """``--memory-bytes`` (argparse type of the studies that size a chunk from it): an
+    integer ≥ :data:`MIN_MEMORY_BYTES`."""
+    v = positive_int(raw)
+    if v < MIN_MEMORY_BYTES:
+        raise argparse.ArgumentTypeError(f"must be at least {MIN_MEMORY_BYTES} bytes (64 KiB), "
+                                         f"got {raw!r}")
+    return v
 
 
 def finite_float(raw: str) -> float:

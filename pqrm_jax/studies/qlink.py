@@ -294,7 +294,6 @@ _FLAGS = {"worlds": "worlds", "max_pairs": "max_pairs", "sensing": "sensing",
 def configure(argv: list[str], overrides: dict | None = None
               ) -> tuple[Config, argparse.Namespace]:
     """The study's Config and parsed flags (every number checked before any work)."""
-    from .hssh_plus import memory_bytes_arg
 
     p = protocol.parser(NAME, HELP, seed=Config.seed, chunk=True)
     p.set_defaults(chunk=None)  # not given: the preset's (reduced 32, full sized per world)
@@ -302,7 +301,7 @@ def configure(argv: list[str], overrides: dict | None = None
                    help="world seeds (default 0 1 2)")
     p.add_argument("--max-pairs", type=protocol.nonneg_int, default=None,
                    help="pairs per world (0 = all ordered pairs)")
-    p.add_argument("--memory-bytes", type=memory_bytes_arg, default=None,
+    p.add_argument("--memory-bytes", type=protocol.memory_bytes_arg, default=None,
                    help="device memory the automatic chunk is sized for (default: what the "
                         "device reports)")
     p.add_argument("--sensing", choices=("step", "epoch"), default=None,
