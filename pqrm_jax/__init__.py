@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import importlib
 
-from . import calculi
-
 __version__ = "0.1.0"
 __all__ = ["calculi", "tables", "pqrm", "qrm", "serge", "compositions", "sim", "studies",
            "triplets", "cli", "qlink", "bsp", "hssh", "hssh_global", "protocols", "io",

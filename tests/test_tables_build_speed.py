@@ -3,6 +3,8 @@
 Decisions tested: docs/decisions.md §2.3.
 """
 
+import subprocess
+import sys
 from fractions import Fraction
 
 import jax
@@ -12,6 +14,7 @@ import pytest
 
 from pqrm_jax import calculi
 from pqrm_jax.calculi import Poly
+from pqrm_jax.nlsat import decide_job
 from pqrm_jax.tables import certify, exact
 from pqrm_jax.tables import problems as pb
 
@@ -110,6 +113,24 @@ def test_decide_many_pool_equals_in_process():
     probs = [pr.constraints for pr in
              pb.random_compose_problems(calculi.get("edc"), certify.MIN_POOL_BATCH, seed=5)]
     assert certify.decide_many(probs, workers=2) == certify.decide_many(probs, workers=1)
+
+
+def test_z3_workers_start_without_jax():
+    """The pool's workers import z3, not JAX (2.4 s each on the old spawned pool; docs/tables.md
+    §method): the worker module alone, and a worker of the pool itself."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    code = "import sys, pqrm_jax.nlsat; print('jax' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    ctx = certify.pool_context()
+    assert ctx.get_start_method() != "fork"  # JAX's threads make forking the caller unsafe
+    job = (certify.smtlib([(Poly.var(1, 0) * Poly.var(1, 0) + Poly.const(1, 1), -1)]), 1, 10**6)
+    with ProcessPoolExecutor(1, mp_context=ctx) as ex:  # one worker: both calls run in it
+        assert ex.submit(decide_job, job).result() == (certify.UNSAT, None)
+        in_worker = ex.submit(eval, "'jax' in __import__('sys').modules").result()
+    if ctx.get_start_method() == "forkserver":
+        assert in_worker is False
 
 
 def test_adjacency_radius_is_the_decimal_written():

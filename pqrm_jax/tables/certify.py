@@ -8,23 +8,16 @@ as a float approximation) or UNSAT. It is also the independent oracle of the tes
 
 from __future__ import annotations
 
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from fractions import Fraction
-from multiprocessing import get_context
 
 from .._parallel import usable_cpus
 from ..calculi.poly import Poly
+from ..nlsat import DEFAULT_RLIMIT, SAT, UNKNOWN, UNSAT, decide_job, decide_smtlib
 
-SAT, UNSAT, UNKNOWN = "sat", "unsat", "unknown"
-
-#: z3's deterministic resource limit per decision (``rlimit``, counted in z3's own work
-#: units, not seconds), so a verdict never depends on the machine's load: the same problem
-#: is decided the same way on a busy and on a quiet machine. The hardest of 512 random EDC
-#: compose problems needs about 1.7e5 units (DCC: 3e3); 8e7 units take about 20 s of CPU
-#: here, the wall-clock timeout used before. A problem that exhausts it is ``UNKNOWN`` —
-#: counted by every caller (``tables.build``: "open"; the camera oracle raises).
-DEFAULT_RLIMIT = 80_000_000
-
+__all__ = ["DEFAULT_RLIMIT", "SAT", "UNKNOWN", "UNSAT", "count_unknown", "decide", "decide_many",
+           "decide_smtlib", "pool_context", "smtlib"]
 
 _OP = {1: ">", -1: "<", 0: "="}
 
@@ -53,43 +46,6 @@ def smtlib(constraints: list[tuple[Poly, int]]) -> str:
     return "\n".join(out)
 
 
-def decide_smtlib(text: str, nv: int, rlimit: int = DEFAULT_RLIMIT):
-    """(verdict, witness or None) for the SMT-LIB text of a conjunction over x0 … x{nv−1}.
-
-    ``rlimit`` bounds each solver attempt by z3's deterministic resource counter (never a
-    wall-clock timeout): a verdict is the same under any machine load; ``UNKNOWN`` when the
-    limit is exhausted (deterministically so).
-
-    z3's ``qfnra-nlsat`` tactic (preprocessing, then nlsat) first; if it gives up, z3's full
-    QF_NRA strategy (further nlsat settings, then its SMT core). On the EDC and DCC builds the
-    tactic decides everything, with the same verdicts and models as QF_NRA, in about half
-    to two thirds of its time."""
-    import z3
-
-    if isinstance(rlimit, bool) or int(rlimit) != rlimit or rlimit < 1:
-        raise ValueError(f"rlimit must be a positive integer, got {rlimit!r}")
-    for solver in (lambda: z3.Tactic("qfnra-nlsat").solver(), lambda: z3.SolverFor("QF_NRA")):
-        s = solver()
-        s.set("rlimit", int(rlimit))
-        s.from_string(text)
-        res = s.check()
-        if res != z3.unknown:
-            break
-    if res == z3.unsat:
-        return UNSAT, None
-    if res != z3.sat:
-        return UNKNOWN, None
-    model = s.model()
-    wit = []
-    for i in range(nv):
-        v = model.eval(z3.Real(f"x{i}"), model_completion=True)
-        if z3.is_rational_value(v):
-            wit.append(Fraction(v.numerator_as_long(), v.denominator_as_long()))
-        else:  # algebraic number
-            wit.append(Fraction(v.approx(20).as_fraction()))
-    return SAT, wit
-
-
 def decide(constraints: list[tuple[Poly, int]], rlimit: int = DEFAULT_RLIMIT):
     """(verdict, witness or None) for a conjunction of exact polynomial sign constraints
     (``rlimit``: see :func:`decide_smtlib`)."""
@@ -97,20 +53,32 @@ def decide(constraints: list[tuple[Poly, int]], rlimit: int = DEFAULT_RLIMIT):
     return decide_smtlib(smtlib(constraints), nv, rlimit)
 
 
-def _decide_one(job: tuple[str, int]):
-    return decide_smtlib(*job)
-
-
-#: below this many problems a batch is decided in-process: starting spawned workers (each
-#: imports the package, hence JAX) costs 1–2 s, the in-process work of a few hundred problems
+#: below this many problems a batch is decided in-process: the in-process work of a few
+#: hundred problems is about what starting the workers costs where only ``spawn`` exists
 MIN_POOL_BATCH = 256
+
+
+def pool_context() -> multiprocessing.context.BaseContext:
+    """The start method of the z3 workers: JAX-safe and cheap.
+
+    Forking the caller is not safe once JAX has started its threads, and a spawned worker
+    re-imports the package (≈ 2.4 s of JAX import each, every build). Where the platform has
+    it (Linux, macOS) the workers fork from Python's forkserver, a fresh interpreter started
+    once per process that preloads only :mod:`pqrm_jax.nlsat` (z3, no JAX): a warm table build
+    starts its pool in milliseconds. Elsewhere, ``spawn``.
+    """
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["pqrm_jax.nlsat"])
+        return ctx
+    return multiprocessing.get_context("spawn")
 
 
 def decide_many(problems: list, workers: int | None = None, progress: bool = False,
                 desc: str = "z3", rlimit: int = DEFAULT_RLIMIT) -> list:
     """``decide`` for many constraint lists, on the usable cores.
 
-    The workers are spawned (JAX-safe) and get the SMT-LIB text, not the polynomials. The
+    The workers (:func:`pool_context`) get the SMT-LIB text, not the polynomials. The
     verdicts do not depend on the worker count or the load (``rlimit``, deterministic);
     :func:`count_unknown` counts the ``UNKNOWN`` ones.
     """
@@ -123,8 +91,8 @@ def decide_many(problems: list, workers: int | None = None, progress: bool = Fal
 
             it = tqdm(it, desc=desc, leave=False)
         return [decide_smtlib(*job) for job in it]
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
-        it = ex.map(_decide_one, jobs, chunksize=32)
+    with ProcessPoolExecutor(workers, mp_context=pool_context()) as ex:
+        it = ex.map(decide_job, jobs, chunksize=32)
         if progress:
             from tqdm.auto import tqdm
 
