@@ -1,32 +1,30 @@
-"""Benchmark: the padgett-mc runner on a fixed slice vs the runner of before issue 31.
+"""Benchmark: the padgett-mc runner on a fixed slice vs the runner of session 2 (issue 31).
 
     .venv/bin/python benchmarks/bench_padgett.py [--runs 200] [--sigma 50] [--repeat 3]
                                                  [--out benchmarks/results/padgett.json]
 
 Slice: one noise level (σ_R = ``--sigma`` m) of the study's configuration (10 landmarks,
-256 samples, the six representations, 23 poses), ``--runs`` runs in one call. In one process:
+256 samples, the six representations, 23 poses), ``--runs`` runs in one call. In one process,
+on the same keys:
 
-* **reference** — the runner as it was before issue 31 (the ``LEGACY_*`` functions below:
-  the rank of the truth by a stable ``argsort`` of every row, and the eq. 2.10 normaliser of
-  numerics version 2), patched in;
-* **current** — ``padgett_mc.run_level`` as shipped.
+* **reference** — the runner as merged before this change (main ``45bfc0d``), patched in
+  with :class:`legacy`: the bank of draws by ``jax.random.normal`` (on the CPU JAX lowers its
+  threefry hash as a rolled loop), the compact buffer chosen by a ``lax.cond`` (small or
+  full), and the observation arithmetic fused into the per-triplet gathers;
+* **current** — ``padgett_mc.run_level`` as shipped: the same draws by the unrolled
+  ``measurement.threefry2x32`` (bit-identical), one full compact buffer (no ``lax.cond``;
+  ``map.BUFFER_MODE``), the per-landmark inputs computed once (``map.PREPARE_BARRIER``).
 
-Both run the same keys. The discrete result leaves (counts, error and top-n rates, confusion,
-neighbour distance, error locations) are identical (``identical_discrete``) except where the
-declared numerics change 2 → 3 flips an ML state between two states within an ulp (listed in
-``differing_discrete_leaves`` with the share of elements); the float leaves move by
-``max_float_diff``. Times: the
-first call (compilation included) and the best of ``--repeat`` warm calls, wall and CPU
-seconds of the process, per run and the ratio; plus the compile of the one-run probe program
-the former automatic chunk size compiled before the real one (``probe_compile_*``, now only
-compiled when the whole level does not fit in memory). The full study's time is measured with
-``/usr/bin/time -v`` (docs/benchmarks.md §bench_padgett).
+Every result leaf must be identical (``identical``: the changes move no bit;
+``differing_leaves`` lists any that differ). Times: the first call (compilation included)
+and the best of ``--repeat`` warm calls (interleaved reference/current, so that a change of
+load hits both), wall and CPU seconds of the process, per run and the ratio. The full
+study's time is measured with ``/usr/bin/time -v`` (docs/benchmarks.md §bench_padgett).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -40,42 +38,30 @@ from _env import write_result  # noqa: E402
 from _timing import timed  # noqa: E402
 
 from pqrm_jax.pqrm import map as pqrm_map  # noqa: E402
-from pqrm_jax.pqrm import metrics  # noqa: E402
 from pqrm_jax.studies import padgett_mc  # noqa: E402
 
 
-def LEGACY_topn_error_rates(probs, truth, mask):  # noqa: N802  (the pre-issue-31 code)
-    order = jnp.argsort(-probs, axis=-1, stable=True)  # (T, Q) most likely first
-    rank = jnp.argmax(order == truth[:, None], axis=-1)  # position of the truth
-    q = probs.shape[-1]
-    wrong = rank[:, None] >= jnp.arange(1, q + 1)[None, :]  # (T, Q)
-    m = metrics.defined_mask(truth, mask, q)
-    return jnp.sum(jnp.where(m[:, None], wrong, False), axis=0) / jnp.maximum(jnp.sum(m), 1)
-
-
-def LEGACY_bayes(prior, meas, mapped, seen):  # noqa: N802  (numerics version 2)
-    post = meas * prior  # LLVM may contract this product into the sum below (an FMA)
-    z = post[:, :1]
-    for q in range(1, post.shape[-1]):
-        z = z + post[:, q:q + 1]
-    conflict = seen & mapped & (z[:, 0] <= 0)
-    post = post / jnp.where(z > 0, z, 1.0)
-    new = jnp.where((seen & ~mapped)[:, None], meas, prior)
-    new = jnp.where((seen & mapped & ~conflict)[:, None], post, new)
-    return new, conflict
+def LEGACY_sample_bank(key, num_samples: int, dtype):  # noqa: N802  (main 45bfc0d)
+    nchunks = -(-num_samples // 255)
+    size = -(-num_samples // nchunks)
+    z = jax.random.normal(key, (num_samples, 6), dtype)
+    pad = nchunks * size - num_samples
+    if pad:
+        z = jnp.concatenate([z, jnp.full((pad, 6), jnp.nan, dtype)])
+    return z.reshape(nchunks, size, 6)
 
 
 class legacy:  # noqa: N801
-    """Context: the pre-issue-31 runner (patched module functions, fresh compiled programs)."""
+    """Context: the runner of main ``45bfc0d`` (patched module settings, fresh programs)."""
 
     def __enter__(self):
-        self.saved = (metrics.topn_error_rates, pqrm_map._bayes)
-        metrics.topn_error_rates = LEGACY_topn_error_rates
-        pqrm_map._bayes = LEGACY_bayes
+        self.saved = (pqrm_map.sample_bank, pqrm_map.BUFFER_MODE, pqrm_map.PREPARE_BARRIER)
+        pqrm_map.sample_bank = LEGACY_sample_bank
+        pqrm_map.BUFFER_MODE, pqrm_map.PREPARE_BARRIER = "cond", False
         _forget()
 
     def __exit__(self, *exc):
-        metrics.topn_error_rates, pqrm_map._bayes = self.saved
+        pqrm_map.sample_bank, pqrm_map.BUFFER_MODE, pqrm_map.PREPARE_BARRIER = self.saved
         _forget()
 
 
@@ -84,13 +70,12 @@ def _forget():
     padgett_mc._AOT.clear()
 
 
-def _measure(cfg, sigma: float, repeat: int) -> dict:
-    first_wall, first_cpu, res = timed(lambda: padgett_mc.run_level(cfg, 0, sigma))
-    warm = [timed(lambda: padgett_mc.run_level(cfg, 0, sigma))[:2] for _ in range(repeat)]
-    wall, cpu = min(warm)
-    return {"first_call_s": first_wall, "first_call_cpu_s": first_cpu, "warm_s": wall,
-            "warm_cpu_s": cpu, "per_run_ms": 1e3 * wall / cfg.runs,
-            "per_run_cpu_ms": 1e3 * cpu / cfg.runs}, res
+def _program(cfg):
+    """(compiled chunk program, keys, first-call wall, first-call CPU) of ``cfg``'s runner."""
+    base = jax.random.fold_in(jax.random.key(cfg.seed), 0)
+    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(cfg.runs, dtype=jnp.uint32))
+    wall, cpu, (prog, _) = timed(lambda: padgett_mc.chunk_program(cfg, cfg.runs))
+    return prog, keys, wall, cpu
 
 
 def main(argv=None) -> int:
@@ -101,41 +86,71 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "padgett.json"))
     args = ap.parse_args(argv)
     cfg = padgett_mc.Config(runs=args.runs, levels=1, chunk_runs=args.runs)
-    out = {"config": {"runs": cfg.runs, "sigma_r": args.sigma, "landmarks": cfg.num_landmarks,
-                      "samples": cfg.num_samples, "representations": list(cfg.representations),
-                      "poses": 23}}
+    out = {
+        "config": {
+            "runs": cfg.runs,
+            "sigma_r": args.sigma,
+            "landmarks": cfg.num_landmarks,
+            "samples": cfg.num_samples,
+            "representations": list(cfg.representations),
+            "poses": 23,
+            "sparse_block": padgett_mc.SPARSE_BLOCK,
+        }
+    }
     with legacy():
-        ref, ref_res = _measure(cfg, args.sigma, args.repeat)
-        probe = dataclasses.replace(cfg, runs=1, chunk_runs=1)
-        _forget()
-        pw, pc, _ = timed(lambda: padgett_mc.chunk_program(probe, 1))
-    cur, cur_res = _measure(cfg, args.sigma, args.repeat)
-    leaves_r = jax.tree_util.tree_leaves_with_path(ref_res)
-    leaves_c = jax.tree_util.tree_leaves(cur_res)
-    differ, max_float = [], 0.0
-    for (p, a), b in zip(leaves_r, leaves_c, strict=True):
-        a, b = np.asarray(a), np.asarray(b)
-        name = jax.tree_util.keystr(p)
-        if name.endswith(("['entropy']", "['p_ml']", "['xy']", "['dab']")):
-            max_float = max(max_float, float(np.nanmax(np.abs(a - b), initial=0.0)))
-        elif not np.array_equal(a, b, equal_nan=True):
-            differ.append(f"{name}: {float(np.mean(a != b)):.2g} of elements, max "
-                          f"{float(np.max(np.abs(a.astype(float) - b))):.2g}")
-    out.update({
-        "reference": ref, "current": cur,
-        "warm_ratio": ref["warm_s"] / cur["warm_s"],
-        "warm_cpu_ratio": ref["warm_cpu_s"] / cur["warm_cpu_s"],
-        "probe_compile_s": pw, "probe_compile_cpu_s": pc,
-        "identical_discrete": not differ, "differing_discrete_leaves": differ,
-        "max_float_diff": max_float, "num_leaves": len(leaves_c),
-    })
+        ref_prog, keys, rw, rc = _program(cfg)
+    cur_prog, _, cw, cc = _program(cfg)
+    sigma = jnp.float32(args.sigma)
+    runs = {"reference": ref_prog, "current": cur_prog}
+    times = {k: [] for k in runs}
+    res = {}
+    for _ in range(args.repeat + 1):  # the first pass warms up, interleaved
+        for name, prog in runs.items():
+            wall, cpu, r = timed(lambda prog=prog: jax.device_get(prog(keys, sigma)))
+            times[name].append((wall, cpu))
+            res[name] = r
+    stats = {}
+    for name, first in (("reference", (rw, rc)), ("current", (cw, cc))):
+        wall = min(w for w, _ in times[name][1:])
+        cpu = min(c for _, c in times[name][1:])
+        stats[name] = {
+            "compile_s": first[0],
+            "compile_cpu_s": first[1],
+            "warm_s": wall,
+            "warm_cpu_s": cpu,
+            "per_run_ms": 1e3 * wall / cfg.runs,
+            "per_run_cpu_ms": 1e3 * cpu / cfg.runs,
+            "all_warm_s": [w for w, _ in times[name][1:]],
+            "all_warm_cpu_s": [c for _, c in times[name][1:]],
+        }
+    ref, cur = stats["reference"], stats["current"]
+    leaves_r = jax.tree_util.tree_leaves_with_path(res["reference"])
+    leaves_c = jax.tree_util.tree_leaves(res["current"])
+    differ = [
+        jax.tree_util.keystr(p)
+        for (p, a), b in zip(leaves_r, leaves_c, strict=True)
+        if not np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+    ]
+    out.update(
+        {
+            "reference": ref,
+            "current": cur,
+            "warm_ratio": ref["warm_s"] / cur["warm_s"],
+            "warm_cpu_ratio": ref["warm_cpu_s"] / cur["warm_cpu_s"],
+            "compile_cpu_ratio": ref["compile_cpu_s"] / cur["compile_cpu_s"],
+            "identical": not differ,
+            "differing_leaves": differ,
+            "num_leaves": len(leaves_c),
+        }
+    )
     path = write_result(out, args.out)
-    print(f"reference {ref['per_run_ms']:.2f} ms/run ({ref['per_run_cpu_ms']:.2f} CPU), "
-          f"current {cur['per_run_ms']:.2f} ms/run ({cur['per_run_cpu_ms']:.2f} CPU): "
-          f"{out['warm_ratio']:.2f}x wall, {out['warm_cpu_ratio']:.2f}x CPU; first call "
-          f"{ref['first_call_s']:.1f} -> {cur['first_call_s']:.1f} s; probe compile "
-          f"{pw:.1f} s; discrete identical: {out['identical_discrete']}, float leaves within "
-          f"{max_float:.1e} -> {path}")
+    print(
+        f"reference {ref['per_run_ms']:.2f} ms/run ({ref['per_run_cpu_ms']:.2f} CPU), "
+        f"current {cur['per_run_ms']:.2f} ms/run ({cur['per_run_cpu_ms']:.2f} CPU): "
+        f"{out['warm_ratio']:.2f}x wall, {out['warm_cpu_ratio']:.2f}x CPU; compile "
+        f"{ref['compile_cpu_s']:.1f} -> {cur['compile_cpu_s']:.1f} CPU-s; identical: "
+        f"{out['identical']} ({len(leaves_c)} leaves) -> {path}"
+    )
     return 0
 
 

@@ -212,3 +212,28 @@ def test_update_batch_equals_vmapped_update_bit_for_bit(block):
         pq.update_batch(b, keys, pos[0], vis, 1.0)
     with pytest.raises(ValueError, match="sigma"):
         pq.update_batch(b, keys, pos, vis, -1.0)
+
+
+@pytest.mark.parametrize("mode", ["rounds", "cond", "full"])
+def test_update_batch_buffer_modes_are_identical(monkeypatch, mode):
+    """The compact-buffer strategies of the sparse update (rounds of one small buffer, the
+    former ``lax.cond`` small/full choice, always full) give the dense update's maps bit for
+    bit, also when more rows are seen than one round holds (every landmark visible, pieces of
+    3 rows: several rounds) and when none is (docs/pqrm.md §map)."""
+    from pqrm_jax.pqrm import map as pqrm_map
+
+    monkeypatch.setattr(pqrm_map, "BUFFER_MODE", mode)
+    pq = pqrm.mapper(("edc", "lr"), num_landmarks=5, num_samples=30, sparse_block=3)
+    r = 4
+    rng = np.random.default_rng(5)
+    dense = jax.jit(jax.vmap(pq.update, in_axes=(0, 0, 0, 0, None)))
+    a = b = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (r, *x.shape)), pq.init())
+    for t, p_vis in enumerate((1.0, 0.0, 0.5, 1.0)):
+        keys = jax.random.split(jax.random.key(10 + t), r)
+        pos = jnp.asarray(rng.uniform(-20, 20, (r, 5, 2)).astype(np.float32))
+        vis = jnp.asarray(rng.uniform(size=(r, 5)) < p_vis)
+        a, _ = dense(a, keys, pos, vis, jnp.float32(2.0))
+        b, _ = pq.update_batch(b, keys, pos, vis, jnp.float32(2.0))
+        for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert int(b.num_updates.sum()) == int(a.num_updates.sum()) >= 2 * r * 60

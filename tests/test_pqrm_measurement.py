@@ -153,3 +153,35 @@ def test_bad_inputs_raise_or_give_zero_rows():
     # A == B with σ = 0: no defined sample, zero row
     degenerate = np.array([[[1.0, 1.0], [1.0, 1.0], [2.0, 3.0]]], np.float32)
     assert np.asarray(pqrm.state_probabilities(key, "edc", degenerate, 0.0, 5)).sum() == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_unrolled_threefry_equals_jax_primitive(seed):
+    """``measurement.threefry2x32`` (unrolled, what the bank uses) gives the bits of JAX's
+    ``threefry2x32_p`` for random keys and counters, incl. 0 and 2^32 − 1."""
+    from jax.extend.random import threefry2x32_p
+
+    rng = np.random.default_rng(seed)
+    words = [rng.integers(0, 2**32, size=4096, dtype=np.uint64).astype(np.uint32)
+             for _ in range(4)]
+    for w in words:
+        w[:2] = (0, 2**32 - 1)
+    got = M.threefry2x32(*[jnp.asarray(w) for w in words])
+    want = threefry2x32_p.bind(*[jnp.asarray(w) for w in words])
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+
+
+@pytest.mark.parametrize("s", [1, 7, 255, 256, 300, 1000])
+def test_sample_bank_is_jax_random_normal(s):
+    """The bank (unrolled threefry, one flat array) holds exactly ``jax.random.normal(key,
+    (S, 6))``, eagerly and under ``vmap`` over keys, NaN-padded to whole chunks."""
+    for key in (jax.random.key(s), jax.random.PRNGKey(s + 1)):
+        z = np.asarray(M.sample_bank(key, s, jnp.float32)).reshape(-1, 6)
+        np.testing.assert_array_equal(z[:s], np.asarray(jax.random.normal(key, (s, 6))))
+        assert np.isnan(z[s:]).all()
+    keys = jax.random.split(jax.random.key(7), 3)
+    zb = jax.jit(jax.vmap(lambda k: M.sample_bank(k, s, jnp.float32)))(keys)
+    for i in range(3):
+        np.testing.assert_array_equal(np.asarray(zb[i]).reshape(-1, 6)[:s],
+                                      np.asarray(jax.random.normal(keys[i], (s, 6))))

@@ -200,10 +200,17 @@ def edc_block_counts(mT, sT, zc):
 
 
 def sample_bank(key, num_samples: int, dtype):
-    """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples."""
+    """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples.
+
+    The values of ``jax.random.normal(key, (num_samples, 6), dtype)``, drawn by
+    :func:`_bank_rows` (an unrolled threefry, bit-identical) for a partitionable threefry key.
+    """
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
-    z = jax.random.normal(key, (num_samples, 6), dtype)
+    if _threefry_key_data(key) is not None and jnp.dtype(dtype).itemsize in (4, 8):
+        z = _bank_rows(key, 0, num_samples, dtype)
+    else:
+        z = jax.random.normal(key, (num_samples, 6), dtype)
     pad = nchunks * size - num_samples
     if pad:
         z = jnp.concatenate([z, jnp.full((pad, 6), jnp.nan, dtype)])
@@ -226,10 +233,14 @@ def _threefry_key_data(key):
     return data[0], data[1]
 
 
-def _row_counters(rows: jax.Array):
-    """Threefry counters (hi, lo) of the six elements of each row of an (S, 6) array."""
-    r = rows.astype(jnp.uint32)[:, None]
-    j = jnp.arange(6, dtype=jnp.uint32)[None, :]
+def _row_counters(rows: jax.Array, j: jax.Array | None = None):
+    """Threefry counters (hi, lo) of the six elements of each row of an (S, 6) array, or of
+    the elements (``rows[i]``, ``j[i]``) when ``j`` is given."""
+    if j is None:
+        r = rows.astype(jnp.uint32)[:, None]
+        j = jnp.arange(6, dtype=jnp.uint32)[None, :]
+    else:
+        r = rows.astype(jnp.uint32)
     # 6 r + j < 3 · 2^32 for r < 2^31: split r = h·2^30 + l and form the 64-bit sum in words
     h = r >> 30
     x = 3 * (r & jnp.uint32((1 << 30) - 1))  # < 2^32
@@ -264,15 +275,38 @@ def _bank_rows_jit(key, start, *, num_rows: int, dtype):
     return _bank_rows(key, start, num_rows, dtype)
 
 
-def _bank_rows(key, start, num_rows: int, dtype):
-    from jax.extend.random import threefry2x32_p
+_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 
+
+def threefry2x32(k1, k2, x1, x2):
+    """The threefry-2x32 hash of JAX's ``threefry2x32_p``, unrolled, in plain ``uint32`` ops.
+
+    Bit-identical to ``jax.extend.random.threefry2x32_p.bind`` (a test checks it); on the CPU
+    JAX lowers that primitive as a rolled five-iteration loop whose carried arrays XLA copies
+    every iteration, about 4x slower than these twenty rounds fused into one loop.
+    """
+    k1, k2, x1, x2 = (jnp.asarray(v, jnp.uint32) for v in (k1, k2, x1, x2))
+    ks = (k1, k2, k1 ^ k2 ^ jnp.uint32(0x1BD11BDA))
+    x = [x1 + ks[0], x2 + ks[1]]
+    for i in range(5):
+        for r in _THREEFRY_ROTATIONS[i % 2]:
+            x[0] = x[0] + x[1]
+            x[1] = (x[1] << jnp.uint32(r)) | (x[1] >> jnp.uint32(32 - r))
+            x[1] = x[0] ^ x[1]
+        x[0] = x[0] + ks[(i + 1) % 3]
+        x[1] = x[1] + ks[(i + 2) % 3] + jnp.uint32(i + 1)
+    return x[0], x[1]
+
+
+def _bank_rows(key, start, num_rows: int, dtype):
     words = _threefry_key_data(key)
+    # one flat array of the 6·num_rows elements (row-major): vectorises along its only axis
+    flat = np.arange(6 * num_rows)
+    rows = jnp.asarray(start, jnp.int32) + jnp.asarray(flat // 6, jnp.int32)
+    hi, lo = _row_counters(rows, jnp.asarray(flat % 6, jnp.uint32))
+    b1, b2 = threefry2x32(words[0], words[1], hi, lo)
     dtype = jnp.dtype(dtype)
     finfo = jnp.finfo(dtype)
-    rows = jnp.asarray(start, jnp.int32) + jnp.arange(num_rows, dtype=jnp.int32)
-    hi, lo = _row_counters(rows)
-    b1, b2 = threefry2x32_p.bind(words[0], words[1], hi, lo)
     if finfo.bits == 64:
         bits = (b1.astype(jnp.uint64) << jnp.uint64(32)) | b2.astype(jnp.uint64)
         utype = jnp.uint64
@@ -288,7 +322,8 @@ def _bank_rows(key, start, num_rows: int, dtype):
     fbits = fbits | jnp.asarray(np.array(1.0, dtype).view(utype), utype)
     floats = jax.lax.bitcast_convert_type(fbits, dtype) - jnp.asarray(1.0, dtype)
     u = jax.lax.max(jnp.asarray(lo_v, dtype), floats * (hi_v - lo_v) + lo_v)
-    return jax.lax.mul(jnp.asarray(np.sqrt(2), dtype), jax.scipy.special.erfinv(u))
+    z = jax.lax.mul(jnp.asarray(np.sqrt(2), dtype), jax.scipy.special.erfinv(u))
+    return z.reshape(num_rows, 6)
 
 
 def sample_block(chunk_triplets: int, num_triplets: int | None = None) -> int:

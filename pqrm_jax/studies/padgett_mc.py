@@ -52,6 +52,8 @@ HELP = "Padgett's PQRM Monte Carlo study (P §2.3.1, Figs 2.6–2.11, 2.16)"
 REPS = calculi.PADGETT_REPRESENTATIONS  # Padgett's six reduced representations (P Fig. 2.2)
 PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
+#: rows per piece of the sparse batched update (results do not depend on it, docs/pqrm.md §map)
+SPARSE_BLOCK = 1024
 NUMERICS_VERSION = 3  # bump when the map's floating-point results change (see Config notes)
 
 
@@ -132,7 +134,8 @@ def _distance_matrices(reps) -> dict[str, np.ndarray | None]:
 def _setup(cfg: Config):
     from pqrm_jax import pqrm, sim
 
-    pq = pqrm.mapper(cfg.representations, cfg.num_landmarks, cfg.num_samples)
+    pq = pqrm.mapper(cfg.representations, cfg.num_landmarks, cfg.num_samples,
+                     sparse_block=SPARSE_BLOCK)
     half = cfg.world_size / 2
     poses = sim.trajectories.perimeter_loop((half, half), cfg.loop_radius,
                                             math.radians(cfg.dtheta_deg))
