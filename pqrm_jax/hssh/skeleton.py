@@ -34,11 +34,16 @@ class PrunedSkeleton(NamedTuple):
     tree: networkx tree over ``(row, col)`` nodes (edge attribute ``weight``); may be empty.
     closest: ``c``, the tree node closest to the robot (None when the tree is empty).
     exits: the exits kept in the tree (list of nodes).
+    forks: tree nodes where the paths from ``c`` to several exits through one border opening
+        parted before all but one of those exits were dropped (issue 26); branches stop there
+        as at a junction (:func:`~pqrm_jax.hssh.gateways.search_spaces`), but they are no
+        junctions of the core.
     """
 
     tree: nx.Graph
     closest: tuple[int, int] | None
     exits: list[tuple[int, int]]
+    forks: tuple[tuple[int, int], ...] = ()
 
 
 def skeleton_graph(skeleton: np.ndarray) -> nx.Graph:
@@ -210,7 +215,8 @@ def _ways_out(exits: list[tuple[int, int]], open_: np.ndarray, unknown: np.ndarr
 
 
 def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.ndarray,
-                   robot_cell: tuple[int, int]) -> PrunedSkeleton:
+                   robot_cell: tuple[int, int],
+                   dist2: np.ndarray | None = None) -> PrunedSkeleton:
     """Prune an EVG skeleton to the spanning tree of its exits (B §6.1.1).
 
     Args:
@@ -218,6 +224,9 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
         free_space: bool ``[H, W]`` free cells after island removal (reachability).
         unknown: bool ``[H, W]`` unknown cells (frontiers).
         robot_cell: ``(row, col)``; must lie in ``free_space`` (checked by the caller).
+        dist2: optional ``[H, W]`` squared distance transform: of several exits through one
+            border opening the one reached from ``c`` with the largest least clearance is kept
+            (without it, the nearest along the tree).
 
     Returns:
         :class:`PrunedSkeleton` (an empty tree when no skeleton cell is reachable).
@@ -285,14 +294,43 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
         list(zip(rows[exit_idx].tolist(), cols[exit_idx].tolist(), strict=True)),
         np.asarray(free_space, bool) | np.asarray(unknown, bool), np.asarray(unknown, bool))
     n_ways = len(set(ways))
+    forks: list[tuple[int, int]] = []
     if len(set(o for o in opening if o >= 0)) < sum(o >= 0 for o in opening):
         dist = csgraph.dijkstra(mst, directed=False, indices=ci)
-        nearest: dict = {}
+        # the widest way: the largest least clearance on the tree path from c (cells on the
+        # border ring, where the noise stubs lie, not counted), then the shortest
+        clr = (np.ones(n) if dist2 is None else
+               np.asarray(dist2, float)[rows, cols]).astype(float)
+        clr[border[rows, cols]] = np.inf
+        order, pred_c = csgraph.breadth_first_order(mst, ci, directed=False,
+                                                    return_predecessors=True)
+        neck = np.full(n, np.inf)
+        neck[ci] = clr[ci]
+        for v in order[1:].tolist():
+            neck[v] = min(neck[pred_c[v]], clr[v])
+        best: dict = {}
         for k, o in zip(exit_idx, opening, strict=True):
-            if o >= 0 and (o not in nearest or dist[k] < dist[nearest[o]]):
-                nearest[o] = k
+            key = (-neck[k], dist[k], int(rows[k]), int(cols[k]))
+            if o >= 0 and (o not in best or key < best[o][0]):
+                best[o] = (key, k)
+        pred_l = pred_c.tolist()
+
+        def up(v):  # the tree path from v to c
+            out = []
+            while v >= 0:
+                out.append(v)
+                v = pred_l[v] if v != ci else -1
+            return out
+
+        for o, (_, keep) in best.items():
+            others = [k for k, oo in zip(exit_idx, opening, strict=True) if oo == o and k != keep]
+            if others:   # where the kept exit's path parts from the dropped ones
+                common = set.intersection(*(set(up(k)) for k in others))
+                fork = next(v for v in up(keep) if v in common)
+                if fork != ci:
+                    forks.append((int(rows[fork]), int(cols[fork])))
         exit_idx = sorted(k for k, o in zip(exit_idx, opening, strict=True)
-                          if o < 0 or nearest[o] == k)
+                          if o < 0 or best[o][1] == k)
     terminals = exit_idx if n_ways > 1 else sorted(set(exit_idx) | {ci})
     # stripping every non-terminal leaf until none is left leaves the smallest subtree that
     # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
@@ -316,4 +354,5 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     nodes = np.array(sorted(tree.nodes), int).reshape(-1, 2)
     d2 = (nodes[:, 0] - robot_cell[0]) ** 2 + (nodes[:, 1] - robot_cell[1]) ** 2
     c = tuple(int(x) for x in nodes[int(np.argmin(d2))])
-    return PrunedSkeleton(tree, c, [e for e in exits if e in tree])
+    return PrunedSkeleton(tree, c, [e for e in exits if e in tree],
+                          tuple(sorted(f for f in forks if f in tree)))
