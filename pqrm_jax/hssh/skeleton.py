@@ -214,6 +214,76 @@ def _ways_out(exits: list[tuple[int, int]], open_: np.ndarray, unknown: np.ndarr
     return len(set(_exit_groups(exits, open_, unknown)[0]))
 
 
+def _terminal_subtree(mst, terminals: list[int], rows: np.ndarray,
+                      cols: np.ndarray) -> tuple[nx.Graph, set[int]]:
+    """The smallest subtree of ``mst`` holding ``terminals`` (as a networkx tree over
+    ``(row, col)`` nodes) and its node indices."""
+    # stripping every non-terminal leaf until none is left leaves the smallest subtree that
+    # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
+    # paths to the root (one walk up the BFS predecessors, each node visited once)
+    root = terminals[0]
+    _, pred = csgraph.breadth_first_order(mst, root, directed=False, return_predecessors=True)
+    pred = pred.tolist()
+    kept: set[int] = set()
+    for t in terminals:
+        while t >= 0 and t not in kept:
+            kept.add(t)
+            t = pred[t] if t != root else -1
+    keep_idx = sorted(kept)
+    rl, cl = rows.tolist(), cols.tolist()
+    tree = nx.Graph()
+    tree.add_nodes_from((rl[a], cl[a]) for a in keep_idx)
+    tree.add_weighted_edges_from(
+        ((rl[a], cl[a]), (rl[b], cl[b]), math.hypot(rl[a] - rl[b], cl[a] - cl[b]))
+        for a, b in sorted((min(a, pred[a]), max(a, pred[a])) for a in keep_idx if a != root))
+    return tree, kept
+
+
+def _one_exit_per_opening(mst, ci: int, rows: np.ndarray, cols: np.ndarray,
+                          exit_idx: list[int], opening: list[int], dist2, border: np.ndarray
+                          ) -> tuple[list[int], list[tuple[int, int]]]:
+    """Of the exits through one border opening keep one (the widest way from ``c``, then the
+    nearest); also return the forks where the dropped exits' paths parted (issue 26)."""
+    n = len(rows)
+    forks: list[tuple[int, int]] = []
+    dist = csgraph.dijkstra(mst, directed=False, indices=ci)
+    # the widest way: the largest least clearance on the tree path from c (cells on the
+    # border ring, where the noise stubs lie, not counted), then the shortest
+    clr = (np.ones(n) if dist2 is None else
+           np.asarray(dist2, float)[rows, cols]).astype(float)
+    clr[border[rows, cols]] = np.inf
+    order, pred_c = csgraph.breadth_first_order(mst, ci, directed=False,
+                                                return_predecessors=True)
+    neck = np.full(n, np.inf)
+    neck[ci] = clr[ci]
+    for v in order[1:].tolist():
+        neck[v] = min(neck[pred_c[v]], clr[v])
+    best: dict = {}
+    for k, o in zip(exit_idx, opening, strict=True):
+        key = (-neck[k], dist[k], int(rows[k]), int(cols[k]))
+        if o >= 0 and (o not in best or key < best[o][0]):
+            best[o] = (key, k)
+    pred_l = pred_c.tolist()
+
+    def up(v):  # the tree path from v to c
+        out = []
+        while v >= 0:
+            out.append(v)
+            v = pred_l[v] if v != ci else -1
+        return out
+
+    for o, (_, keep) in best.items():
+        others = [k for k, oo in zip(exit_idx, opening, strict=True) if oo == o and k != keep]
+        if others:   # where the kept exit's path parts from the dropped ones
+            common = set.intersection(*(set(up(k)) for k in others))
+            fork = next(v for v in up(keep) if v in common)
+            if fork != ci:
+                forks.append((int(rows[fork]), int(cols[fork])))
+    exit_idx = sorted(k for k, o in zip(exit_idx, opening, strict=True)
+                      if o < 0 or best[o][1] == k)
+    return exit_idx, forks
+
+
 def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.ndarray,
                    robot_cell: tuple[int, int],
                    dist2: np.ndarray | None = None) -> PrunedSkeleton:
@@ -296,60 +366,11 @@ def prune_skeleton(skeleton: np.ndarray, free_space: np.ndarray, unknown: np.nda
     n_ways = len(set(ways))
     forks: list[tuple[int, int]] = []
     if len(set(o for o in opening if o >= 0)) < sum(o >= 0 for o in opening):
-        dist = csgraph.dijkstra(mst, directed=False, indices=ci)
-        # the widest way: the largest least clearance on the tree path from c (cells on the
-        # border ring, where the noise stubs lie, not counted), then the shortest
-        clr = (np.ones(n) if dist2 is None else
-               np.asarray(dist2, float)[rows, cols]).astype(float)
-        clr[border[rows, cols]] = np.inf
-        order, pred_c = csgraph.breadth_first_order(mst, ci, directed=False,
-                                                    return_predecessors=True)
-        neck = np.full(n, np.inf)
-        neck[ci] = clr[ci]
-        for v in order[1:].tolist():
-            neck[v] = min(neck[pred_c[v]], clr[v])
-        best: dict = {}
-        for k, o in zip(exit_idx, opening, strict=True):
-            key = (-neck[k], dist[k], int(rows[k]), int(cols[k]))
-            if o >= 0 and (o not in best or key < best[o][0]):
-                best[o] = (key, k)
-        pred_l = pred_c.tolist()
-
-        def up(v):  # the tree path from v to c
-            out = []
-            while v >= 0:
-                out.append(v)
-                v = pred_l[v] if v != ci else -1
-            return out
-
-        for o, (_, keep) in best.items():
-            others = [k for k, oo in zip(exit_idx, opening, strict=True) if oo == o and k != keep]
-            if others:   # where the kept exit's path parts from the dropped ones
-                common = set.intersection(*(set(up(k)) for k in others))
-                fork = next(v for v in up(keep) if v in common)
-                if fork != ci:
-                    forks.append((int(rows[fork]), int(cols[fork])))
-        exit_idx = sorted(k for k, o in zip(exit_idx, opening, strict=True)
-                          if o < 0 or best[o][1] == k)
+        exit_idx, forks = _one_exit_per_opening(mst, ci, rows, cols, exit_idx, opening,
+                                                dist2, border)
     terminals = exit_idx if n_ways > 1 else sorted(set(exit_idx) | {ci})
-    # stripping every non-terminal leaf until none is left leaves the smallest subtree that
-    # holds the terminals: with the tree rooted at a terminal, the union of the terminals'
-    # paths to the root (one walk up the BFS predecessors, each node visited once)
-    root = terminals[0]
-    _, pred = csgraph.breadth_first_order(mst, root, directed=False, return_predecessors=True)
-    pred = pred.tolist()
-    kept: set[int] = set()
-    for t in terminals:
-        while t >= 0 and t not in kept:
-            kept.add(t)
-            t = pred[t] if t != root else -1
-    keep_idx = sorted(kept)
+    tree, kept = _terminal_subtree(mst, terminals, rows, cols)
     rl, cl = rows.tolist(), cols.tolist()
-    tree = nx.Graph()
-    tree.add_nodes_from((rl[a], cl[a]) for a in keep_idx)
-    tree.add_weighted_edges_from(
-        ((rl[a], cl[a]), (rl[b], cl[b]), math.hypot(rl[a] - rl[b], cl[a] - cl[b]))
-        for a, b in sorted((min(a, pred[a]), max(a, pred[a])) for a in keep_idx if a != root))
     exits = sorted((rl[a], cl[a]) for a in exit_idx if a in kept)
     nodes = np.array(sorted(tree.nodes), int).reshape(-1, 2)
     d2 = (nodes[:, 0] - robot_cell[0]) ** 2 + (nodes[:, 1] - robot_cell[1]) ** 2
