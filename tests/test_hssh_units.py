@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -190,3 +191,91 @@ def test_zero_travel_experience_is_empty_not_an_error():
     """An exploration of 0 travels is one view and no odometry (valid, not NaN)."""
     e = explore(grid_world(3, 3, seed=0), 0)
     assert len(e.views) == 1 and e.odometry.shape == (0, 3)
+
+
+# ------------------------------------- float64 world coordinates in localization (issue 26)
+
+_UTM = np.array([5e5, 4.2e6, 0.0])
+
+
+def _room(n=41, res=0.1):
+    """A 4 m square room with a pillar (occupancy rows along y) and its distance field."""
+    from pqrm_jax.hssh.cellular import squared_distance_transform
+
+    g = np.zeros((n, n), bool)
+    g[0, :] = g[-1, :] = g[:, 0] = g[:, -1] = True
+    g[12:16, 25:30] = True
+    return jnp.asarray(g), squared_distance_transform(jnp.asarray(g)[None], cap=20)[0], res
+
+
+def test_scan_likelihood_at_utm_equals_origin():
+    """Poses and map origin shifted by (5e5, 4.2e6) m give the likelihoods at the origin;
+    before, the float32 cast put beam ends up to 0.25 m off (other cells)."""
+    from pqrm_jax.hssh.localization import scan_likelihood
+    from pqrm_jax.sim.lidar import LidarParams, lidar_scan
+
+    g, d2, res = _room()
+    pose = np.array([1.93, 2.07, 0.4])
+    z = lidar_scan(jax.random.key(0), jnp.asarray(pose, jnp.float32), g, res,
+                   params=LidarParams(n_beams=60, max_range=6.0, sigma=0.0))
+    poses = pose + np.array([[0.0, 0.0, 0.0], [0.03, -0.02, 0.01], [0.11, 0.07, -0.02]])
+    at0 = np.asarray(scan_likelihood(poses, z, d2, np.zeros(2), res, 0.1))
+    at_utm = np.asarray(scan_likelihood(poses + _UTM, z, d2, _UTM[:2], res, 0.1))
+    assert at0[0] > 0.9
+    np.testing.assert_allclose(at_utm, at0, atol=1e-6)
+
+
+def _log():
+    from pqrm_jax.sim.lidar import LidarParams, lidar_scan
+
+    g, d2, res = _room()
+    lp = LidarParams(n_beams=36, max_range=6.0, sigma=0.005)
+    true = np.array([[1.03, 1.51, 0.0], [1.13, 1.52, 0.02], [1.23, 1.55, 0.04]])
+    odom = true + np.array([[0.0, 0.0, 0.0], [-0.01, 0.0, 0.0], [-0.02, 0.01, 0.01]])
+    scans = [lidar_scan(jax.random.key(k), jnp.asarray(p, jnp.float32), g, res, params=lp)
+             for k, p in enumerate(true)]
+    return d2, res, true, odom, scans
+
+
+def test_localize_at_utm_equals_origin():
+    """One localization step at (5e5, 4.2e6) m equals the one at the origin, shifted (float64
+    NumPy input). Before, poses were float32 world coordinates: the prior moved by up to
+    0.25 m and a 0.1 m odometry step read 0 or 0.5 m."""
+    from pqrm_jax.hssh.localization import LocalizeParams, localize_with_count
+    from pqrm_jax.hssh.motion import ACTION_MODELS
+
+    d2, res, true, odom, scans = _log()
+    c = jnp.asarray(ACTION_MODELS["large"])
+    params = LocalizeParams(blocks=2, block=32)
+    out = []
+    for off in (np.zeros(3), _UTM):
+        pose, lik, _ = localize_with_count(jax.random.key(9), odom[0] + off, odom[0] + off,
+                                           odom[1] + off, scans[1], d2, off[:2], res, c,
+                                           params=params)
+        out.append((np.asarray(pose, np.float64) - off, float(lik)))
+    np.testing.assert_allclose(out[1][0], out[0][0], atol=1e-5)
+    assert abs(out[1][1] - out[0][1]) < 1e-6 and out[0][1] > 0.5
+
+
+@pytest.mark.slow
+def test_track_run_at_utm_equals_origin():
+    """A short tracked run (localize, then map) at (5e5, 4.2e6) m equals the one at the
+    origin, shifted: poses, likelihoods and the LPM (~15 s: the compile of the run)."""
+    from pqrm_jax.hssh.localization import LocalizeParams
+    from pqrm_jax.hssh.lpm import LPMParams
+    from pqrm_jax.hssh.motion import ACTION_MODELS
+    from pqrm_jax.hssh.tracking import lpm_tracker, track_run
+
+    _, _, true, odom, scans = _log()
+    c = jnp.asarray(ACTION_MODELS["large"])
+    params = LocalizeParams(blocks=2, block=32)
+    tracker = lpm_tracker(c, lpm_params=LPMParams(size=48, resolution=0.1), loc_params=params)
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *scans)
+    runs = []
+    for off in (np.zeros(3), _UTM):
+        final, steps = track_run(tracker, jax.random.key(3), true[0] + off, odom + off, stacked)
+        runs.append((np.asarray(steps.pose) - off, np.asarray(steps.likelihood),
+                     np.asarray(final.lpm.logodds)))
+    np.testing.assert_allclose(runs[1][0], runs[0][0], atol=1e-5)
+    np.testing.assert_allclose(runs[1][1], runs[0][1], atol=1e-6)
+    np.testing.assert_array_equal(runs[1][2], runs[0][2])

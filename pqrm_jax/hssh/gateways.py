@@ -165,7 +165,7 @@ def _walk(tree, start, prev, stop):
 
 
 def search_spaces(tree: nx.Graph, closest: tuple[int, int], cr: Core,
-                  dist2: np.ndarray) -> list[Branch]:
+                  dist2: np.ndarray, stops=()) -> list[Branch]:
     """Branches leaving the core and their search spaces ``S_e`` (B Alg. 6.2).
 
     Args:
@@ -173,11 +173,13 @@ def search_spaces(tree: nx.Graph, closest: tuple[int, int], cr: Core,
         closest: ``(row, col)`` skeleton cell closest to the robot.
         cr: the core (:class:`Core`).
         dist2: ``[H, W]`` squared distance transform.
+        stops: more nodes where branches stop, as at junctions (the pruned skeleton's
+            ``forks``).
 
     Returns:
         one :class:`Branch` per tree edge ``(e, o)`` with ``e`` in the core, ``o`` outside.
     """
-    stop = set(cr.junctions) | {closest}
+    stop = set(cr.junctions) | {closest} | set(stops)
     out = []
     for e in sorted(cr.core):
         for o in sorted(tree.neighbors(e)):

@@ -41,6 +41,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from pqrm_jax.hssh.motion import sample_motion
 from pqrm_jax.sim.lidar import LidarScan
@@ -92,7 +93,10 @@ def scan_likelihood(poses: jax.Array, scan: LidarScan, dist2: jax.Array, origin:
 
     Returns:
         ``[P]`` float in ``[0, 1]``: the mean over the beams that hit of the likelihood field
-        ``exp(−d²/2σ²)`` at the beam end (0 outside the map; B §4.3.2).
+        ``exp(−d²/2σ²)`` at the beam end (0 outside the map; B §4.3.2). Beam ends are taken
+        relative to the map origin, ``(pose - origin) + range * direction``, with the
+        difference first (in float64 on the host for float64 NumPy ``poses`` or ``origin``), so
+        the result does not depend on where the world origin is (issue 26).
 
     >>> d2 = jnp.zeros((4, 4), jnp.int32)
     >>> z = LidarScan(jnp.array([0.0]), jnp.array([1.0]), jnp.array([True]))
@@ -100,17 +104,36 @@ def scan_likelihood(poses: jax.Array, scan: LidarScan, dist2: jax.Array, origin:
     1.0
     """
     h, w = dist2.shape
+    rel = _relative(poses, origin)   # pose minus map origin, taken before any float32 rounding
+    poses = jnp.asarray(poses)
     ang = poses[:, 2, None] + scan.angles[None, :]
-    ex = poses[:, 0, None] + scan.ranges[None, :] * jnp.cos(ang)
-    ey = poses[:, 1, None] + scan.ranges[None, :] * jnp.sin(ang)
-    j = jnp.floor((ex - origin[0]) / resolution).astype(jnp.int32)
-    i = jnp.floor((ey - origin[1]) / resolution).astype(jnp.int32)
+    ex = rel[:, 0, None] + scan.ranges[None, :] * jnp.cos(ang)
+    ey = rel[:, 1, None] + scan.ranges[None, :] * jnp.sin(ang)
+    j = jnp.floor(ex / resolution).astype(jnp.int32)
+    i = jnp.floor(ey / resolution).astype(jnp.int32)
     ok = (scan.hit & jnp.isfinite(scan.ranges))[None, :]
     inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
     d2 = dist2[jnp.clip(i, 0, h - 1), jnp.clip(j, 0, w - 1)].astype(jnp.float32)
     lik = jnp.where(inside, jnp.exp(-d2 * resolution**2 / (2 * sigma**2)), 0.0)
     n = jnp.maximum(ok.sum(), 1)
     return jnp.where(ok, lik, 0.0).sum(axis=1) / n
+
+
+def _concrete64(*xs) -> bool:
+    """True when no argument is traced and one of them is a float64 NumPy array: the host
+    float64 paths (local frame) of :func:`scan_likelihood` and :func:`localize_with_count`."""
+    if any(isinstance(x, jax.core.Tracer) for x in xs):
+        return False
+    return any(isinstance(x, np.ndarray) and x.dtype == np.float64 for x in xs)
+
+
+def _relative(poses, origin) -> jax.Array:
+    """``poses[:, :2] - origin`` ``[P, 2]`` float32: in float64 on the host for concrete
+    float64 input (UTM-sized coordinates keep their 0.1 m), else in the input precision."""
+    if _concrete64(poses, origin):
+        return jnp.asarray(np.asarray(poses, np.float64)[:, :2]
+                           - np.asarray(origin, np.float64), jnp.float32)
+    return jnp.asarray(poses)[:, :2] - jnp.asarray(origin)
 
 
 def kld_bound(k: jax.Array, epsilon: float, confidence: float) -> jax.Array:
@@ -215,7 +238,6 @@ def localize(key: jax.Array, prior: jax.Array, prev_odom: jax.Array, odom: jax.A
     return pose, lik
 
 
-@partial(jax.jit, static_argnames=("method", "params"))
 def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
                         odom: jax.Array, scan: LidarScan, dist2: jax.Array, origin: jax.Array,
                         resolution: float, c: jax.Array, method: str = "shrink_and_grow",
@@ -231,6 +253,13 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
     then refit draws): methods compared at an equal particle budget (issue 26). A refit
     (shrink, shrink-and-grow) fits its Gaussian to the budgeted particles only.
 
+    World coordinates: with concrete float64 NumPy ``prior``, odometry or ``origin`` the step
+    runs in a local frame at the prior's position, taken in float64 on the host (the map
+    origin and the odometry step are differences taken before rounding to float32), and the
+    pose comes back as float64 NumPy. So at UTM-sized coordinates (5e5, 4.2e6 m) the result
+    equals the one at the origin, shifted (issue 26). Traced or float32 input takes the
+    float32 path: inside one's own ``jit``, use local coordinates.
+
     Args:
         key, prior, prev_odom, odom, scan, dist2, origin, resolution, c, method, params: as
             :func:`localize`.
@@ -239,6 +268,33 @@ def localize_with_count(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
     Returns:
         ``(pose [3], likelihood, particles)``.
     """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not _concrete64(prior, prev_odom, odom, origin):
+        return _localize_jit(key, prior, prev_odom, odom, scan, dist2, origin, resolution, c,
+                             method=method, params=params, budget=budget)
+    pr, po, od, org = (np.asarray(x, np.float64) for x in (prior, prev_odom, odom, origin))
+    ref = pr[:2].copy()
+    local = np.array([0.0, 0.0, pr[2]])
+    step = np.concatenate([od[:2] - po[:2], od[2:]])
+    pose, lik, n = _localize_jit(key, jnp.asarray(local, jnp.float32),
+                                 jnp.asarray([0.0, 0.0, po[2]], jnp.float32),
+                                 jnp.asarray(step, jnp.float32), scan, dist2,
+                                 jnp.asarray(org - ref, jnp.float32), resolution, c,
+                                 method=method, params=params, budget=budget)
+    out = np.asarray(pose, np.float64)
+    out[:2] += ref
+    return out, lik, n
+
+
+@partial(jax.jit, static_argnames=("method", "params"))
+def _localize_jit(key: jax.Array, prior: jax.Array, prev_odom: jax.Array,
+                        odom: jax.Array, scan: LidarScan, dist2: jax.Array, origin: jax.Array,
+                        resolution: float, c: jax.Array, method: str = "shrink_and_grow",
+                        params: LocalizeParams = DEFAULT_PARAMS,
+                        budget: jax.Array | None = None
+                        ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """:func:`localize_with_count` on float32 (or traced) input."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     kb, b = params.blocks, params.block

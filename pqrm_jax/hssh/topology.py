@@ -200,12 +200,12 @@ def topology_from_maps(occupied: np.ndarray, unknown: np.ndarray, free_space: np
     if not occupied.any():
         raise ValueError("no obstacle left after island removal: featureless open space is "
                          "not handled (B §3.3)")
-    pr = prune_skeleton(skeleton, free_space, unknown, robot_cell)
+    pr = prune_skeleton(skeleton, free_space, unknown, robot_cell, dist2)
     empty = np.zeros((0, 2, 2)), np.zeros((0, 2))
     if pr.closest is None or not pr.exits:
         return LocalTopology(*empty, 0, (), "enclosed", (), pr, None, ())
     cr = core(pr.tree, pr.closest, dist2)
-    branches = search_spaces(pr.tree, pr.closest, cr, dist2)
+    branches = search_spaces(pr.tree, pr.closest, cr, dist2, pr.forks)
     gws = find_gateways(branches, dist2, occupied, method=method, side_slack=side_slack,
                         side_cone=side_cone)
     ends = np.array([g.ends for g in gws], float).reshape(-1, 2, 2)
