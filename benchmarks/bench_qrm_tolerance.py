@@ -20,14 +20,26 @@ Second part: the set-size cost of the default tolerance per bearing spread (rand
 with bearings uniform in a sector, as benchmarks/bench_camera_exact.py), mean states kept
 per relation by the kernel at tolerance 0 and at the default, float32 and float64.
 
+Third part (``--traverse``, issue #27 item 4): the kernel's speed on the Mars-Yard traverse
+(benchmarks/bench_warm.py ``--what traverse``: 30 landmarks, 50 images, 18 nearest → 816
+triples an image, float32, default tolerance). Per image, CPU and wall seconds of
+:func:`pqrm_jax.qrm.exact_camera.exact_sets` as shipped (the screen: full tolerant decision
+only on the flagged triples) against ``screen=False`` (the full decision on every triple,
+the kernel before the screen) and against tolerance 0, interleaved in one process; the
+ratios survive load. The sets of both tolerant paths must be identical; the triples flagged
+per image and the whole warm ``run_sequence`` are recorded too.
+
     /work/bin/heavy .venv/bin/python benchmarks/bench_qrm_tolerance.py \
         [--layouts 40] [--images 4] [--out benchmarks/results/qrm_tolerance.json]
+    /work/bin/heavy .venv/bin/python benchmarks/bench_qrm_tolerance.py --traverse-only \
+        [--out benchmarks/results/qrm_tolerance_traverse.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -179,6 +191,69 @@ def spread_cost(dtype, count, seed):
     return dict(dtype=np.dtype(dtype).name, rows=rows)
 
 
+def traverse_speed(rounds: int = 3) -> dict:
+    """Per-image CPU/wall seconds of the screened kernel vs ``screen=False`` and tolerance 0
+    on the traverse's images (float32), interleaved; the sets must be identical."""
+    from pqrm_jax.qrm import exact_camera as X
+    from pqrm_jax.qrm import pipeline as P
+
+    spec = qrm_spec("edc")
+    lm = sim.uniform_landmarks(jax.random.key(1), 30, (30.0, 30.0))
+    poses = sim.traverse(jax.random.key(2), 50, size=(30.0, 30.0))
+    sensor = sim.SensorParams(max_range=1e6)
+    tri = C.slot_triples(18)
+    imgs = []
+    for p in poses:  # the 816 triples of each image, as run_sequence measures them
+        cam = sim.camera(p, lm, sensor)
+        ids = np.asarray(C.select_nearest(cam.range_rank, cam.visible, 18))
+        imgs.append(jnp.asarray(np.asarray(cam.bearings)[ids[tri]]))
+    tol = jnp.asarray(C.default_tolerance(np.float32), jnp.float32)
+    paths = {
+        "screened": jax.jit(lambda b, t: X.exact_sets(spec, b, t)),
+        "all_triples": jax.jit(lambda b, t: X.exact_sets(spec, b, t, screen=False)),
+        "tol0": jax.jit(lambda b: X.exact_sets(spec, b, 0.0)),
+    }
+    args = {"screened": (tol,), "all_triples": (tol,), "tol0": ()}
+    same = True
+    for b in imgs:
+        a, r = paths["screened"](b, tol), paths["all_triples"](b, tol)
+        same &= all(bool(jnp.all(x == y)) for x, y in zip(a, r, strict=True))
+    flags = jax.jit(lambda b, t: X.tolerant_flags(spec, b, t))
+    nflag = [int(flags(b, tol).sum()) for b in imgs]
+    times = {k: {"cpu_s": [], "wall_s": []} for k in paths}
+    for _ in range(rounds):
+        for k, f in paths.items():
+            jax.block_until_ready(f(imgs[0], *args[k]))
+            c0, w0 = time.process_time(), time.perf_counter()
+            for b in imgs:
+                out = f(b, *args[k])
+            jax.block_until_ready(out)
+            times[k]["cpu_s"].append((time.process_time() - c0) / len(imgs))
+            times[k]["wall_s"].append((time.perf_counter() - w0) / len(imgs))
+    best = {k: min(v["cpu_s"]) for k, v in times.items()}
+    # the whole warm traverse (the shipped kernel only)
+    jax.block_until_ready(P.run_sequence(lm, poses, 18)[0].rel)
+    c0, w0 = time.process_time(), time.perf_counter()
+    jax.block_until_ready(P.run_sequence(lm, poses, 18)[0].rel)
+    run = {"cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0}
+    res = dict(images=len(imgs), triples=int(tri.shape[0]), identical_sets=bool(same),
+               flagged_mean=float(np.mean(nflag)), flagged_max=int(max(nflag)),
+               buffer=X.screen_buffer(int(tri.shape[0])),
+               overflow_images=int(sum(n > X.screen_buffer(int(tri.shape[0])) for n in nflag)),
+               per_image=times, best_cpu_s=best,
+               cpu_ratio_screened_vs_all=best["screened"] / best["all_triples"],
+               cpu_ratio_screened_vs_tol0=best["screened"] / best["tol0"],
+               run_sequence_warm=run, load_avg=os.getloadavg())
+    print(f"traverse kernel per image (best of {rounds}, CPU ms): screened "
+          f"{1e3 * best['screened']:.1f}, all triples {1e3 * best['all_triples']:.1f}, tol 0 "
+          f"{1e3 * best['tol0']:.1f}; ratio screened/all {res['cpu_ratio_screened_vs_all']:.3f}"
+          f"; flagged {res['flagged_mean']:.1f} (max {res['flagged_max']}, buffer "
+          f"{res['buffer']}, overflow in {res['overflow_images']} images); identical sets "
+          f"{same}; warm run_sequence {run['wall_s']:.2f} s wall {run['cpu_s']:.2f} CPU-s "
+          f"(load {os.getloadavg()[0]:.1f})", flush=True)
+    return res
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--layouts", type=int, default=40, help="layouts per kind and dtype")
@@ -187,6 +262,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=27)
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--traverse", action="store_true",
+                    help="also time the kernel on the Mars-Yard traverse (screen vs all)")
+    ap.add_argument("--traverse-only", action="store_true", help="only the traverse timing")
     a = ap.parse_args(argv)
     if a.layouts < 1 or a.images < 1 or a.triples < 1:
         ap.error("--layouts, --images and --triples must be >= 1")
@@ -197,7 +275,9 @@ def main(argv=None):
     t0 = time.time()
     res = dict(device=device_info(), layouts=a.layouts, images=a.images, kinds=[],
                spread_cost=[])
-    for dtype in (np.float32, np.float64):
+    if a.traverse or a.traverse_only:
+        res["traverse_speed"] = traverse_speed()
+    for dtype in (() if a.traverse_only else (np.float32, np.float64)):
         tols = (0.0, C.default_tolerance(dtype))
         progs = programs(dtype, tols)
         for i, kind in enumerate(kinds):

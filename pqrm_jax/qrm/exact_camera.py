@@ -44,9 +44,11 @@ leaves states undecided; random input almost never does (benchmarks/bench_camera
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from fractions import Fraction
 from functools import cache
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -56,7 +58,8 @@ from scipy import ndimage
 from .spec import CYCLIC, QRMSpec
 
 __all__ = ["CameraStructure", "camera_structure", "form_values", "exact_sets", "CYCLIC",
-           "VERTICES", "EDGES", "BAND"]
+           "VERTICES", "EDGES", "BAND", "SCREEN_SHARE", "SCREEN_MIN", "screen_buffer",
+           "tolerant_flags"]
 
 #: vertices of the range-order cone on d_far = 1: (0,0,1) both nearer landmarks at the camera,
 #: (0,1,1) near at the camera and mid = far, (1,1,1) all ranges equal
@@ -231,7 +234,8 @@ def _sample_params(A, B, C, z0, z1):
     consecutive roots in (0, 1) and the ends (2K + 1; repeated roots repeat a sample), then
     the vertex of every quadratic (K); and each sample's interval ``(lo, hi)`` between
     consecutive roots with the constraint whose root each end is (−1: an end of the edge;
-    a vertex sample's interval is the point itself)."""
+    a vertex sample's interval is the point itself); last, ``nidx`` [2K + 1, …]: the index
+    among the interval starts ``lo[:2K + 1]`` of each interval's upper end."""
     K = A.shape[0]
     r = _roots(A, B, C, z0, z1).reshape((-1,) + A.shape[1:])  # (2K, …)
     inside = jnp.isfinite(r) & (r > 0) & (r < 1)
@@ -259,7 +263,7 @@ def _sample_params(A, B, C, z0, z1):
     minus = jnp.full((K,) + A.shape[1:], -1, jnp.int32)
     own_lo = jnp.concatenate([own_lo.astype(jnp.int32) + 0 * minus[:1], minus])
     own_hi = jnp.concatenate([own_hi.astype(jnp.int32), minus])
-    return t, valid, lo, hi, own_lo, own_hi
+    return t, valid, lo, hi, own_lo, own_hi, nidx
 
 
 def _reduced(A, B, C, z0, z1):
@@ -418,8 +422,87 @@ def _preimage(w, reps):
             re[0] * im[1] - re[1] * im[0]]
 
 
-def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, samples,
-                      fe, ee, emax):
+class _Edges(NamedTuple):
+    """The tolerance-free part of the edge decision of T triples (:func:`_edges`); shapes
+    with O = 3 relations, 3 edges, S = 3K + 1 samples, P = 2K + 1 interval starts."""
+
+    w: tuple  # (cos, sin) [3 (X, Y, Z), O, 1, T]
+    nodes_d: list  # the 3 vertices and 3 edge midpoints, 3 × [O, 6, 1] (X, Y, Z) order
+    Vi: list  # edge start, 3 × [1, O, 3, 1]
+    Vd: list  # edge direction, 3 × [1, O, 3, 1]
+    van: jax.Array  # [K, O, 3 vertices] constraint vanishes identically at the vertex
+    A: jax.Array  # [K, O, 3, T] edge quadratic A t² + B t + f0 (value f1 at t = 1)
+    B: jax.Array
+    f0: jax.Array
+    fh: jax.Array  # [K, O, 3, T] value at the edge midpoint
+    f1: jax.Array
+    emax: jax.Array  # [K, O, 3, T] largest rounding bound of the three edge nodes
+    t: jax.Array  # [S, O, 3, T] samples (:func:`_sample_params`)
+    valid: jax.Array
+    lo: jax.Array
+    hi: jax.Array
+    own_lo: jax.Array
+    own_hi: jax.Array
+    nidx: jax.Array  # [P, O, 3, T]
+    fe: jax.Array  # [K, S, O, 3, T] values at the samples and their rounding bounds
+    ee: jax.Array
+    band: jax.Array  # [K, S, O, 3, T] uncertainty band of the exact decision
+
+
+def _edges(spec: QRMSpec, st: CameraStructure, bearings) -> _Edges:
+    """The edge samples of bearings [T, 3] and everything the exact decision needs."""
+    dtype = bearings.dtype
+    perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
+    cw, sw = jnp.cos(bearings).T[perm], jnp.sin(bearings).T[perm]  # [O, 3, T]
+    cw, sw = jnp.swapaxes(cw, 0, 1), jnp.swapaxes(sw, 0, 1)  # [3 (X, Y, Z), O, T]
+    w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
+    i, j = np.array(EDGES).T
+    verts = jnp.asarray(VERTICES, dtype)
+    # the three vertices and the three edge midpoints, for the edge quadratics
+    nodes = jnp.concatenate([verts, 0.5 * (verts[i] + verts[j])], 0)  # (6, 3)
+    nodes_d = _rel_d(nodes, (3, 6, 1), dtype)
+    f, e = form_values(spec, w, nodes_d)  # (K, O, 6, T)
+    van = jnp.asarray(np.moveaxis(st.vanish, 1, 0))  # (K, O, 3 vertices)
+    vmask = van[..., None]
+    f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
+    e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
+    f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
+    A = 2 * f0 - 4 * fh + 2 * f1
+    B = -3 * f0 + 4 * fh - f1
+    emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
+    z0, z1 = van[:, :, i, None], van[:, :, j, None]
+    t, valid, lo, hi, own_lo, own_hi, nidx = _sample_params(A, B, f0, z0, z1)  # (S, O, 3, T)
+    Vi = _rel_d(verts[i], (1, 3, 3, 1), dtype)
+    Vd = _rel_d(verts[j] - verts[i], (1, 3, 3, 1), dtype)
+    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
+    band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
+    return _Edges(w, nodes_d, Vi, Vd, van, A, B, f0, fh, f1, emax, t, valid, lo, hi, own_lo,
+                  own_hi, nidx, fe, ee, band)
+
+
+def _rel_d(vals, shape, dtype):
+    """Slot-order values (..., 3) → 3 × [O, ...] in each relation's (X, Y, Z) order."""
+    v = jnp.asarray(vals, dtype)[..., np.array(CYCLIC)]  # (..., O, 3)
+    v = jnp.moveaxis(v, -2, 0)  # (O, ..., 3)
+    return [v[..., k].reshape(shape) for k in range(3)]
+
+
+def _ends(spec: QRMSpec, g: _Edges):
+    """Which end of each sample's interval is tested for constraint k: ``(use_l, use_h,
+    str_l, str_h)`` [K, S, O, 3, T] (an end that is not k's own root; an end at a
+    structural root, where the reduced polynomial is tested instead)."""
+    K = spec.k
+    i, j = np.array(EDGES).T
+    z0, z1 = g.van[:, :, i, None], g.van[:, :, j, None]
+    kk = jnp.arange(K).reshape((K,) + (1,) * g.t.ndim)
+    str_l = (g.own_lo[None] == -1) & (g.lo[None] == 0) & z0[:, None]  # structural root at 0
+    str_h = (g.own_hi[None] == -1) & (g.hi[None] >= 1) & z1[:, None]
+    use_l = (g.own_lo[None] != kk) & ~str_l
+    use_h = (g.own_hi[None] != kk) & ~str_h
+    return use_l, use_h, str_l, str_h
+
+
+def _tolerance_unsure(spec: QRMSpec, g: _Edges, tol, loose):
     """[K, S, O, 3, T] signs made uncertain by the bearing tolerance, and the bound ``Δ``.
 
     A sign is unsure where a change of at most ``tol`` of each bearing can flip it somewhere
@@ -428,34 +511,26 @@ def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, 
     change (derivatives, max over the interval) plus the second-order bound
     (:func:`_perturbation`); at a structural root the reduced polynomial's value is tested.
     """
-    A, B, f0, f1 = quad
-    t, lo, hi, own_lo, own_hi = samples
+    lo, hi, fe, ee, emax = g.lo, g.hi, g.fe, g.ee, g.emax
     K = spec.k
     i, j = np.array(EDGES).T
-    z0, z1 = van[:, :, i, None], van[:, :, j, None]
-    full_d, red_d, second, second_red = _perturbation(spec, w, nodes_d, Vi, Vd, van, tol)
+    z0, z1 = g.van[:, :, i, None], g.van[:, :, j, None]
+    full_d, red_d, second, second_red = _perturbation(spec, g.w, g.nodes_d, g.Vi, g.Vd,
+                                                      g.van, tol)
     delta = tol * _interval_max(full_d, lo, hi) + second[:, None]  # (K, S, O, 3, T)
     P = 2 * K + 1  # interval samples; then the K vertex samples (lo = hi = t)
-    fp, ep = form_values(spec, w, [Vi[k] + lo[:P] * Vd[k] for k in range(3)])  # (K,P,O,3,T)
-    nidx = jnp.argmin(jnp.where(
-        (lo[None, :P] > lo[:P, None]) | ((lo[None, :P] == lo[:P, None])
-                                         & (np.arange(P)[None, :, None, None, None]
-                                            > np.arange(P)[:, None, None, None, None])),
-        lo[None, :P], 2.0), axis=1)  # index of each interval's upper end among the pts
-    f_hi = jnp.take_along_axis(fp, jnp.broadcast_to(nidx[None], fp.shape), 1)
-    e_hi = jnp.take_along_axis(ep, jnp.broadcast_to(nidx[None], ep.shape), 1)
+    fp, ep = form_values(spec, g.w, [g.Vi[k] + lo[:P] * g.Vd[k] for k in range(3)])
+    # the upper end of each interval is the start of another (index nidx), or t = 1
+    f_hi = jnp.take_along_axis(fp, jnp.broadcast_to(g.nidx[None], fp.shape), 1)
+    e_hi = jnp.take_along_axis(ep, jnp.broadcast_to(g.nidx[None], ep.shape), 1)
     at1 = hi[:P] >= 1
-    f_hi = jnp.where(at1[None], f1[:, None], f_hi)
+    f_hi = jnp.where(at1[None], g.f1[:, None], f_hi)
     e_hi = jnp.where(at1[None], emax[:, None], e_hi)
     f_lo = jnp.concatenate([fp, fe[:, P:]], 1)
     e_lo = jnp.concatenate([ep, ee[:, P:]], 1)
     f_hi = jnp.concatenate([f_hi, fe[:, P:]], 1)
     e_hi = jnp.concatenate([e_hi, ee[:, P:]], 1)
-    kk = jnp.arange(K).reshape((K,) + (1,) * t.ndim)
-    str_l = (own_lo[None] == -1) & (lo[None] == 0) & z0[:, None]  # structural root at t = 0
-    str_h = (own_hi[None] == -1) & (hi[None] >= 1) & z1[:, None]
-    use_l = (own_lo[None] != kk) & ~str_l
-    use_h = (own_hi[None] != kk) & ~str_h
+    use_l, use_h, str_l, str_h = _ends(spec, g)
     bmin = BAND * emax[:, None]
 
     def near0(f_, e_):
@@ -463,7 +538,7 @@ def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, 
 
     flip = lambda f_: jnp.sign(f_) != jnp.sign(fe)  # noqa: E731
     # at a structural root the reduced polynomial's value there (its sign near the vertex)
-    r2, r1, r0 = _reduced(A, B, f0, z0, z1)
+    r2, r1, r0 = _reduced(g.A, g.B, g.f0, z0, z1)
     g_0, g_1 = r0, r2 + r1 + r0
     dg_0 = jnp.sum(jnp.abs(red_d[2]), 0)
     dg_1 = jnp.sum(jnp.abs(red_d[0] + red_d[1] + red_d[2]), 0)
@@ -474,6 +549,129 @@ def _tolerance_unsure(spec: QRMSpec, w, nodes_d, Vi, Vd, van, tol, loose, quad, 
                       | (str_l & (jnp.abs(g_0) <= str_band + tol * dg_0)[:, None])
                       | (str_h & (jnp.abs(g_1) <= str_band + tol * dg_1)[:, None]))
     return unsure, delta
+
+
+#: Margins of the screen (:func:`_screen`) over the exact path's own bounds, for ranges on
+#: the cone's edges (every range in [0, 1], so ``|D|, |E| ≤ 2``): the first-order term of
+#: ``Δ`` (``_SCREEN_D1`` × an exact bound of ``Σ_s max |∂f/∂θ_s|`` on the edge, plus
+#: ``_SCREEN_D1E eps Σ|c|`` for its interpolation's rounding), the second-order term (``≤ 64
+#: Σ|c| τ²``), a reduced derivative's coefficients (``Σ_s |·| ≤ 51 · 4 Σ|c|``) and a form's
+#: rounding bound (``e ≤ 72 Σ|c| eps``); each with a margin (≥ 25 %) so the float evaluation
+#: of the exact path's bounds never exceeds them (``Σ|c|``: a constraint's coefficients)
+_SCREEN_D1, _SCREEN_D1E, _SCREEN_D2, _SCREEN_DRED, _SCREEN_E = 1.25, 1024.0, 128.0, 256.0, 128.0
+
+
+def _derivative_bound(spec: QRMSpec, g: _Edges):
+    """[K, O, 3, T] exact bound of ``Σ_s max_t |∂f_k/∂θ_s|`` on each edge: ``|∂_X n| ≤ 2 |D|
+    d_X`` and so on, with ``|D|``, ``|E|`` (convex on the edge) and the ranges at their
+    largest vertex value."""
+    cw, sw = (x[:, :, 0] for x in g.w)  # [3, O, T]
+    # the vertices' ranges in each relation's (X, Y, Z) order: [3, O, 3 vertices, 1]
+    vdn = np.moveaxis(VERTICES[:, np.array(CYCLIC)], (2, 1, 0), (0, 1, 2))[..., None]
+    vd = [jnp.asarray(x, cw.dtype) for x in vdn]
+
+    def norm(a, b):
+        return jnp.hypot(vd[a] * cw[a][:, None] - vd[b] * cw[b][:, None],
+                         vd[a] * sw[a][:, None] - vd[b] * sw[b][:, None])
+
+    i, j = np.array(EDGES).T
+    Dv, Ev = norm(1, 0), norm(2, 0)  # [O, 3 vertices, T]
+    Dm, Em = jnp.maximum(Dv[:, i], Dv[:, j]), jnp.maximum(Ev[:, i], Ev[:, j])  # [O, 3, T]
+    dm = np.maximum(vdn[:, :, i], vdn[:, :, j])  # [3, O, 3 edges, 1]
+    dX, dY, dZ = (jnp.asarray(x, cw.dtype) for x in dm)
+    bn = 2 * Dm * (dX + dY)
+    buv = dX * (Dm + Em) + Em * dY + Dm * dZ
+    bm = 2 * Em * (dX + dZ)
+    cl = np.abs(np.asarray(spec.lin))
+    return jnp.stack([c[0] * bn + (c[1] + c[2]) * buv + c[3] * bm for c in cl])
+
+
+def _screen(spec: QRMSpec, st: CameraStructure, g: _Edges, tol, loose):
+    """[T] bool: triples whose edge sets the tolerance may change (sound: an unflagged
+    triple's tolerant edge sets equal its exact ones).
+
+    The tolerant decision (:func:`_tolerance_unsure`) differs from the exact one only where
+    it makes a sign uncertain that the exact band leaves certain, on a valid sample, or
+    where it validates a quadratic's vertex sample. Both need a value within ``Δ`` (plus
+    rounding) of zero; here ``Δ`` is replaced by a bound that needs no derivative of the
+    forms (:func:`_derivative_bound`, one per edge), and the values at the interval ends by
+    the edge quadratic (three flops a value instead of a form evaluation), with the error of
+    that interpolation (the node rounding, ``1.25 emax``; the value's own rounding, ``≤
+    _SCREEN_E eps Σ|c|``; the polynomial's evaluation, ``≤ 128 eps`` times the largest node
+    value) added to the threshold. A sign at an end that differs from the sample's counts as
+    near (``q · sign(f) ≤ threshold`` covers both).
+    """
+    K = spec.k
+    S, P = 3 * K + 1, 2 * K + 1
+    fe, band, emax, lo, hi = g.fe, g.band, g.emax, g.lo[:P], g.hi[:P]
+    dtype = fe.dtype
+    eps = jnp.finfo(dtype).eps
+    i, j = np.array(EDGES).T
+    z0, z1 = g.van[:, :, i, None], g.van[:, :, j, None]  # (K, O, 3, 1)
+    csum = jnp.asarray(np.abs(np.asarray(spec.lin)).sum(1), dtype).reshape(K, 1, 1, 1)
+    second = csum * (_SCREEN_D2 * tol * tol)
+    dbar = tol * (_SCREEN_D1 * _derivative_bound(spec, g) + _SCREEN_D1E * eps * csum) + second
+    ebar = csum * (_SCREEN_E * eps)  # ≥ a form's rounding bound on an edge
+    big = jnp.maximum(jnp.maximum(jnp.abs(g.f0), jnp.abs(g.fh)), jnp.abs(g.f1))
+    err = 2 * emax + ebar + 128 * eps * big  # |form value − edge quadratic| (K, O, 3, T)
+    thr = (jnp.maximum(_CERTAIN * ebar, BAND * emax) + dbar + err)[:, None]
+    margin = jnp.abs(fe) - band  # > 0: certain in the exact decision
+    ok = jnp.asarray(st.edge_ok)[None, :, :, None] & g.valid  # (S, O, 3, T)
+    # a quadratic's vertex sample is valid where its own value is within the band (and,
+    # with the tolerance, within the band + Δ: the window flags those)
+    own_m = jnp.moveaxis(jnp.diagonal(margin[:, S - K:], axis1=0, axis2=1), -1, 0)
+    window = ok[S - K:] & (own_m > 0) & (own_m <= dbar)  # (K, O, 3, T)
+    ok = jnp.concatenate([ok[:S - K], ok[S - K:] & (own_m <= 0)])
+    base = ok & (margin > 0)
+    sgn = jnp.sign(fe[:, :P])
+    # the interval ends: a start that is k's own root (static owner, unless the root lies
+    # outside (0, 1) and the start is t = 0) or an end whose next root is k's is not tested
+    owner = np.concatenate([[-1], np.arange(2 * K) % K])  # pts[1 + m]: a root of m % K
+    kk = np.arange(K).reshape(K, 1, 1, 1, 1)
+    at0, at1 = lo == 0, hi >= 1  # (P, O, 3, T)
+    ne_lo = jnp.asarray(owner.reshape(1, P, 1, 1, 1) != kk)
+    use_l = jnp.where(at0[None], ~z0[:, None], ne_lo)
+    use_h = jnp.where(at1[None], ~z1[:, None], jnp.asarray(owner)[g.nidx][None] != kk)
+
+    def quad(x):
+        return (g.A[:, None] * x + g.B[:, None]) * x + g.f0[:, None]
+
+    q_hi = jnp.where(at1[None], g.f1[:, None], quad(hi))
+    r2, r1, r0 = _reduced(g.A, g.B, g.f0, z0, z1)
+    sb = BAND * emax + second + tol * (csum * _SCREEN_DRED)
+    s0 = (z0 & (jnp.abs(r0) <= sb))[:, None]
+    s1 = (z1 & (jnp.abs(r2 + r1 + r0) <= sb))[:, None]
+    end = ((use_l & (quad(lo) * sgn <= thr)) | (use_h & (q_hi * sgn <= thr))
+           | (at0[None] & s0) | (at1[None] & s1))
+    changed = (jnp.any(base[:, :P] & end, (0, 1, 2, 3))
+               | jnp.any(base & (margin <= dbar[:, None]), (0, 1, 2, 3)))
+    return loose & (changed | jnp.any(window, (0, 1, 2)))
+
+
+def _edge_atoms(spec: QRMSpec, st: CameraStructure, g: _Edges, loose, unsure, delta):
+    """Witness and possible atom masks [O, T] of the edge samples (lemma case 1); ``unsure``
+    and ``delta`` the tolerance's uncertain signs and bound (None: the exact decision)."""
+    K = spec.k
+    S = g.t.shape[0]
+    fe, band = g.fe, g.band
+    # a quadratic's vertex is only needed where it nears zero there (a tangency that the
+    # roots may have missed); elsewhere it could sit on another constraint's root
+    own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
+    own_band = jnp.moveaxis(jnp.diagonal(band[:, S - K:], axis1=0, axis2=1), -1, 0)
+    if delta is not None:
+        own_d = jnp.moveaxis(jnp.diagonal(delta[:, S - K:], axis1=0, axis2=1), -1, 0)
+        own_band = own_band + jnp.where(loose, own_d, 0.0)
+    valid = jnp.concatenate([g.valid[:S - K], g.valid[S - K:] & (jnp.abs(own) <= own_band)])
+    wit, poss = _atoms(spec, fe, _CERTAIN * g.ee, band, unsure)  # (S, O, 3, T)
+    ok = jnp.asarray(st.edge_ok)[None, :, :, None] & valid
+    wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 2))  # (O, T)
+    poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 2))
+    return wit, poss
+
+
+def _tolerant_edge_atoms(spec: QRMSpec, st: CameraStructure, g: _Edges, tol, loose):
+    unsure, delta = _tolerance_unsure(spec, g, tol, loose)
+    return _edge_atoms(spec, st, g, loose, unsure, delta)
 
 
 def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
@@ -515,7 +713,30 @@ def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
     return wit, poss
 
 
-def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, jax.Array]:
+#: triples of a batch that get the full tolerant decision in a buffer (the rest keep the
+#: exact sets, :func:`_screen`): ``max(SCREEN_MIN, ⌈T · SCREEN_SHARE⌉)``; more flagged
+#: triples than that run the full decision on every triple (same sets, today's cost).
+#: Sized on the Mars-Yard traverse (float32, 816 triples an image): benchmarks/bench_qrm.py
+SCREEN_SHARE = 1 / 16
+SCREEN_MIN = 16
+
+
+def screen_buffer(n_triples: int) -> int:
+    """Static size of the buffer of flagged triples for a batch of ``n_triples``."""
+    return min(n_triples, max(SCREEN_MIN, math.ceil(n_triples * SCREEN_SHARE)))
+
+
+def tolerant_flags(spec: QRMSpec, bearings: jax.Array, tol) -> jax.Array:
+    """[T] bool: the triples of ``bearings`` [T, 3] whose sets :func:`exact_sets` decides
+    with the full tolerant edge decision (the others' tolerant edge sets are proven equal to
+    their exact ones; all False at ``tol = 0``)."""
+    st = camera_structure(spec)
+    tol = jnp.asarray(tol, bearings.dtype)
+    return _screen(spec, st, _edges(spec, st, bearings), tol, tol > 0)
+
+
+def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0, *,
+               screen: bool = True) -> tuple[jax.Array, jax.Array]:
     """Feasible atoms of the three cyclic relations of each triple, by the boundary decision.
 
     Args:
@@ -525,6 +746,9 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, 
             feasible for *some* bearings within τ of the given ones (each bearing
             independently) and ranges in the given order (ties allowed). 0: the sets of the
             given bearings exactly.
+        screen: run the tolerant edge decision only on the triples a cheap sound test flags
+            (:func:`_screen`; the others keep their exact edge sets, which it proves equal);
+            False: on every triple (the reference; same sets).
 
     Returns:
         ``(possible, undecided)`` [T, 3] uint32 *atom* masks: ``possible`` holds every
@@ -544,55 +768,31 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0) -> tuple[jax.Array, 
     dtype = bearings.dtype
     tol = jnp.asarray(tol, dtype)
     loose = tol > 0
-    K = spec.k
-    perm = np.array(CYCLIC)  # perm[o] = (X, Y, Z): relation-order position → slot
-    inv = np.argsort(perm, 1)  # inv[o][slot] = relation-order position
-    cw, sw = jnp.cos(bearings).T[perm], jnp.sin(bearings).T[perm]  # [O, 3, T]
-    cw, sw = jnp.swapaxes(cw, 0, 1), jnp.swapaxes(sw, 0, 1)  # [3 (X, Y, Z), O, T]
+    T = bearings.shape[0]
+    inv = np.argsort(np.array(CYCLIC), 1)  # inv[o][slot] = relation-order position
+    g = _edges(spec, st, bearings)
+    if not screen:
+        wit, poss = _tolerant_edge_atoms(spec, st, g, tol, loose)
+    else:
+        wit0, poss0 = _edge_atoms(spec, st, g, loose, None, None)
+        flag = _screen(spec, st, g, tol, loose)
+        n = jnp.sum(flag)
+        size = screen_buffer(T)
 
-    w = (cw[:, :, None], sw[:, :, None])  # [3, O, 1, T]: broadcasts against [(S,) O, X, T]
+        def buffered():
+            idx = jnp.nonzero(flag, size=size, fill_value=T)[0]
+            sub = bearings[jnp.minimum(idx, T - 1)]
+            w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
+            return (wit0.at[:, idx].set(w_, mode="drop"),
+                    poss0.at[:, idx].set(p_, mode="drop"))
 
-    def rel_d(vals, shape):  # slot-order values (..., 3) → 3 × [O, ...] in (X, Y, Z) order
-        v = jnp.asarray(vals, dtype)[..., perm]  # (..., O, 3)
-        v = jnp.moveaxis(v, -2, 0)  # (O, ..., 3)
-        return [v[..., k].reshape(shape) for k in range(3)]
+        def everyone():
+            return _tolerant_edge_atoms(spec, st, g, tol, loose)
 
-    i, j = np.array(EDGES).T
-    verts = jnp.asarray(VERTICES, dtype)
-    # the three vertices and the three edge midpoints, for the edge quadratics
-    nodes = jnp.concatenate([verts, 0.5 * (verts[i] + verts[j])], 0)  # (6, 3)
-    f, e = form_values(spec, w, rel_d(nodes, (3, 6, 1)))  # (K, O, 6, T)
-    van = jnp.asarray(np.moveaxis(st.vanish, 1, 0))  # (K, O, 3 vertices)
-    vmask = van[..., None]
-    f = jnp.concatenate([jnp.where(vmask, 0.0, f[:, :, :3]), f[:, :, 3:]], 2)
-    e = jnp.concatenate([jnp.where(vmask, 0.0, e[:, :, :3]), e[:, :, 3:]], 2)
-    f0, fh, f1 = f[:, :, i], f[:, :, 3:], f[:, :, j]  # (K, O, 3 edges, T)
-    A = 2 * f0 - 4 * fh + 2 * f1
-    B = -3 * f0 + 4 * fh - f1
-    emax = jnp.maximum(jnp.maximum(e[:, :, i], e[:, :, 3:]), e[:, :, j])
-    z0, z1 = van[:, :, i, None], van[:, :, j, None]
-    t, valid, lo, hi, own_lo, own_hi = _sample_params(A, B, f0, z0, z1)  # (S, O, 3, T)
-    S = t.shape[0]
-    Vi = rel_d(verts[i], (1, 3, 3, 1))
-    Vd = rel_d(verts[j] - verts[i], (1, 3, 3, 1))
-    fe, ee = form_values(spec, w, [Vi[k] + t * Vd[k] for k in range(3)])  # (K,S,O,3,T)
-    band = jnp.maximum(_CERTAIN * ee, BAND * emax[:, None])
-    unsure, delta = _tolerance_unsure(
-        spec, w, rel_d(nodes, (3, 6, 1)), Vi, Vd, van, tol, loose, (A, B, f0, f1),
-        (t, lo, hi, own_lo, own_hi), fe, ee, emax)
-    # a quadratic's vertex is only needed where it nears zero there (a tangency that the
-    # roots may have missed); elsewhere it could sit on another constraint's root
-    own = jnp.moveaxis(jnp.diagonal(fe[:, S - K:], axis1=0, axis2=1), -1, 0)
-    own_band = jnp.moveaxis(jnp.diagonal(band[:, S - K:], axis1=0, axis2=1), -1, 0)
-    own_d = jnp.moveaxis(jnp.diagonal(delta[:, S - K:], axis1=0, axis2=1), -1, 0)
-    own_band = own_band + jnp.where(loose, own_d, 0.0)
-    valid = jnp.concatenate([valid[:S - K], valid[S - K:] & (jnp.abs(own) <= own_band)])
-    wit, poss = _atoms(spec, fe, _CERTAIN * ee, band, unsure)  # (S, O, 3, T)
-    ok = jnp.asarray(st.edge_ok)[None, :, :, None] & valid
-    wit = _or(jnp.where(ok, wit, jnp.uint32(0)), (0, 2))  # (O, T)
-    poss = _or(jnp.where(ok, poss, jnp.uint32(0)), (0, 2))
+        branch = jnp.where(n == 0, 0, jnp.where(n <= size, 1, 2))
+        wit, poss = jax.lax.switch(branch, [lambda: (wit0, poss0), buffered, everyone])
     # region points: R_s inside the image of the cone
-    rwit, rposs = _region_atoms(spec, st, w, tol, loose, inv)
+    rwit, rposs = _region_atoms(spec, st, g.w, tol, loose, inv)
     wit = wit | rwit
     poss = poss | rposs | wit
     return poss.T, (poss & ~wit).T

@@ -1,0 +1,121 @@
+"""The tolerant camera kernel runs its full decision only on the triples a cheap sound test
+flags (issue #27 item 4: the Mars-Yard traverse's speed; docs/qrm.md §camera).
+
+:func:`pqrm_jax.qrm.exact_camera.exact_sets` screens every triple
+(:func:`~pqrm_jax.qrm.exact_camera.tolerant_flags`): an unflagged triple keeps its exact edge
+sets, which the screen proves equal to the tolerant ones; the flagged ones run the full
+tolerant decision in a buffer, or every triple does when more are flagged than it holds.
+The sets must equal the all-triples path (``screen=False``, the decision before the screen)
+bit for bit, on generic, near-degenerate (narrow spreads, two or three nearly equal
+bearings) and mixed batches, through the buffer and through the fallback.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pqrm_jax.qrm import camera as C
+from pqrm_jax.qrm import exact_camera as X
+from pqrm_jax.qrm.spec import qrm_spec
+
+SPEC = qrm_spec("edc")
+T = 64  # one compiled shape per dtype and path
+
+
+def _batch(rng: np.random.Generator, near: int, dtype,
+           spreads=(0.05, 0.3, 1.0, 2 * np.pi)) -> np.ndarray:
+    """[T, 3] range-order bearings: generic triples (spreads 0.05–2π) and ``near``
+    near-degenerate ones (three within ~1e-7 rad, two equal, a 1e-5 spread)."""
+    spread = rng.choice(spreads, (T, 1))
+    b = rng.uniform(-np.pi, np.pi, (T, 1)) + rng.uniform(0, 1, (T, 3)) * spread
+    for r in range(near):
+        kind = rng.integers(3)
+        c = rng.uniform(-np.pi, np.pi)
+        if kind == 0:  # three on (nearly) one ray
+            b[r] = c + rng.normal(0, 1e-7, 3)
+        elif kind == 1:  # two equal bearings
+            b[r, :2] = c
+        else:
+            b[r] = c + rng.uniform(0, 1e-5, 3)
+    return b.astype(dtype)
+
+
+def _paths(dtype):
+    return (jax.jit(lambda b, t: X.exact_sets(SPEC, b, t)),
+            jax.jit(lambda b, t: X.exact_sets(SPEC, b, t, screen=False)),
+            jax.jit(lambda b, t: X.tolerant_flags(SPEC, b, t)))
+
+
+_PATHS = {}
+
+
+def _get(dtype):
+    if dtype not in _PATHS:
+        _PATHS[dtype] = _paths(dtype)
+    return _PATHS[dtype]
+
+
+@settings(max_examples=8, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31 - 1), near=st.sampled_from([0, 3, 12]),
+       dtype=st.sampled_from([np.float32, np.float64]),
+       scale=st.sampled_from([0.0, 1.0, 30.0, 3000.0]))
+def test_screened_sets_equal_the_all_triples_path(seed, near, dtype, scale):
+    """Bit-identical sets (possible and undecided) through the screen and without it, at
+    tolerance 0 (nothing flagged), the default and wider tolerances (up to ~5e-4 rad in
+    float64)."""
+    rng = np.random.default_rng(seed)
+    with jax.enable_x64(dtype == np.float64):
+        b = jnp.asarray(_batch(rng, near, dtype))
+        tol = jnp.asarray(scale * C.default_tolerance(dtype), dtype)
+        screened, full, flags = _get(dtype)
+        got, ref = screened(b, tol), full(b, tol)
+        for x, y in zip(got, ref, strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        f = np.asarray(flags(b, tol))
+    if scale == 0:
+        assert not f.any()
+    elif near:  # a triple within the rounding of a boundary is always flagged
+        assert f.any()
+
+
+def test_flagged_triples_go_through_the_buffer_and_generic_ones_not():
+    """Generic triples are mostly unflagged; the near-degenerate ones are flagged and fit the
+    buffer; the sets equal the all-triples path."""
+    rng = np.random.default_rng(5)
+    b = jnp.asarray(_batch(rng, 4, np.float32, (1.0, 2 * np.pi)))
+    tol = jnp.asarray(C.default_tolerance(np.float32), jnp.float32)
+    screened, full, flags = _get(np.float32)
+    f = np.asarray(flags(b, tol))
+    assert 0 < f.sum() <= X.screen_buffer(T)
+    assert f[:4].sum() >= 3
+    got, ref = screened(b, tol), full(b, tol)
+    for x, y in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_fallback_when_the_buffer_overflows(monkeypatch):
+    """More flagged triples than the buffer holds: every triple takes the full tolerant
+    decision (forced with a 1-triple buffer); same sets as the all-triples path."""
+    monkeypatch.setattr(X, "SCREEN_MIN", 1)
+    monkeypatch.setattr(X, "SCREEN_SHARE", 0.0)
+    assert X.screen_buffer(T) == 1
+    rng = np.random.default_rng(9)
+    b = jnp.asarray(_batch(rng, 12, np.float32))
+    tol = jnp.asarray(C.default_tolerance(np.float32), jnp.float32)
+    f = np.asarray(jax.jit(lambda b, t: X.tolerant_flags(SPEC, b, t))(b, tol))
+    assert f.sum() > 1
+    got = jax.jit(lambda b, t: X.exact_sets(SPEC, b, t))(b, tol)  # traced with the patch
+    ref = _get(np.float32)[1](b, tol)
+    for x, y in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+@pytest.mark.parametrize("n", [3, 20])
+def test_screen_buffer_size(n):
+    assert 1 <= X.screen_buffer(n) <= n
+    assert X.screen_buffer(816) == 51
