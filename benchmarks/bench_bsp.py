@@ -16,12 +16,11 @@ chunk ``vmap``-ed; several chunk widths are timed. Both are compiled before timi
 plans must agree (same first actions; values to float32 rounding).
 
 ``per_plan`` times this planner against the previous one in the same process (the reference,
-``reference_plan`` below: main's planner before issue #25, verbatim) on the same instances, one
-jitted plan at a time, and compares the plans. ``new_joint_sampler`` is this planner with the
-previous sampler (``PlannerParams(sampler="joint")``): its ẑ draws are the reference's, so its
-plans equal the reference's to float rounding; the default sampler draws (b, s_x, s_τ) one
-after the other, so its first actions and values agree in distribution, not bit for bit (the
-share of equal first actions and the relative value differences are recorded).
+``reference_plan`` below: main's planner before issue #25, verbatim; the one reference of the
+previous planner and its joint sampler) on the same instances, one jitted plan at a time and
+``vmap``-ed over the instances, the repetitions interleaved, and compares the plans: at depth 1
+(no measurement drawn) one for one, at the benchmark's depth in distribution (this planner
+draws (b, s_x, s_τ) one after the other, the reference from the Q²·nb-cell joint).
 
 To explain the batched ratio it also records, per plan, XLA's cost analysis of the compiled
 single-environment planner (flops, bytes accessed) and the dispatch cost of a jitted function
@@ -42,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from _env import write_result  # benchmarks/_env.py
-from _timing import best_of  # benchmarks/_timing.py
+from _timing import best_of, timed  # benchmarks/_timing.py
 
 from pqrm_jax import calculi
 from pqrm_jax.bsp import env as E
@@ -219,41 +218,63 @@ def bench(models, D1, bels, fgs, goals, pp, chunks, reps: int = 3) -> dict:
     return out
 
 
-def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 3) -> dict:
-    """This planner against the previous one (``sampler="joint"``, the in-process reference):
-    per-plan time of the jitted single-environment planner in a loop, the ratio, and whether
-    the plans agree (first actions; root values relative to the reference's)."""
+def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 7) -> dict:
+    """This planner against the previous one (``reference_plan``, kept verbatim above) on the
+    same instances: per-plan time one jitted plan at a time (``loop``) and ``vmap``-ed over all
+    instances in one jitted call (``batched``, how the study runs its lanes), the repetitions
+    interleaved (reference, new, reference, …; best of ``reps``) so that load hits both alike.
+    The plans are compared where the draws are comparable (depth 1: no ẑ is drawn, so first
+    actions and values must agree to float rounding) and in distribution at ``pp.depth`` (the
+    new sampler draws (b, s_x, s_τ) one after the other: the share of equal first actions and
+    the relative value differences are recorded)."""
     n = len(bels)
     keys = jax.random.split(jax.random.key(0), n)
     args = [(keys[e], bels[e].trip, bels[e].scale, fgs[e], goals[e], bels[e].frame,
              bels[e].robot) for e in range(n)]
-    out = {}
-    planners = (("reference", reference_plan, pp), ("new_joint_sampler", P.plan,
-                                                     pp._replace(sampler="joint")),
-                ("new", P.plan, pp))
-    for name, f, p in planners:
-        jax.block_until_ready(f(args[0][0], models, D1, *args[0][1:], p))  # compile
-        t, o = best_of(lambda f=f, p=p: [f(a[0], models, D1, *a[1:], p) for a in args], reps)
-        out[name] = {"ms_per_plan": 1e3 * t / n,
-                     "actions": [int(x.action) for x in o],
-                     "values": [float(x.value) for x in o]}
-    ra, na = np.array(out["reference"]["actions"]), np.array(out["new"]["actions"])
-    rv, nv = np.array(out["reference"]["values"]), np.array(out["new"]["values"])
+    xs = jax.tree.map(lambda *x: jnp.stack(x), *args)
+    planners = {"reference": reference_plan, "new": P.plan}
+    fns = {}
+    for name, f in planners.items():
+        one = jax.jit(lambda a, f=f: f(a[0], models, D1, *a[1:], pp))
+        vb = jax.jit(jax.vmap(lambda a, f=f: f(a[0], models, D1, *a[1:], pp)))
+        jax.block_until_ready(one(args[0]))  # compile
+        jax.block_until_ready(vb(xs))
+        fns[name] = (one, vb)
+    runs = {name: {"loop": [], "batched": []} for name in planners}
+    outs = {}
+    for _ in range(reps):
+        for name, (one, vb) in fns.items():
+            w, c, o = timed(lambda one=one: [one(a) for a in args])
+            runs[name]["loop"].append((w, c))
+            outs[name] = o
+            w, c, _ = timed(lambda vb=vb: vb(xs))
+            runs[name]["batched"].append((w, c))
+    best = {name: {k: min(v) for k, v in r.items()} for name, r in runs.items()}
+    ms = {name: {k: 1e3 * v[0] / n for k, v in b.items()} for name, b in best.items()}
+    cpu_ms = {name: {k: 1e3 * v[1] / n for k, v in b.items()} for name, b in best.items()}
+    ra = np.array([int(x.action) for x in outs["reference"]])
+    na = np.array([int(x.action) for x in outs["new"]])
+    rv = np.array([float(x.value) for x in outs["reference"]])
+    nv = np.array([float(x.value) for x in outs["new"]])
     rel = np.abs(nv - rv) / np.maximum(np.abs(rv), 1e-9)
+    # depth 1: no measurement is drawn, the plans are comparable one for one
+    p1 = pp._replace(depth=1)
+    o1 = {name: [f(a[0], models, D1, *a[1:], p1) for a in args]
+          for name, f in planners.items()}
+    same1 = float(np.mean([int(r.action) == int(m.action)
+                           for r, m in zip(o1["reference"], o1["new"], strict=True)]))
+    diff1 = float(np.max([abs(float(r.value) - float(m.value)) / max(abs(float(r.value)), 1e-9)
+                          for r, m in zip(o1["reference"], o1["new"], strict=True)]))
     ca = {}
-    for name, f, p in planners:
-        c = f.lower(args[0][0], models, D1, *args[0][1:], p).compile().cost_analysis()
+    for name, f in planners.items():
+        c = f.lower(args[0][0], models, D1, *args[0][1:], pp).compile().cost_analysis()
         c = c[0] if isinstance(c, list) else (c or {})
         ca[name] = {"flops": c.get("flops"), "bytes_accessed": c.get("bytes accessed")}
-    return {"envs": n, "ms_per_plan_reference": out["reference"]["ms_per_plan"],
-            "ms_per_plan_new": out["new"]["ms_per_plan"],
-            "ms_per_plan_new_joint_sampler": out["new_joint_sampler"]["ms_per_plan"],
-            "same_first_action_joint_sampler": float(np.mean(
-                ra == np.array(out["new_joint_sampler"]["actions"]))),
-            "value_rel_diff_max_joint_sampler": float(np.max(
-                np.abs(np.array(out["new_joint_sampler"]["values"]) - rv)
-                / np.maximum(np.abs(rv), 1e-9))),
-            "ratio": out["reference"]["ms_per_plan"] / out["new"]["ms_per_plan"],
+    return {"envs": n, "reps": reps,
+            "ms_per_plan": ms, "cpu_ms_per_plan": cpu_ms,
+            "ratio_loop": ms["reference"]["loop"] / ms["new"]["loop"],
+            "ratio_batched": ms["reference"]["batched"] / ms["new"]["batched"],
+            "depth1_same_first_action": same1, "depth1_value_rel_diff_max": diff1,
             "same_first_action": float(np.mean(ra == na)),
             "value_rel_diff_median": float(np.median(rel)),
             "value_rel_diff_p90": float(np.quantile(rel, 0.9)),

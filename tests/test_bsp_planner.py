@@ -206,3 +206,26 @@ def test_nothing_seen_branch(mod):
             assert np.isclose(q1[a], want, rtol=1e-4), (a, q1[a], want)
     assert seen.min() < 0.5 < seen.max()  # the branch weight really varies over actions
     assert bool(plans[True].exists) == bool(plans[False].exists)
+
+
+def test_planner_tables_and_graph_parts(mod):
+    """The planner's precomputed tables equal their definitions (docs/bsp.md §planner): TA
+    contracted with a frame's triplet rows gives the frame graph's P(β | a) from ``Ab``, the
+    ẑ CDF draws what ``sample_index`` draws; ``frame_graph`` is ``visibility`` + ``link_hops``."""
+    env = fig46_env(np.random.default_rng(4))
+    b, fg = _graph(mod, env, True)
+    i, j = (int(x) for x in b.frame)
+    sf = b.scale[i, j]
+    want = jnp.einsum("b,bax,kxb->ak", sf, mod.T, fg.Ab[i, j])
+    got = jnp.einsum("b,bat,kt->ak", sf, P.transition_association(mod), b.trip[i, j])
+    got = jnp.where(G.available(b.trip_src, b.lm_mask)[i, j][None], got, 0.0)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(mod.AZ_cdf[..., -1]), np.asarray(mod.A), atol=1e-5)
+    for s in range(20):
+        key, w = jax.random.key(s), mod.AZ[s % 20, (3 * s) % 20, s % 6]
+        assert int(P.sample_cdf(key, jnp.cumsum(w))) == int(P.sample_index(key, w))
+    _, pvis = G.visibility(mod, b.trip, b.trip_src, b.scale, b.lm_mask)
+    hops, goal_obs = G.link_hops(G.available(b.trip_src, b.lm_mask) & (pvis >= 0.01),
+                                 jnp.asarray(env.goal))
+    assert np.array_equal(np.asarray(hops), np.asarray(fg.hops))
+    assert np.array_equal(np.asarray(goal_obs), np.asarray(fg.goal_obs))

@@ -48,6 +48,55 @@ def available(trip_src, lm_mask) -> jax.Array:
     return in_belief(trip_src) & distinct & real
 
 
+def visibility(models: Models, trip, trip_src, scale, lm_mask) -> tuple[jax.Array, jax.Array]:
+    """Association weights and the best-state visibility of every candidate (module docstring).
+
+    Args:
+        models: the offline tables.
+        trip: [L, L, L, Q] triplet rows.
+        trip_src: [L, L, L] int8 source codes.
+        scale: [L, L, nb] frame scales.
+        lm_mask: [L] bool, real landmarks.
+
+    Returns:
+        ``Ab`` [L, L, L, Q, nb] (0 for rows that are not candidates) and ``pvis`` [L, L, L]
+        ``max_{s_x} P(ij:k seen | s_x)`` (0 for rows that are not candidates).
+    """
+    av = available(trip_src, lm_mask)
+    Ab = jnp.einsum("xtb,ijkt->ijkxb", models.A, trip) * av[..., None, None]
+    pbx = jnp.einsum("ijb,ijkxb->ijkx", scale, Ab)
+    return Ab, pbx.max(-1)
+
+
+def link_hops(obs, goal) -> tuple[jax.Array, jax.Array]:
+    """Links from every frame to a goal-observing frame, given which candidates are observable.
+
+    Args:
+        obs: [L, L, L] bool, ``ij:k`` observable from frame (i, j).
+        goal: [3] int, the goal triplet.
+
+    Returns:
+        ``hops`` [L, L] int32 (``INF`` when no path) and ``goal_obs`` [L, L] bool (the frame
+        lies in the goal and observes its third landmark).
+    """
+    L = obs.shape[0]
+    idx = jnp.arange(L)
+    in_goal = jnp.any(idx[:, None] == goal[None, :], axis=1)  # (L,)
+    frame_in_goal = in_goal[:, None] & in_goal[None, :] & (idx[:, None] != idx[None, :])
+    third = jnp.where(frame_in_goal, (goal.sum() - idx[:, None] - idx[None, :]), 0)
+    goal_obs = frame_in_goal & jnp.take_along_axis(obs, third[..., None], axis=2)[..., 0]
+    # edges (i, j) -> (i, k) and (j, k) for observable ij:k
+    hops0 = jnp.where(goal_obs, 0, INF).astype(jnp.int32)
+
+    def relax(_, h):
+        via_i = jnp.where(obs, h[:, None, :], INF)  # (i, j, k): hops of (i, k)
+        via_j = jnp.where(obs, h[None, :, :], INF)  # hops of (j, k)
+        best = jnp.minimum(via_i.min(-1), via_j.min(-1))
+        return jnp.minimum(h, jnp.where(best < INF, best + 1, INF))
+
+    return jax.lax.fori_loop(0, L * (L - 1), relax, hops0), goal_obs
+
+
 @partial(jax.jit, static_argnames=("eps",))
 def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float = 0.01
                 ) -> FrameGraph:
@@ -66,26 +115,9 @@ def frame_graph(models: Models, trip, trip_src, scale, lm_mask, goal, eps: float
         The :class:`FrameGraph` (``Ab`` [L, L, L, Q, nb], ``obs`` [L, L, L], ``hops`` and
         ``goal_obs`` [L, L]).
     """
-    L = trip.shape[0]
-    av = available(trip_src, lm_mask)
-    Ab = jnp.einsum("xtb,ijkt->ijkxb", models.A, trip) * av[..., None, None]
-    pbx = jnp.einsum("ijb,ijkxb->ijkx", scale, Ab)
-    obs = av & (pbx.max(-1) >= eps)
-    idx = jnp.arange(L)
-    in_goal = jnp.any(idx[:, None] == goal[None, :], axis=1)  # (L,)
-    frame_in_goal = in_goal[:, None] & in_goal[None, :] & (idx[:, None] != idx[None, :])
-    third = jnp.where(frame_in_goal, (goal.sum() - idx[:, None] - idx[None, :]), 0)
-    goal_obs = frame_in_goal & jnp.take_along_axis(obs, third[..., None], axis=2)[..., 0]
-    # edges (i, j) -> (i, k) and (j, k) for observable ij:k
-    hops0 = jnp.where(goal_obs, 0, INF).astype(jnp.int32)
-
-    def relax(_, h):
-        via_i = jnp.where(obs, h[:, None, :], INF)  # (i, j, k): hops of (i, k)
-        via_j = jnp.where(obs, h[None, :, :], INF)  # hops of (j, k)
-        best = jnp.minimum(via_i.min(-1), via_j.min(-1))
-        return jnp.minimum(h, jnp.where(best < INF, best + 1, INF))
-
-    hops = jax.lax.fori_loop(0, L * (L - 1), relax, hops0)
+    Ab, pvis = visibility(models, trip, trip_src, scale, lm_mask)
+    obs = available(trip_src, lm_mask) & (pvis >= eps)
+    hops, goal_obs = link_hops(obs, goal)
     return FrameGraph(Ab=Ab, obs=obs, hops=hops, goal_obs=goal_obs)
 
 

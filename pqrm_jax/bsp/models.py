@@ -153,6 +153,8 @@ class Models(NamedTuple):
     counts: dict
     A: jax.Array | None = None
     AZ_by_z: jax.Array | None = None
+    AZ_cdf: jax.Array | None = None
+    TA: jax.Array | None = None
 
     def with_derived(self) -> Models:
         """These tables with the derived fields filled (done by every constructor here).
@@ -160,9 +162,16 @@ class Models(NamedTuple):
         ``A`` (Q, Q, nb) = ``AZ.sum(-1)``, the association model P(β visible | s_x, s_τ, b)
         (Z eq. 4.12); ``AZ_by_z`` (Q², Q, Q, nb) = ``AZ`` with the measurement axis first, so
         that the planner's ``AZ[..., ẑ]`` is one contiguous slice instead of a gather with
-        stride Q² (a strided gather per tree branch was the largest single cost of a plan).
+        stride Q² (a strided gather per tree branch was the largest single cost of a plan);
+        ``AZ_cdf`` (Q, Q, nb, Q²) = ``cumsum(AZ, -1)``, so that a tree branch draws ẑ by one
+        search instead of a 400-cell cumsum each; ``TA`` (nb, Q, Q) = ``Σ_{s_x} T[b, a, s_x]
+        A[s_x, s_τ, b]``, the planner's candidate weights after action ``a``
+        (:func:`~pqrm_jax.bsp.planner.transition_association`).
         """
-        return self._replace(A=self.AZ.sum(-1), AZ_by_z=jnp.moveaxis(self.AZ, -1, 0))
+        A = self.AZ.sum(-1)
+        return self._replace(A=A, AZ_by_z=jnp.moveaxis(self.AZ, -1, 0),
+                             AZ_cdf=jnp.cumsum(self.AZ, -1),
+                             TA=jnp.einsum("bax,xtb->bat", self.T, A))
 
     @property
     def num_states(self) -> int:

@@ -57,11 +57,6 @@ class PlannerParams(NamedTuple):
     #: branch with weight 1 − P(some candidate seen | a), valued as staying in the frame
     #: (h(F) + c̄), instead of renormalising the candidate weights to 1 (§Z-24).
     nothing_seen: bool = False
-    #: how a branch draws (s_x, s_τ, b) before ẑ: ``"factored"`` (b, then s_x | b, then
-    #: s_τ | s_x, b: cumsums of nb, Q and Q cells) or ``"joint"`` (the previous sampler: one
-    #: cumsum over the Q²·nb-cell joint; the in-process reference of benchmarks/bench_bsp.py).
-    #: The same distribution; the draws differ.
-    sampler: str = "factored"
 
 
 DEFAULT = PlannerParams()
@@ -116,22 +111,38 @@ class _FramePart(NamedTuple):
     """What a node's expansion needs that depends on its frame only (not on its robot
     belief): computed once per distinct frame of a level."""
 
-    Tf: jax.Array  # [Q, Q] Σ_b P_F(b) T[b, a, s]
-    T2f: jax.Array  # [Q, Q] Σ_b P_F(b) mid_b T[b, a, s]
+    wt: jax.Array  # [Q, L] P(β | a) of the observable candidates (0 for the others)
     E: jax.Array  # [Q] the proxy's expectation over candidates (leaf values after a)
-    ks: jax.Array  # [Q, nb] the kept candidates of each action
-    w: jax.Array  # [Q, nb] their renormalised weights
-    anyobs: jax.Array  # [Q] some kept candidate has weight
-    goal: jax.Array  # [Q, nb] the kept candidate is the goal (observed from a goal frame)
-    seen: jax.Array  # [Q]
+    seen: jax.Array  # [Q] P(some candidate seen | a): 1 without nothing_seen
 
 
-def _frame_part(models, D1, scale, fg: FrameGraph, goal, frame, pp: PlannerParams, cost
-                ) -> _FramePart:
+def transition_association(models: Models) -> jax.Array:
+    """[nb, Q, Q] ``TA[b, a, s_τ] = Σ_{s_x} T[b, a, s_x] A[s_x, s_τ, b]``: the chance of
+    seeing a candidate in state s_τ after action ``a`` at scale bin ``b`` (``models.TA``,
+    computed once when the models are built).
+
+    With it a frame's candidate weights ``P(β | a) = Σ_{s_τ} (Σ_b P_F(b) TA[b, a, s_τ])
+    P(ij:k = s_τ)`` cost nb·Q² + Q²·L multiply-adds instead of the Q²·nb·L of contracting
+    the frame graph's ``Ab`` (docs/bsp.md §benchmark).
+
+    Args:
+        models: the offline tables (``T`` [nb, Q, Q], ``A`` [Q, Q, nb]).
+
+    Returns:
+        [nb, Q, Q] the table.
+    """
+    if models.TA is not None:
+        return models.TA
+    return jnp.einsum("bax,xtb->bat", models.T, models.A)
+
+
+def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: PlannerParams,
+                cost) -> _FramePart:
     L = fg.obs.shape[0]
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    wt = jnp.einsum("b,bax,kxb->ak", sf, models.T, fg.Ab[i, j]) * fg.obs[i, j][None]
+    wt = (sf @ TA.reshape(TA.shape[0], -1)).reshape(TA.shape[1:]) @ trip[i, j].T
+    wt = jnp.where(fg.obs[i, j][None], wt, 0.0)
     idx = jnp.arange(L)
     third = goal.sum() - i - j
     isg = fg.goal_obs[i, j] & (idx == third)
@@ -148,35 +159,36 @@ def _frame_part(models, D1, scale, fg: FrameGraph, goal, frame, pp: PlannerParam
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
     E = jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
                   + (1.0 - ps) * (h_f + cb), h_f + cb)
-    wk, ks = jax.lax.top_k(wt, pp.n_beta)  # [Q, nb]
-    tot = wk.sum(-1, keepdims=True)
-    return _FramePart(
-        Tf=jnp.einsum("b,bas->as", sf, models.T),
-        T2f=jnp.einsum("b,b,bas->as", sf, models.mid, models.T), E=E, ks=ks,
-        w=wk / jnp.where(tot > 0, tot, 1.0), anyobs=tot[:, 0] > 0,
-        goal=fg.goal_obs[i, j] & (ks == third), seen=ps)
+    return _FramePart(wt=wt, E=E, seen=ps)
+
+
+def node_costs(models, D1, sfs, robots, cost) -> jax.Array:
+    """[N, Q] eq. 4.29 / 4.30 step costs of every action for N nodes (frame scales ``sfs``
+    [N, nb], robot beliefs ``robots`` [N, Q]); the same as :func:`step_costs` per node, as
+    one [nb·Q, Q] × [Q, 2N] product for both costs."""
+    u = jnp.stack([robots @ D1, robots @ models.D2], 1)  # [N, 2, Q]: (D1ᵀ p, D2ᵀ p)
+    V = jnp.einsum("bas,nks->nkba", models.T, u)  # [N, 2, nb, Q]
+    c1 = jnp.einsum("nb,nba->na", sfs, V[:, 0])
+    c2 = jnp.einsum("nb,b,nba->na", sfs, models.mid, V[:, 1])
+    return jnp.where(cost == 1, c1, c2)
 
 
 def _branch(models, trip, fg: FrameGraph, key, level, frame, sf, a, k, pp: PlannerParams):
     """[3, Q] robot states after action ``a`` with candidate ``k`` seen and one drawn ẑ, for
     the three link options (stay, (i, k), (j, k)); the draw's key depends on (level, frame,
     a, k) only."""
-    L, Q, nb = trip.shape[0], models.num_states, models.num_bins
+    L = trip.shape[0]
     i, j = frame[0], frame[1]
     base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
     kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
     k1, k2 = jax.random.split(kk)
-    if pp.sampler == "joint":  # one cumsum over the Q²·nb-cell joint
-        jw = jnp.einsum("b,bx,t,xtb->xtb", sf, models.T[:, a], trip[i, j, k], models.A)
-        cell = sample_index(k1, jw.reshape(-1))
-        x, t, b = cell // (Q * nb), (cell // nb) % Q, cell % nb
-    else:  # b, then x | b, then t | x, b: the same joint, nb + Q + Q cells
-        kb, kx, kt = jax.random.split(k1, 3)
-        tab = models.T[:, a] * fg.Ab[i, j, k].T  # [nb, Q]: T[b, a, x] Ab[x, b]
-        b = sample_index(kb, sf * tab.sum(-1))
-        x = sample_index(kx, tab[b])
-        t = sample_index(kt, trip[i, j, k] * models.A[x, :, b])
-    z = sample_index(k2, models.AZ[x, t, b])
+    # b, then x | b, then t | x, b: the joint of (s_x, s_τ, b), nb + Q + Q cells
+    kb, kx, kt = jax.random.split(k1, 3)
+    tab = models.T[:, a] * fg.Ab[i, j, k].T  # [nb, Q]: T[b, a, x] Ab[x, b]
+    b = sample_index(kb, sf * tab.sum(-1))
+    x = sample_index(kx, tab[b])
+    t = sample_index(kt, trip[i, j, k] * models.A[x, :, b])
+    z = sample_cdf(k2, models.AZ_cdf[x, t, b])
     J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
     s = J.sum()
     J = J / jnp.where(s > 0, s, 1.0)
@@ -196,8 +208,8 @@ def _children(frame, ks, w):
     return jnp.where((w > 0)[..., None, None], out, frame)
 
 
-def _expand_level(models, D1, trip, scale, fg: FrameGraph, goal, key, level, frames, robots,
-                  slots: int, last: bool, pp: PlannerParams, cost) -> _Level:
+def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level, frames,
+                  robots, slots: int, last: bool, pp: PlannerParams, cost) -> _Level:
     """Expand the N nodes (``frames`` [N, 2], ``robots`` [N, Q]) of one level.
 
     What depends only on a node's frame (:class:`_FramePart`) is computed once per distinct
@@ -208,21 +220,24 @@ def _expand_level(models, D1, trip, scale, fg: FrameGraph, goal, key, level, fra
     L = trip.shape[0]
     n = frames.shape[0]
     codes = frames[:, 0] * L + frames[:, 1]
-    fpart = partial(_frame_part, models, D1, scale, fg, goal, pp=pp, cost=cost)
+    fpart = partial(_frame_part, models, D1, TA, scale, trip, fg, goal, pp=pp, cost=cost)
     if slots < n:
         uniq = jnp.unique(codes, size=slots, fill_value=L * L)
         slot = jnp.searchsorted(uniq, codes)
         uniq = jnp.minimum(uniq, L * L - 1)
         fp = jax.vmap(fpart)(jnp.stack([uniq // L, uniq % L], -1))
-        fp = jax.tree.map(lambda x: x[slot], fp)
     else:
+        slot = jnp.arange(n)
         fp = jax.vmap(fpart)(frames)
-    cst = jnp.where(cost == 1, jnp.einsum("nas,ts,nt->na", fp.Tf, D1, robots),
-                    jnp.einsum("nas,ts,nt->na", fp.T2f, models.D2, robots))
-    _, acts = jax.lax.top_k(-(cst + fp.E), pp.n_actions)  # [N, na]
-    pick = lambda x: jnp.take_along_axis(  # noqa: E731
-        x, acts.reshape(n, -1, *([1] * (x.ndim - 2))), axis=1)
-    ks, w = pick(fp.ks), pick(fp.w)
+    sfs = scale[frames[:, 0], frames[:, 1]]  # [N, nb]
+    cst = node_costs(models, D1, sfs, robots, cost)
+    _, acts = jax.lax.top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
+    # the kept candidates of the chosen actions only (na of Q rows per node)
+    wk, ks = jax.lax.top_k(fp.wt[slot[:, None], acts], pp.n_beta)  # [N, na, nb]
+    tot = wk.sum(-1, keepdims=True)
+    w = wk / jnp.where(tot > 0, tot, 1.0)
+    third = goal.sum() - frames[:, 0] - frames[:, 1]
+    goal_n = fg.goal_obs[frames[:, 0], frames[:, 1]][:, None, None] & (ks == third[:, None, None])
     ch = jax.vmap(_children)(frames, ks, w)
     rb = None
     if not last:
@@ -232,7 +247,7 @@ def _expand_level(models, D1, trip, scale, fg: FrameGraph, goal, key, level, fra
             return jax.vmap(jax.vmap(br, (None, 0)), (0, 0))(acts_n, ks_n)
         rb = jax.vmap(node)(frames, acts, ks)
     return _Level(cost=jnp.take_along_axis(cst, acts, 1), acts=acts, ks=ks, w=w,
-                  goal=pick(fp.goal), anyobs=pick(fp.anyobs), seen=pick(fp.seen),
+                  goal=goal_n, anyobs=tot[..., 0] > 0, seen=fp.seen[slot[:, None], acts],
                   frames=ch, robots=rb)
 
 
@@ -257,10 +272,18 @@ def sample_index(key, weights) -> jax.Array:
     >>> int(sample_index(jax.random.key(0), jnp.array([0.0, 0.0, 1.0, 0.0])))
     2
     """
-    c = jnp.cumsum(weights)
+    return sample_cdf(key, jnp.cumsum(weights))
+
+
+def sample_cdf(key, c) -> jax.Array:
+    """:func:`sample_index` from the cumulative weights ``c`` [n] (non-decreasing, ≥ 0).
+
+    >>> int(sample_cdf(jax.random.key(0), jnp.array([0.0, 0.0, 1.0, 1.0])))
+    2
+    """
     u = jax.random.uniform(key, dtype=c.dtype) * c[-1]
     idx = jnp.searchsorted(c, u, side="right", method="compare_all")  # no loop: n is small
-    return jnp.clip(jnp.where(c[-1] > 0, idx, 0), 0, weights.shape[0] - 1)
+    return jnp.clip(jnp.where(c[-1] > 0, idx, 0), 0, c.shape[0] - 1)
 
 
 def leaf_values(fg: FrameGraph, frames, cb, lam, rho: float = 10.0) -> jax.Array:
@@ -291,22 +314,20 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
         The :class:`Plan` (root value, first action, plan exists, first-level details).
 
     Raises:
-        ValueError: for ``pp.depth < 1`` or an unknown ``pp.sampler``.
+        ValueError: for ``pp.depth < 1``.
     """
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
-    if pp.sampler not in ("factored", "joint"):
-        raise ValueError(f"PlannerParams.sampler must be 'factored' or 'joint', got "
-                         f"{pp.sampler!r}")
     cost = pp.cost if cost is None else cost
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     L = trip.shape[0]
+    TA = transition_association(models)
     frames, robots = frame[None], robot[None]
     levels = []
     for lv in range(pp.depth):
         last = lv == pp.depth - 1
-        out = _expand_level(models, D1, trip, scale, fg, goal, key, lv, frames, robots,
+        out = _expand_level(models, D1, TA, trip, scale, fg, goal, key, lv, frames, robots,
                             _slots(lv, frames.shape[0], L, pp), last, pp, cost)
         levels.append((frames, out))
         frames = out.frames.reshape(-1, 2)
