@@ -214,12 +214,12 @@ def test_update_batch_equals_vmapped_update_bit_for_bit(block):
         pq.update_batch(b, keys, pos, vis, -1.0)
 
 
-@pytest.mark.parametrize("mode", ["rounds", "cond", "full"])
+@pytest.mark.parametrize("mode", ["cond", "full"])
 def test_update_batch_buffer_modes_are_identical(monkeypatch, mode):
-    """The compact-buffer strategies of the sparse update (rounds of one small buffer, the
-    former ``lax.cond`` small/full choice, always full) give the dense update's maps bit for
-    bit, also when more rows are seen than one round holds (every landmark visible, pieces of
-    3 rows: several rounds) and when none is (docs/pqrm.md §map)."""
+    """The compact-buffer strategies of the sparse update (the former ``lax.cond`` small/full
+    choice, always full) give the dense update's maps bit for bit, also when more rows are
+    seen than the small buffer holds (every landmark visible, pieces of 3 rows) and when none
+    is (docs/pqrm.md §map)."""
     from pqrm_jax.pqrm import map as pqrm_map
 
     monkeypatch.setattr(pqrm_map, "BUFFER_MODE", mode)

@@ -301,7 +301,7 @@ SMALL_BUFFER_FRACTION = 4  # the small compact buffer holds 1/4 of a group's row
 #: how the sparse update buffers its updated rows (all bit-identical; measured in
 #: docs/pqrm.md §map): "full" — one buffer of all rows (fastest to compile and to run);
 #: "cond" — the former ``lax.cond`` between a quarter-size and a full buffer (two copies of
-#: the piece loop; XLA copies the map state); "rounds" — rounds of one quarter-size buffer
+#: the piece loop; XLA copies the map state), kept as bench_padgett's in-process reference
 BUFFER_MODE = "full"
 #: compute the per-landmark inputs once before the per-triplet gathers (docs/pqrm.md §map)
 PREPARE_BARRIER = True
@@ -327,16 +327,15 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
     num_seen = jnp.sum(mask, dtype=jnp.int32)
     inv = np.argsort(key_to_edc_state())
 
-    def piece(p, buf, src, offset):
-        """Piece ``p`` (rows ``order[p·blk : (p+1)·blk]``, read from ``src``) into ``buf`` at
-        ``p·blk − offset``."""
+    def piece(p, buf):
+        """Piece ``p`` (rows ``order[p·blk : (p+1)·blk]``) into ``buf`` at ``p·blk``."""
         idx = jax.lax.dynamic_slice(order, (p * blk,), (blk,))
         valid = idx < total
         safe = jnp.where(valid, idx, 0)
         zc = jnp.transpose(z[safe // n], (1, 2, 3, 0))  # this block's banks (c, C, 6, blk)
         counts = edc_block_counts(m[safe].T, s[safe].T, zc)[:, inv]
         probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
-            lambda x: x[safe], src)
+            lambda x: x[safe], rows)
         sub = MapState(probs, mapped, num_updates, num_conflicts, num_rejected,
                        jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
         new = _apply_counts(sub, counts, valid, jnp.zeros((), jnp.int32), cals=cals)
@@ -344,14 +343,14 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
                     new.num_rejected)
         # new rows go to a compact buffer (in place); the map is scattered after the loop
         return jax.tree_util.tree_map(
-            lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, p * blk - offset, axis=0),
+            lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, p * blk, axis=0),
             buf, new_rows)
 
     def pieces(nblk: int):
         buf0 = jax.tree_util.tree_map(lambda x: jnp.zeros((nblk * blk, *x.shape[1:]), x.dtype),
                                       rows)
         _, buf = jax.lax.while_loop(lambda c: c[0] * blk < num_seen,
-                                    lambda c: (c[0] + 1, piece(c[0], c[1], rows, 0)),
+                                    lambda c: (c[0] + 1, piece(c[0], c[1])),
                                     (jnp.int32(0), buf0))
         # pieces never run hold zeros at padding positions (index ``total``): dropped
         return jax.tree_util.tree_map(
@@ -363,32 +362,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
             return pieces(nblk_max)
         return jax.lax.cond(most_seen <= small * blk, lambda: pieces(small),
                             lambda: pieces(nblk_max))
-    if BUFFER_MODE == "full":
-        return pieces(nblk_max)
-
-    # rounds of ``small`` pieces, each into one compact buffer scattered into the map before
-    # the next round: no ``lax.cond``; one round when few rows are seen
-    size = small * blk
-    order_p = jnp.concatenate([order, jnp.full(size, total, jnp.int32)])
-
-    def one_round(carry):
-        r, cur = carry
-        first = r * small
-        buf0 = jax.tree_util.tree_map(lambda x: jnp.zeros((size, *x.shape[1:]), x.dtype), cur)
-
-        def inner(c):
-            p, buf = c
-            return p + 1, piece(p, buf, cur, first * blk)
-
-        _, buf = jax.lax.while_loop(
-            lambda c: (c[0] < first + small) & (c[0] * blk < num_seen), inner, (first, buf0))
-        idx = jax.lax.dynamic_slice(order_p, (first * blk,), (size,))
-        cur = jax.tree_util.tree_map(lambda x, y: x.at[idx].set(y, mode="drop"), cur, buf)
-        return r + 1, cur
-
-    _, rows = jax.lax.while_loop(lambda c: c[0] * size < num_seen, one_round,
-                                 (jnp.int32(0), rows))
-    return rows
+    return pieces(nblk_max)  # "full"
 
 
 def _check_map_bytes(t: int, cals, max_bytes, *, dense: bool) -> None:
