@@ -38,7 +38,6 @@ per image and the whole warm ``run_sequence`` are recorded too.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -49,7 +48,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _env import device_info  # noqa: E402  benchmarks/_env.py
+from _env import write_result  # noqa: E402  benchmarks/_env.py
 
 from pqrm_jax import qrm, sim  # noqa: E402
 from pqrm_jax.qrm import camera as C  # noqa: E402
@@ -272,8 +271,8 @@ def main(argv=None):
     bad = [k for k in kinds if k not in KINDS]
     if bad:
         ap.error(f"--kinds: unknown {bad}; choose from {KINDS}")
-    t0 = time.time()
-    res = dict(device=device_info(), layouts=a.layouts, images=a.images, kinds=[],
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = dict(layouts=a.layouts, images=a.images, kinds=[],
                spread_cost=[])
     if a.traverse or a.traverse_only:
         res["traverse_speed"] = traverse_speed()
@@ -294,12 +293,9 @@ def main(argv=None):
             print(f"{sc['dtype']:8s} spread {row['spread']:.3f}: mean states {row['tol0']:.4f}"
                   f" -> {row['default']:.4f} (undecided {row['tol0_undecided']:.4f} -> "
                   f"{row['default_undecided']:.4f})", flush=True)
-    res["wall_s"] = time.time() - t0
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(res, indent=1))
-        tmp.replace(a.out)
+    res["wall_s"], res["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+    if a.out:  # + env: where it ran, the load, the process's CPU seconds
+        write_result(res, a.out)
     return res
 
 
