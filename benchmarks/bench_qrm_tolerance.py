@@ -238,6 +238,9 @@ def traverse_speed(rounds: int = 3) -> dict:
     res = dict(images=len(imgs), triples=int(tri.shape[0]), identical_sets=bool(same),
                flagged_mean=float(np.mean(nflag)), flagged_max=int(max(nflag)),
                buffer=X.screen_buffer(int(tri.shape[0])),
+               buffers=list(X.screen_buffers(int(tri.shape[0]))),
+               small_buffer_images=int(sum(n <= X.screen_buffers(int(tri.shape[0]))[0]
+                                           for n in nflag)),
                overflow_images=int(sum(n > X.screen_buffer(int(tri.shape[0])) for n in nflag)),
                per_image=times, best_cpu_s=best,
                cpu_ratio_screened_vs_all=best["screened"] / best["all_triples"],

@@ -4,7 +4,8 @@ flags (issue #27 item 4: the Mars-Yard traverse's speed; docs/qrm.md §camera).
 :func:`pqrm_jax.qrm.exact_camera.exact_sets` screens every triple
 (:func:`~pqrm_jax.qrm.exact_camera.tolerant_flags`): an unflagged triple keeps its exact edge
 sets, which the screen proves equal to the tolerant ones; the flagged ones run the full
-tolerant decision in a buffer, or every triple does when more are flagged than it holds.
+tolerant decision in the smallest of two buffers that holds them, or every triple does when
+more are flagged than the larger holds.
 The sets must equal the all-triples path (``screen=False``, the decision before the screen)
 bit for bit, on generic, near-degenerate (narrow spreads, two or three nearly equal
 bearings) and mixed batches, through the buffer and through the fallback.
@@ -134,7 +135,27 @@ def test_fallback_when_the_buffer_overflows(monkeypatch):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+def test_the_larger_buffer_when_the_small_one_overflows(monkeypatch):
+    """More flagged triples than the small buffer holds but fewer than the large one: the
+    large buffer's branch (forced with a 1-triple small buffer); same sets as the
+    all-triples path."""
+    monkeypatch.setattr(X, "SCREEN_SMALL", X.screen_buffer(T))
+    assert X.screen_buffers(T) == (1, X.screen_buffer(T))
+    rng = np.random.default_rng(5)
+    b = jnp.asarray(_batch(rng, 4, np.float32, (1.0, 2 * np.pi)))
+    tol = jnp.asarray(C.default_tolerance(np.float32), jnp.float32)
+    f = np.asarray(_get(np.float32)[2](b, tol))
+    assert 1 < f.sum() <= X.screen_buffer(T)
+    got = jax.jit(lambda b, t: X.exact_sets(SPEC, b, t))(b, tol)  # traced with the patch
+    ref = _get(np.float32)[1](b, tol)
+    for x, y in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 @pytest.mark.parametrize("n", [3, 20])
 def test_screen_buffer_size(n):
     assert 1 <= X.screen_buffer(n) <= n
     assert X.screen_buffer(816) == 51
+    assert X.screen_buffers(816) == (17, 51)
+    sizes = X.screen_buffers(n)
+    assert sizes[-1] == X.screen_buffer(n) and list(sizes) == sorted(set(sizes))

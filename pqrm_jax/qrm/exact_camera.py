@@ -58,8 +58,8 @@ from scipy import ndimage
 from .spec import CYCLIC, QRMSpec
 
 __all__ = ["CameraStructure", "camera_structure", "form_values", "exact_sets", "CYCLIC",
-           "VERTICES", "EDGES", "BAND", "SCREEN_SHARE", "SCREEN_MIN", "screen_buffer",
-           "tolerant_flags"]
+           "VERTICES", "EDGES", "BAND", "SCREEN_SHARE", "SCREEN_MIN", "SCREEN_SMALL",
+           "screen_buffer", "screen_buffers", "tolerant_flags"]
 
 #: vertices of the range-order cone on d_far = 1: (0,0,1) both nearer landmarks at the camera,
 #: (0,1,1) near at the camera and mid = far, (1,1,1) all ranges equal
@@ -719,11 +719,22 @@ def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
 #: Sized on the Mars-Yard traverse (float32, 816 triples an image): benchmarks/bench_qrm.py
 SCREEN_SHARE = 1 / 16
 SCREEN_MIN = 16
+#: a second, smaller buffer (``⌈buffer / SCREEN_SMALL⌉`` triples) for the images with few
+#: flagged triples: the tolerant decision's cost is linear in the buffer (traverse, 816
+#: triples: 3.3 CPU-ms for 51, 0.9 for 16; flagged mean 16, max 37 an image)
+SCREEN_SMALL = 3
 
 
 def screen_buffer(n_triples: int) -> int:
     """Static size of the buffer of flagged triples for a batch of ``n_triples``."""
     return min(n_triples, max(SCREEN_MIN, math.ceil(n_triples * SCREEN_SHARE)))
+
+
+def screen_buffers(n_triples: int) -> tuple[int, ...]:
+    """Static sizes of the buffers of flagged triples, smallest first (one or two)."""
+    big = screen_buffer(n_triples)
+    small = math.ceil(big / SCREEN_SMALL)
+    return (small, big) if small < big else (big,)
 
 
 def tolerant_flags(spec: QRMSpec, bearings: jax.Array, tol) -> jax.Array:
@@ -777,20 +788,24 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0, *,
         wit0, poss0 = _edge_atoms(spec, st, g, loose, None, None)
         flag = _screen(spec, st, g, tol, loose)
         n = jnp.sum(flag)
-        size = screen_buffer(T)
+        sizes = screen_buffers(T)
 
-        def buffered():
-            idx = jnp.nonzero(flag, size=size, fill_value=T)[0]
-            sub = bearings[jnp.minimum(idx, T - 1)]
-            w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
-            return (wit0.at[:, idx].set(w_, mode="drop"),
-                    poss0.at[:, idx].set(p_, mode="drop"))
+        def buffered(size):
+            def run():
+                idx = jnp.nonzero(flag, size=size, fill_value=T)[0]
+                sub = bearings[jnp.minimum(idx, T - 1)]
+                w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
+                return (wit0.at[:, idx].set(w_, mode="drop"),
+                        poss0.at[:, idx].set(p_, mode="drop"))
+            return run
 
-        def everyone():
-            return _tolerant_edge_atoms(spec, st, g, tol, loose)
+        def everyone():  # its own edges: the switch's operands stay the bearings and sets
+            return _tolerant_edge_atoms(spec, st, _edges(spec, st, bearings), tol, loose)
 
-        branch = jnp.where(n == 0, 0, jnp.where(n <= size, 1, 2))
-        wit, poss = jax.lax.switch(branch, [lambda: (wit0, poss0), buffered, everyone])
+        # branch 0: none flagged; 1 + i: they fit sizes[i] (the smallest that holds them)
+        branch = jnp.where(n == 0, 0, 1 + sum((n > m).astype(jnp.int32) for m in sizes))
+        wit, poss = jax.lax.switch(
+            branch, [lambda: (wit0, poss0), *(buffered(m) for m in sizes), everyone])
     # region points: R_s inside the image of the cone
     rwit, rposs = _region_atoms(spec, st, g.w, tol, loose, inv)
     wit = wit | rwit
