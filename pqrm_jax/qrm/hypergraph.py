@@ -193,6 +193,27 @@ class ClosureResult(NamedTuple):
     converged: jax.Array
 
 
+def check_max_sweeps(max_sweeps, minimum: int = 1) -> int:
+    """``max_sweeps`` as a Python int, or a ValueError that names it.
+
+    Args:
+        max_sweeps: a propagation sweep cap (an integer, NumPy integers welcome; not a bool).
+        minimum: the least value accepted (1 for a closure; 0 where "no propagation" means
+            the map is the intersection of the measured sets, as in
+            :func:`pqrm_jax.qrm.run_sequence`).
+
+    Returns:
+        ``int(max_sweeps)``.
+
+    Raises:
+        ValueError: for a bool, a non-integer or a value below ``minimum``.
+    """
+    if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) \
+            or max_sweeps < minimum:
+        raise ValueError(f"max_sweeps must be an integer ≥ {minimum}, got {max_sweeps!r}")
+    return int(max_sweeps)
+
+
 def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc",
             max_sweeps: int = 64) -> ClosureResult:
     """Path-consistency fixed point of a relation array (M§VI.B steps 7–9).
@@ -215,11 +236,8 @@ def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc",
     >>> bool(r.converged), bool(r.inconsistent)
     (True, False)
     """
-    if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) \
-            or max_sweeps < 1:
-        raise ValueError(f"max_sweeps must be an integer ≥ 1, got {max_sweeps!r}")
     return ClosureResult(*_closure(_spec(calc), jnp.asarray(rel, jnp.uint32),
-                                   max_sweeps=int(max_sweeps)))
+                                   max_sweeps=check_max_sweeps(max_sweeps)))
 
 
 def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
@@ -304,7 +322,8 @@ def apply_relations(
         valid = jnp.ones(triples.shape[:1], bool)
     if not isinstance(triples, jax.core.Tracer):
         _check_ids(np.asarray(triples)[np.asarray(valid)], m.rel.shape[0])
-    return apply_relations_kernel(spec, m, triples, sets, jnp.asarray(valid), max_sweeps=max_sweeps)
+    return apply_relations_kernel(spec, m, triples, sets, jnp.asarray(valid),
+                                  max_sweeps=check_max_sweeps(max_sweeps))
 
 
 def update_image(m: QRMMap, meas: ImageMeasurement, calc: Calculus | str | QRMSpec = "edc",

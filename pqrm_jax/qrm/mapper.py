@@ -31,7 +31,7 @@ import jax
 
 from ..calculi import Calculus
 from .camera import measure_image_kernel, resolve_tolerance
-from .hypergraph import QRMMap, UpdateReport, apply_relations_kernel, empty_map
+from .hypergraph import QRMMap, UpdateReport, apply_relations_kernel, check_max_sweeps, empty_map
 from .pipeline import map_metrics
 from .spec import QRMSpec, qrm_spec
 
@@ -71,7 +71,8 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
         calc: the calculus (or a prepared :class:`~pqrm_jax.qrm.QRMSpec`).
         num_landmarks: N, the map capacity (landmark ids 0..N−1).
         n: landmarks measured per image (the nearest visible ones; capped at N).
-        max_sweeps: path-consistency sweeps per update (M§VI.B).
+        max_sweeps: path-consistency sweeps per update (M§VI.B; an integer ≥ 0, 0: no
+            propagation, the map is the intersection of the measured sets).
         tol: bearing tolerance of the measurement in radians (None: the default of the
             images' dtype, :func:`pqrm_jax.qrm.camera.default_tolerance`; 0: exact for the
             given bearings; docs/qrm.md §camera).
@@ -86,6 +87,7 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
     if not isinstance(n, int) or n < 3:
         raise ValueError(f"n must be an int >= 3, got {n!r}")
     n = min(n, num_landmarks)
+    max_sweeps = check_max_sweeps(max_sweeps, minimum=0)
     if tol is not None:
         tol = resolve_tolerance(tol, "float64")
 
@@ -93,7 +95,7 @@ def mapper(calc: Calculus | str | QRMSpec = "edc", num_landmarks: int = 10, n: i
         return empty_map(num_landmarks, spec)
 
     update = jax.jit(partial(_update, spec, n=n,
-                             max_sweeps=int(max_sweeps), tol=tol))
+                             max_sweeps=max_sweeps, tol=tol))
 
     def metrics(m: QRMMap, landmarks) -> dict:
         return map_metrics(m, landmarks, spec)

@@ -24,7 +24,7 @@ from pqrm_jax import sim
 from ..calculi import Calculus
 from ..triplets import cyclic_mask
 from .camera import measure_image_kernel, resolve_tolerance
-from .hypergraph import QRMMap, apply_relations_kernel, empty_map, true_relations
+from .hypergraph import QRMMap, apply_relations_kernel, check_max_sweeps, empty_map, true_relations
 from .rng import rng_estimate_kernel
 from .spec import QRMSpec, popcount, qrm_spec
 
@@ -90,7 +90,7 @@ def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") ->
     return {k: float(v) for k, v in zip(keys, vals, strict=True)}
 
 
-def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None):
+def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None, max_sweeps=64):
     cam = sim.sensors.camera_kernel(pose, landmarks, sensor)
     meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, tol,
                                 n=n)
@@ -104,14 +104,15 @@ def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None):
     cnt_p = popcount(meas.sets & ~meas.undecided)
     hist_p = jnp.zeros(spec.num_states + 1, jnp.int32).at[cnt_p.ravel()].add(
         jnp.repeat(first, 3).astype(jnp.int32))
-    m, rep = apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid, max_sweeps=64)
+    m, rep = apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid,
+                                    max_sweeps=max_sweeps)
     vals = _metrics(spec, m, truth)
     return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p)
 
 
-@partial(jax.jit, static_argnames=("spec", "n"))
-def _map_step(spec, m, pose, landmarks, truth, sensor, tol, *, n):
-    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol)
+@partial(jax.jit, static_argnames=("spec", "n", "max_sweeps"))
+def _map_step(spec, m, pose, landmarks, truth, sensor, tol, *, n, max_sweeps):
+    return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol, max_sweeps)
 
 
 def _real(x):
@@ -127,7 +128,7 @@ def resolve_sensor(sensor):
 
 def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec = "edc",
              sensor: sim.SensorParams | None = None, truth=None, *,
-             tol: float | None = None) -> tuple[QRMMap, Metrics]:
+             tol: float | None = None, max_sweeps: int = 64) -> tuple[QRMMap, Metrics]:
     """One image: camera at ``pose``, measurement of the ``n`` nearest, update, metrics.
 
     ``tol``: bearing tolerance of the measurement in radians (None: the default of the
@@ -142,24 +143,31 @@ def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec 
         sensor: camera parameters.
         truth: optional [N, N, N] true states (computed when None).
         tol: bearing tolerance (above).
+        max_sweeps: path-consistency sweeps of the update (M§VI.B), an integer ≥ 0; 0: no
+            propagation (the map is the intersection of the measured sets; an ablation).
 
     Returns:
         ``(map', metrics)``: the updated map and this image's :class:`Metrics` (M§VIII.A).
+
+    Raises:
+        ValueError: for a bad ``max_sweeps``.
     """
     spec = calc if isinstance(calc, QRMSpec) else qrm_spec(calc)
     landmarks = _real(landmarks)
     tol = resolve_tolerance(tol, landmarks.dtype)
     truth = true_relations(landmarks, spec) if truth is None else truth
+    max_sweeps = check_max_sweeps(max_sweeps, minimum=0)
     return _map_step(spec, m, _real(pose), landmarks, truth,
-                     resolve_sensor(sensor), jnp.asarray(tol, landmarks.dtype), n=n)
+                     resolve_sensor(sensor), jnp.asarray(tol, landmarks.dtype), n=n,
+                     max_sweeps=max_sweeps)
 
 
-@partial(jax.jit, static_argnames=("spec", "n"))
-def _run(spec, poses, landmarks, truth, sensor, tol, *, n):
+@partial(jax.jit, static_argnames=("spec", "n", "max_sweeps"))
+def _run(spec, poses, landmarks, truth, sensor, tol, *, n, max_sweeps):
     m0 = empty_map(landmarks.shape[0], spec)
 
     def body(m, pose):
-        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol)
+        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol, max_sweeps)
 
     return jax.lax.scan(body, m0, poses)
 
@@ -172,6 +180,7 @@ def run_sequence(
     sensor: sim.SensorParams | None = None,
     *,
     tol: float | None = None,
+    max_sweeps: int = 64,
 ) -> tuple[QRMMap, Metrics]:
     """Map a layout from a sequence of imaging poses [T, 3]; per-image metrics [T, ...].
 
@@ -188,6 +197,9 @@ def run_sequence(
         calc: the calculus (name, object or its :class:`QRMSpec`).
         sensor: camera parameters.
         tol: bearing tolerance (above).
+        max_sweeps: path-consistency sweeps per update (M§VI.B), an integer ≥ 0; 0: no
+            propagation, the map is the intersection of the measured sets (the ablation of
+            docs/studies.md §mcclelland-mc).
 
     Returns:
         ``(map, metrics)``: the final map and the per-image :class:`Metrics` with a leading
@@ -215,7 +227,8 @@ def run_sequence(
         if not isinstance(x, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(x))):
             raise ValueError(f"run_sequence: {nm} contain NaN or inf")
     tol = resolve_tolerance(tol, landmarks.dtype)
+    max_sweeps = check_max_sweeps(max_sweeps, minimum=0)
     truth = true_relations(landmarks, spec)
     n = min(n, landmarks.shape[0])
     return _run(spec, poses, landmarks, truth, resolve_sensor(sensor),
-                jnp.asarray(tol, landmarks.dtype), n=n)
+                jnp.asarray(tol, landmarks.dtype), n=n, max_sweeps=max_sweeps)
