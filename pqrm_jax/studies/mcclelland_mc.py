@@ -112,7 +112,9 @@ def configure(argv: list[str], overrides: dict | None = None
     return cfg, a
 
 
-def _layout(cfg: Config, run: int):
+def layout(cfg: Config, run: int) -> tuple[jax.Array, jax.Array]:
+    """Landmarks [landmarks, 2] and imaging poses [images, 3] of run ``run`` (key
+    ``fold_in(seed, run)``: the same layout and poses for every n)."""
     from pqrm_jax import sim
 
     k = jax.random.fold_in(jax.random.key(cfg.seed), run)
@@ -206,7 +208,7 @@ def run_unit(cfg: Config, n: int, r: int) -> dict[str, np.ndarray]:
     """The stored record of run ``r`` measuring the ``n`` nearest landmarks per image."""
     from pqrm_jax.qrm import pipeline as P
 
-    lm, poses = _layout(cfg, r)
+    lm, poses = layout(cfg, r)
     t0 = time.perf_counter()
     m, met = P.run_sequence(lm, poses, n, "edc", tol=cfg.bearing_tol)
     jax.block_until_ready(m.rel)
@@ -230,7 +232,7 @@ def exact_first_image(cfg: Config, n: int) -> dict:
     from pqrm_jax.qrm.spec import popcount, qrm_spec
 
     spec = qrm_spec("edc")
-    lm, poses = _layout(cfg, 0)
+    lm, poses = layout(cfg, 0)
     cam = sim.camera(poses[0], lm, sim.SensorParams(max_range=1e6))
     m = C.measure_image(cam.bearings, cam.range_rank, cam.visible, n, spec,
                         tol=cfg.bearing_tol)
