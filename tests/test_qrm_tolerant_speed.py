@@ -61,6 +61,12 @@ def _get(dtype):
     return _PATHS[dtype]
 
 
+def _assert_same_sets(got, ref):
+    """(possible, undecided) of the screened path equal the all-triples path's bit for bit."""
+    for x, y in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 def _screened_equals_all_triples(seed, near, dtype, scale):
     """Bit-identical sets (possible and undecided) through the screen and without it, at
     tolerance 0 (nothing flagged), the default and wider tolerances (up to ~5e-4 rad in
@@ -71,8 +77,7 @@ def _screened_equals_all_triples(seed, near, dtype, scale):
         tol = jnp.asarray(scale * C.default_tolerance(dtype), dtype)
         screened, full, flags = _get(dtype)
         got, ref = screened(b, tol), full(b, tol)
-        for x, y in zip(got, ref, strict=True):
-            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        _assert_same_sets(got, ref)
         return np.asarray(flags(b, tol))
 
 
@@ -114,8 +119,7 @@ def test_flagged_triples_go_through_the_buffer_and_generic_ones_not():
     assert 0 < f.sum() <= X.screen_buffer(T)
     assert f[:4].sum() >= 3
     got, ref = screened(b, tol), full(b, tol)
-    for x, y in zip(got, ref, strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    _assert_same_sets(got, ref)
 
 
 def test_fallback_when_the_buffer_overflows(monkeypatch):
@@ -131,8 +135,7 @@ def test_fallback_when_the_buffer_overflows(monkeypatch):
     assert f.sum() > 1
     got = jax.jit(lambda b, t: X.exact_sets(SPEC, b, t))(b, tol)  # traced with the patch
     ref = _get(np.float32)[1](b, tol)
-    for x, y in zip(got, ref, strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    _assert_same_sets(got, ref)
 
 
 def test_the_larger_buffer_when_the_small_one_overflows(monkeypatch):
@@ -148,8 +151,7 @@ def test_the_larger_buffer_when_the_small_one_overflows(monkeypatch):
     assert 1 < f.sum() <= X.screen_buffer(T)
     got = jax.jit(lambda b, t: X.exact_sets(SPEC, b, t))(b, tol)  # traced with the patch
     ref = _get(np.float32)[1](b, tol)
-    for x, y in zip(got, ref, strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    _assert_same_sets(got, ref)
 
 
 @pytest.mark.parametrize("n", [3, 20])
