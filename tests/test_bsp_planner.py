@@ -6,12 +6,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pqrm_jax import calculi
 from pqrm_jax.bsp import env as E
 from pqrm_jax.bsp import graph as G
 from pqrm_jax.bsp import models as M
 from pqrm_jax.bsp import planner as P
+from pqrm_jax.bsp.belief import LINK_K
 
 PARAMS = M.ModelParams(samples=600, pool=1 << 18, seed=3)
 D1 = jnp.asarray(calculi.get("edc").tables.neighbor_distance, jnp.float32)
@@ -229,3 +232,74 @@ def test_planner_tables_and_graph_parts(mod):
                                  jnp.asarray(env.goal))
     assert np.array_equal(np.asarray(hops), np.asarray(fg.hops))
     assert np.array_equal(np.asarray(goal_obs), np.asarray(fg.goal_obs))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 24), st.integers(1, 4), st.integers(0, 2 ** 31 - 1),
+       st.sampled_from([1e-30, 1e-3, 1.0, 1e30]), st.booleans())
+def test_top_k_equals_lax_top_k(n, rows, seed, scale, ties):
+    """The planner's comparison-count ``top_k`` returns what ``jax.lax.top_k`` returns —
+    values and indices, equal values in index order — over row lengths 1…24, scales
+    1e-30…1e30, with and without ties (few distinct values, zeros, negatives)."""
+    rng = np.random.default_rng(seed)
+    x = (rng.integers(-2, 3, (rows, n)) if ties else rng.normal(size=(rows, n))) * scale
+    x = jnp.asarray(x, jnp.float32)
+    for k in sorted({1, min(3, n), n}):
+        v, i = P.top_k(x, k)
+        vw, iw = jax.lax.top_k(x, k)
+        assert np.array_equal(np.asarray(i), np.asarray(iw)), (x, k, i, iw)
+        assert np.array_equal(np.asarray(v), np.asarray(vw))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2 ** 31 - 1), st.integers(1, 9))
+def test_node_costs_and_link_operators_equal_their_definitions(mod, seed, n):
+    """``node_costs`` (one product for all nodes) equals :func:`step_costs` node by node for
+    both costs; ``link_operators`` applied to a joint (s_x, s_τ) gives the stay marginal and
+    the two link models of Z eq. 4.24."""
+    rng = np.random.default_rng(seed)
+    Q, nb = mod.T.shape[1], mod.T.shape[0]
+    robots = jnp.asarray(rng.dirichlet(np.ones(Q), n), jnp.float32)
+    sfs = jnp.asarray(rng.dirichlet(np.ones(nb), n), jnp.float32)
+    for cost in (1, 2):
+        got = P.node_costs(mod, D1, sfs, robots, cost)
+        want = jnp.stack([P.step_costs(mod, D1, sfs[m], robots[m], cost) for m in range(n)])
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=2e-5, atol=1e-7)
+    J = jnp.asarray(rng.dirichlet(np.ones(Q * Q)).reshape(Q, Q), jnp.float32)
+    got = (J.reshape(-1) @ P.link_operators(mod)).reshape(3, Q)
+    want = [J.sum(1)] + [jnp.einsum("xt,xts->s", J, mod.K[k]) for k in LINK_K]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(jnp.stack(want)), atol=1e-6)
+
+
+def test_depth_one_values_from_the_definitions(mod):
+    """At depth 1 every first-level value is c(p, a) + Σ_β w_β min(h(F), h(i, k), h(j, k))
+    (0 for the goal triplet) over the n_beta likeliest observable candidates, renormalised
+    (module docstring of ``planner``) — recomputed here from the public pieces
+    (``step_costs``, ``transition_association``, ``leaf_values``) for random environments, both
+    costs; the planner computes the same from per-frame tables instead of child frames."""
+    pp = P.PlannerParams(depth=1)
+    for e, env in enumerate(_small_envs(4)):
+        b, fg = _graph(mod, env, True, key=e)
+        goal = jnp.asarray(env.goal)
+        i, j = (int(x) for x in b.frame)
+        for cost in (1, 2):
+            out = P.plan(jax.random.key(e), mod, D1, b.trip, b.scale, fg, goal, b.frame,
+                         b.robot, pp, cost=cost)
+            cb = P.cbar(mod, D1, cost)
+            lam = jnp.float32(pp.lam)
+            sf = b.scale[i, j]
+            c = P.step_costs(mod, D1, sf, b.robot, cost)
+            wt = jnp.einsum("b,bat,kt->ak", sf, P.transition_association(mod), b.trip[i, j])
+            wt = np.asarray(jnp.where(fg.obs[i, j][None], wt, 0.0))
+
+            def h(f, fg=fg, cb=cb, lam=lam):
+                return float(P.leaf_values(fg, jnp.asarray(f), cb, lam, pp.rho))
+            third = int(goal.sum()) - i - j
+            for n, a in enumerate(np.asarray(out.actions)):
+                ks = np.argsort(-wt[a], kind="stable")[:pp.n_beta]
+                assert np.array_equal(ks[wt[a, ks] > 0], np.asarray(out.ks[n])[wt[a, ks] > 0])
+                w = wt[a, ks] / wt[a, ks].sum()
+                vb = [0.0 if (bool(fg.goal_obs[i, j]) and k == third)
+                      else min(h([i, j]), h([i, k]), h([j, k])) for k in ks]
+                want = float(c[a]) + float(np.dot(w, vb))
+                assert np.isclose(float(out.q[n]), want, rtol=1e-5), (e, cost, a, out.q[n], want)

@@ -29,6 +29,12 @@ sequence is ill-defined (docs/bsp.md §Z-11). The planner is an expectimax tree 
 
 All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
 (no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.
+What depends on a node's frame only (candidate weights, the proxy's expectation, the value
+of each candidate at a leaf) is computed once per distinct frame of a level; at the last
+level a branch's value is the frame's leaf value of its candidate, so no child frame is built
+there. Short contractions are written as fused sums and ``top_k`` as comparison counts
+(XLA:CPU runs a reduction over a 6-long axis or a sort-based TopK as slow library calls;
+docs/bsp.md §benchmark).
 """
 
 from __future__ import annotations
@@ -103,17 +109,23 @@ class _Level(NamedTuple):
     goal: jax.Array  # [N, na, nb]
     anyobs: jax.Array  # [N, na]
     seen: jax.Array  # [N, na] P(some observable candidate seen | a): 1 without nothing_seen
-    frames: jax.Array  # [N, na, nb, 3, 2]
-    robots: jax.Array | None  # [N, na, nb, 3, Q]; None at the last level (leaves need frames)
+    stuck: jax.Array  # [N] h(F) + c̄: the value of a node whose action sees nothing
+    frames: jax.Array | None  # [N, na, nb, 3, 2]; None at the last level
+    robots: jax.Array | None  # [N, na, nb, 3, Q]; None at the last level
+    vb: jax.Array | None  # [N, na, nb] branch values at the last level (else None)
+    links: jax.Array | None  # [N, na, nb] their best link at the last level (else None)
 
 
 class _FramePart(NamedTuple):
     """What a node's expansion needs that depends on its frame only (not on its robot
     belief): computed once per distinct frame of a level."""
 
-    wt: jax.Array  # [Q, L] P(β | a) of the observable candidates (0 for the others)
+    M: jax.Array  # [Q, Q] Σ_b P_F(b) TA[b]: P(β_k | a) = M[a] @ P(ij:k) for observable k
     E: jax.Array  # [Q] the proxy's expectation over candidates (leaf values after a)
     seen: jax.Array  # [Q] P(some candidate seen | a): 1 without nothing_seen
+    hk: jax.Array  # [L] leaf value of seeing candidate k: min over links, 0 at the goal
+    link: jax.Array  # [L] the link option attaining it (0 stay, 1 (i, k), 2 (j, k))
+    stuck: jax.Array  # [] h(F) + c̄
 
 
 def transition_association(models: Models) -> jax.Array:
@@ -141,8 +153,8 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     L = fg.obs.shape[0]
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    wt = (sf @ TA.reshape(TA.shape[0], -1)).reshape(TA.shape[1:]) @ trip[i, j].T
-    wt = jnp.where(fg.obs[i, j][None], wt, 0.0)
+    M = (sf @ TA.reshape(TA.shape[0], -1)).reshape(TA.shape[1:])
+    tobs = jnp.where(fg.obs[i, j][:, None], trip[i, j], 0.0)
     idx = jnp.arange(L)
     third = goal.sum() - i - j
     isg = fg.goal_obs[i, j] & (idx == third)
@@ -150,51 +162,104 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     lam = jnp.asarray(pp.lam, jnp.float32)
     # one-step proxy for every action: c + E_β[min over links of h(F')] (h needs no ẑ)
     h_f = leaf_values(fg, frame, cb, lam, pp.rho)
-    h_ik = leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho)
-    h_jk = leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)
-    hk = jnp.where(isg, 0.0, jnp.minimum(h_f, jnp.minimum(h_ik, h_jk)))
-    wsum = wt.sum(1)
+    h3 = jnp.stack([jnp.broadcast_to(h_f, (L,)),
+                    leaf_values(fg, jnp.stack([jnp.full(L, i), idx], -1), cb, lam, pp.rho),
+                    leaf_values(fg, jnp.stack([jnp.full(L, j), idx], -1), cb, lam, pp.rho)])
+    hk = jnp.where(isg, 0.0, h3.min(0))
+    # Σ_k P(β_k | a) [h_k, 1] = Σ_b sf_b TA[b] (tobsᵀ [h, 1]): the product with TA is one
+    # matrix for every frame of the level (a CPU multiplies that at full speed)
+    y = jnp.stack([_sum_first(tobs * hk[:, None]), _sum_first(tobs)])  # [2, Q]
+    nb, Q = TA.shape[0], TA.shape[1]
+    Z = (y @ TA.transpose(2, 0, 1).reshape(Q, nb * Q)).reshape(2, nb, Q)
+    ew = _sum_first([sf[b] * Z[:, b] for b in range(nb)])  # [2, Q]
+    wsum = ew[1]
     # P(some candidate seen | a): 1 in the thesis model (the candidate weights renormalised,
     # §Z-24); the nothing-seen EXTENSION clips the sum at 1 (the events may overlap)
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
-    E = jnp.where(wsum > 0, ps * (wt @ hk) / jnp.where(wsum > 0, wsum, 1.0)
+    E = jnp.where(wsum > 0, ps * ew[0] / jnp.where(wsum > 0, wsum, 1.0)
                   + (1.0 - ps) * (h_f + cb), h_f + cb)
-    return _FramePart(wt=wt, E=E, seen=ps)
+    return _FramePart(M=M, E=E, seen=ps, hk=hk,
+                      link=h3.argmin(0), stuck=h_f + cb)
 
 
 def node_costs(models, D1, sfs, robots, cost) -> jax.Array:
     """[N, Q] eq. 4.29 / 4.30 step costs of every action for N nodes (frame scales ``sfs``
-    [N, nb], robot beliefs ``robots`` [N, Q]); the same as :func:`step_costs` per node, as
-    one [nb·Q, Q] × [Q, 2N] product for both costs."""
-    u = jnp.stack([robots @ D1, robots @ models.D2], 1)  # [N, 2, Q]: (D1ᵀ p, D2ᵀ p)
-    V = jnp.einsum("bas,nks->nkba", models.T, u)  # [N, 2, nb, Q]
-    c1 = jnp.einsum("nb,nba->na", sfs, V[:, 0])
-    c2 = jnp.einsum("nb,b,nba->na", sfs, models.mid, V[:, 1])
-    return jnp.where(cost == 1, c1, c2)
+    [N, nb], robot beliefs ``robots`` [N, Q]); the same as :func:`step_costs` per node.
+
+    ``Σ_b sf_b m_b Σ_s T[b, a, s] (Dᵀ p)_s`` with ``(m, D) = (1, D1)`` (eq. 4.29) or
+    ``(mid, D2)`` (eq. 4.30): one [N, Q] × [Q, nb·Q] product with the node-independent
+    ``D T`` (one matrix for all nodes, which a CPU multiplies at full speed), then the
+    nb-term sum over the scale bins."""
+    nb, Q = models.T.shape[0], models.T.shape[1]
+    D = jnp.where(cost == 1, D1, models.D2)
+    DT = D @ models.T.transpose(2, 0, 1).reshape(Q, nb * Q)  # [Q, nb·Q]: (D T)[s, (b, a)]
+    V = (robots @ DT).reshape(-1, nb, Q)
+    sfm = sfs * jnp.where(cost == 1, jnp.ones_like(models.mid), models.mid)
+    return _sum_first([sfm[:, b, None] * V[:, b] for b in range(nb)])
 
 
-def _branch(models, trip, fg: FrameGraph, key, level, frame, sf, a, k, pp: PlannerParams):
+def top_k(x, k: int) -> tuple[jax.Array, jax.Array]:
+    """``jax.lax.top_k`` for short rows: values and indices of the ``k`` largest of ``x``
+    [..., n], largest first, equal values in index order.
+
+    Each entry's rank is counted from n² comparisons, which XLA fuses into one loop; on CPU
+    the library's sort-based TopK call took a third of a batched plan (docs/bsp.md
+    §benchmark). Values must not be NaN.
+
+    >>> v, i = top_k(jnp.array([1.0, 3.0, 3.0, 2.0]), 2)
+    >>> i.tolist(), v.tolist()
+    ([1, 2], [3.0, 3.0])
+    """
+    n = x.shape[-1]
+    before = jnp.arange(n)[:, None] > jnp.arange(n)[None, :]  # [i, j]: j comes before i
+    xi, xj = x[..., :, None], x[..., None, :]
+    rank = ((xj > xi) | ((xj == xi) & before)).sum(-1)  # [..., n]
+    hit = rank[..., None, :] == jnp.arange(k)[:, None]  # [..., k, n]
+    idx = (hit * jnp.arange(n)).sum(-1)
+    return jnp.take_along_axis(x, idx, -1), idx
+
+
+def _branch(models, KL, trip, fg: FrameGraph, base, frame, sf, a, k):
     """[3, Q] robot states after action ``a`` with candidate ``k`` seen and one drawn ẑ, for
-    the three link options (stay, (i, k), (j, k)); the draw's key depends on (level, frame,
-    a, k) only."""
-    L = trip.shape[0]
+    the three link options (stay, (i, k), (j, k)); the draw's key is ``base`` (a function of
+    the level and the frame) folded with a, then k."""
     i, j = frame[0], frame[1]
-    base = jax.random.fold_in(jax.random.fold_in(key, level), i * L + j)
     kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
     k1, k2 = jax.random.split(kk)
-    # b, then x | b, then t | x, b: the joint of (s_x, s_τ, b), nb + Q + Q cells
     kb, kx, kt = jax.random.split(k1, 3)
-    tab = models.T[:, a] * fg.Ab[i, j, k].T  # [nb, Q]: T[b, a, x] Ab[x, b]
-    b = sample_index(kb, sf * tab.sum(-1))
-    x = sample_index(kx, tab[b])
-    t = sample_index(kt, trip[i, j, k] * models.A[x, :, b])
-    z = sample_cdf(k2, models.AZ_cdf[x, t, b])
-    J = jnp.einsum("b,bx,t,xtb->xt", sf, models.T[:, a], trip[i, j, k], models.AZ_by_z[z])
+    u = [jax.random.uniform(q) for q in (kb, kx, kt, k2)]
+    # b, then x | b, then t | x, b, then ẑ | x, t, b: nb + Q + Q + Q² cells
+    g = sf[:, None] * models.T[:, a]  # [nb, Q]: P_F(b) T[b, a, x]
+    tab = g * fg.Ab[i, j, k].T  # [nb, Q]: ... · Ab[x, b]
+    b = _pick(u[0], jnp.cumsum(tab.sum(-1)))
+    x = _pick(u[1], jnp.cumsum(tab[b]))
+    t = _pick(u[2], jnp.cumsum(trip[i, j, k] * models.A[x, :, b]))
+    z = _pick(u[3], models.AZ_cdf[x, t, b])
+    # J[x, t] ∝ Σ_b P_F(b) T[b, a, x] P(ij:k = t) AZ[x, t, b, ẑ], as one fused multiply-reduce
+    az = models.AZ_by_z[z]  # [Q, Q, nb]
+    J = _sum_first([g[b][:, None] * az[..., b] for b in range(g.shape[0])]) * trip[i, j, k]
     s = J.sum()
-    J = J / jnp.where(s > 0, s, 1.0)
-    robots = jnp.stack([J.sum(1), jnp.einsum("xt,xts->s", J, models.K[LINK_K[0]]),
-                        jnp.einsum("xt,xts->s", J, models.K[LINK_K[1]])])
-    return robots
+    # [stay, (i, k), (j, k)] = J @ KL / Σ J: one [Q², 3Q] product (KL: :func:`link_operators`)
+    return (J.reshape(-1) @ KL).reshape(3, -1) / jnp.where(s > 0, s, 1.0)
+
+
+def link_operators(models: Models) -> jax.Array:
+    """[Q², 3 Q] the robot state after each link option from the joint (s_x, s_τ): staying
+    keeps s_x, the links to (i, k) and (j, k) apply ``K[LINK_K]`` (Z eq. 4.24)."""
+    Q = models.T.shape[1]
+    stay = jnp.repeat(jnp.eye(Q, dtype=models.K.dtype), Q, axis=0)  # [(x, t), s] = δ(x, s)
+    return jnp.concatenate([stay, models.K[LINK_K[0]].reshape(Q * Q, Q),
+                            models.K[LINK_K[1]].reshape(Q * Q, Q)], 1)
+
+
+def _sum_first(xs) -> jax.Array:
+    """Σ over the first axis (static, short) of ``xs`` as a chain of adds: XLA fuses it with
+    the producers, where a reduction over a short axis became a separate library call that
+    took most of a batched plan on CPU (docs/bsp.md §benchmark)."""
+    out = xs[0]
+    for x in xs[1:]:
+        out = out + x
+    return out
 
 
 def _children(frame, ks, w):
@@ -214,8 +279,9 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
 
     What depends only on a node's frame (:class:`_FramePart`) is computed once per distinct
     frame: the level's frames are sorted into ``slots`` (static, at least the number of
-    distinct frames) by ``jnp.unique``. At the ``last`` level only the children's frames are
-    needed (leaf values depend on the frame alone), so no branch is sampled.
+    distinct frames) by ``jnp.unique``. At the ``last`` level a branch's value depends on
+    the frame and the candidate only (``_FramePart.hk``), so no branch is sampled and no
+    child frame is built.
     """
     L = trip.shape[0]
     n = frames.shape[0]
@@ -229,26 +295,34 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     else:
         slot = jnp.arange(n)
         fp = jax.vmap(fpart)(frames)
-    sfs = scale[frames[:, 0], frames[:, 1]]  # [N, nb]
-    cst = node_costs(models, D1, sfs, robots, cost)
-    _, acts = jax.lax.top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
-    # the kept candidates of the chosen actions only (na of Q rows per node)
-    wk, ks = jax.lax.top_k(fp.wt[slot[:, None], acts], pp.n_beta)  # [N, na, nb]
+    cst = node_costs(models, D1, scale[frames[:, 0], frames[:, 1]], robots, cost)
+    _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
+    # the candidate weights of the chosen actions only (na of Q rows per node)
+    i, j = frames[:, 0], frames[:, 1]
+    wt = jnp.einsum("nas,nks->nak", fp.M[slot[:, None], acts], trip[i, j])  # [N, na, L]
+    wt = jnp.where(fg.obs[i, j][:, None], wt, 0.0)
+    wk, ks = top_k(wt, pp.n_beta)  # [N, na, nb]
     tot = wk.sum(-1, keepdims=True)
     w = wk / jnp.where(tot > 0, tot, 1.0)
-    third = goal.sum() - frames[:, 0] - frames[:, 1]
-    goal_n = fg.goal_obs[frames[:, 0], frames[:, 1]][:, None, None] & (ks == third[:, None, None])
-    ch = jax.vmap(_children)(frames, ks, w)
-    rb = None
-    if not last:
-        def node(frame, acts_n, ks_n):
-            sf = scale[frame[0], frame[1]]
-            br = partial(_branch, models, trip, fg, key, level, frame, sf, pp=pp)
-            return jax.vmap(jax.vmap(br, (None, 0)), (0, 0))(acts_n, ks_n)
-        rb = jax.vmap(node)(frames, acts, ks)
-    return _Level(cost=jnp.take_along_axis(cst, acts, 1), acts=acts, ks=ks, w=w,
-                  goal=goal_n, anyobs=tot[..., 0] > 0, seen=fp.seen[slot[:, None], acts],
-                  frames=ch, robots=rb)
+    third = goal.sum() - i - j
+    goal_n = fg.goal_obs[i, j][:, None, None] & (ks == third[:, None, None])
+    common = dict(cost=jnp.take_along_axis(cst, acts, 1), acts=acts, ks=ks, w=w, goal=goal_n,
+                  anyobs=tot[..., 0] > 0, seen=fp.seen[slot[:, None], acts],
+                  stuck=fp.stuck[slot])
+    if last:
+        sl = slot[:, None, None]
+        return _Level(**common, frames=None, robots=None, vb=fp.hk[sl, ks],
+                      links=jnp.where(w > 0, fp.link[sl, ks], 0))
+    # one key per (level, frame), the same as before issue 25's fourth session (so the same
+    # draws); each branch folds in a, then k
+    base = jax.vmap(lambda c: jax.random.fold_in(jax.random.fold_in(key, level), c))(codes)
+
+    def node(frame, base_n, acts_n, ks_n):
+        sf = scale[frame[0], frame[1]]
+        br = partial(_branch, models, link_operators(models), trip, fg, base_n, frame, sf)
+        return jax.vmap(jax.vmap(br, (None, 0)), (0, 0))(acts_n, ks_n)
+    return _Level(**common, frames=jax.vmap(_children)(frames, ks, w),
+                  robots=jax.vmap(node)(frames, base, acts, ks), vb=None, links=None)
 
 
 def _slots(level: int, n: int, L: int, pp: PlannerParams) -> int:
@@ -281,8 +355,12 @@ def sample_cdf(key, c) -> jax.Array:
     >>> int(sample_cdf(jax.random.key(0), jnp.array([0.0, 0.0, 1.0, 1.0])))
     2
     """
-    u = jax.random.uniform(key, dtype=c.dtype) * c[-1]
-    idx = jnp.searchsorted(c, u, side="right", method="compare_all")  # no loop: n is small
+    return _pick(jax.random.uniform(key, dtype=c.dtype), c)
+
+
+def _pick(u, c) -> jax.Array:
+    """The index of the uniform ``u`` ∈ [0, 1) under the cumulative weights ``c`` [n]."""
+    idx = jnp.searchsorted(c, u * c[-1], side="right", method="compare_all")  # n is small
     return jnp.clip(jnp.where(c[-1] > 0, idx, 0), 0, c.shape[0] - 1)
 
 
@@ -329,22 +407,24 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
         last = lv == pp.depth - 1
         out = _expand_level(models, D1, TA, trip, scale, fg, goal, key, lv, frames, robots,
                             _slots(lv, frames.shape[0], L, pp), last, pp, cost)
-        levels.append((frames, out))
-        frames = out.frames.reshape(-1, 2)
-        robots = None if last else out.robots.reshape(-1, robot.shape[-1])
-    values = leaf_values(fg, frames, cb, lam, pp.rho)
-    q = None
-    for parent_frames, out in reversed(levels):
-        n = parent_frames.shape[0]
-        v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
-        vb = jnp.where(out.goal, 0.0, v.min(-1))
-        stuck = leaf_values(fg, parent_frames, cb, lam, pp.rho)[:, None] + cb
+        levels.append(out)
+        if not last:
+            frames = out.frames.reshape(-1, 2)
+            robots = out.robots.reshape(-1, robot.shape[-1])
+    q = values = links = None
+    for out in reversed(levels):
+        n = out.acts.shape[0]
+        if out.vb is None:  # below the last level: children's values, min over the links
+            v = values.reshape(n, pp.n_actions, pp.n_beta, 3)
+            vb, links = jnp.where(out.goal, 0.0, v.min(-1)), v.argmin(-1)
+        else:
+            vb, links = out.vb, out.links
+        stuck = out.stuck[:, None]
         # seen = 1 unless the nothing-seen EXTENSION is on (docs/bsp.md §nothing-seen)
         q = out.cost + jnp.where(out.anyobs, out.seen * (out.w * vb).sum(-1)
                                  + (1.0 - out.seen) * stuck, stuck)
         values = q.min(-1)
-        links = v.argmin(-1)
-    root = levels[0][1]
+    root = levels[0]
     best = jnp.argmin(q[0])
     value = values[0]
     return Plan(value=value, action=root.acts[0, best], exists=value < 0.5 * lam * cb,
