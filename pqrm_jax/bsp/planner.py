@@ -120,7 +120,6 @@ class _FramePart(NamedTuple):
     """What a node's expansion needs that depends on its frame only (not on its robot
     belief): computed once per distinct frame of a level."""
 
-    M: jax.Array  # [Q, Q] Σ_b P_F(b) TA[b]: P(β_k | a) = M[a] @ P(ij:k) for observable k
     E: jax.Array  # [Q] the proxy's expectation over candidates (leaf values after a)
     seen: jax.Array  # [Q] P(some candidate seen | a): 1 without nothing_seen
     hk: jax.Array  # [L] leaf value of seeing candidate k: min over links, 0 at the goal
@@ -153,7 +152,6 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     L = fg.obs.shape[0]
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    M = (sf @ TA.reshape(TA.shape[0], -1)).reshape(TA.shape[1:])
     tobs = jnp.where(fg.obs[i, j][:, None], trip[i, j], 0.0)
     idx = jnp.arange(L)
     third = goal.sum() - i - j
@@ -178,7 +176,7 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
     E = jnp.where(wsum > 0, ps * ew[0] / jnp.where(wsum > 0, wsum, 1.0)
                   + (1.0 - ps) * (h_f + cb), h_f + cb)
-    return _FramePart(M=M, E=E, seen=ps, hk=hk,
+    return _FramePart(E=E, seen=ps, hk=hk,
                       link=h3.argmin(0), stuck=h_f + cb)
 
 
@@ -299,7 +297,9 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
     # the candidate weights of the chosen actions only (na of Q rows per node)
     i, j = frames[:, 0], frames[:, 1]
-    wt = jnp.einsum("nas,nks->nak", fp.M[slot[:, None], acts], trip[i, j])  # [N, na, L]
+    sfs = scale[i, j]  # [N, nb]
+    rows = _sum_first([sfs[:, b, None, None] * TA[b][acts] for b in range(TA.shape[0])])
+    wt = jnp.einsum("nas,nks->nak", rows, trip[i, j])  # [N, na, L]
     wt = jnp.where(fg.obs[i, j][:, None], wt, 0.0)
     wk, ks = top_k(wt, pp.n_beta)  # [N, na, nb]
     tot = wk.sum(-1, keepdims=True)
