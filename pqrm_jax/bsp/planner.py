@@ -201,7 +201,7 @@ def top_k(x, k: int) -> tuple[jax.Array, jax.Array]:
     [..., n], largest first, equal values in index order.
 
     Each entry's rank is counted from n² comparisons, which XLA fuses into one loop; on CPU
-    the library's sort-based TopK call took a third of a batched plan (docs/bsp.md
+    the library's sort-based TopK call took 1.5 of 12.5 ms of 64 batched plans (docs/bsp.md
     §benchmark). Values must not be NaN.
 
     >>> v, i = top_k(jnp.array([1.0, 3.0, 3.0, 2.0]), 2)
@@ -293,11 +293,11 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     else:
         slot = jnp.arange(n)
         fp = jax.vmap(fpart)(frames)
-    cst = node_costs(models, D1, scale[frames[:, 0], frames[:, 1]], robots, cost)
-    _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
-    # the candidate weights of the chosen actions only (na of Q rows per node)
     i, j = frames[:, 0], frames[:, 1]
     sfs = scale[i, j]  # [N, nb]
+    cst = node_costs(models, D1, sfs, robots, cost)
+    _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
+    # the candidate weights of the chosen actions only (na of Q rows per node)
     rows = _sum_first([sfs[:, b, None, None] * TA[b][acts] for b in range(TA.shape[0])])
     wt = jnp.einsum("nas,nks->nak", rows, trip[i, j])  # [N, na, L]
     wt = jnp.where(fg.obs[i, j][:, None], wt, 0.0)
