@@ -9,7 +9,8 @@
   the Link-Graph (Thm 4.1).
 * :mod:`.graph` — frame graph of a frozen belief: observability, hops, "plan exists".
 * :mod:`.planner` — the level-synchronous expectimax belief tree, costs eq. 4.29 / 4.30.
-* :mod:`.env` — random study environments, composable initial beliefs (Z §4.3).
+* :mod:`.env` — random study environments, composable initial beliefs (Z §4.3), one or
+  many environments at a time.
 * :mod:`.execute` — receding-horizon execution in ``pqrm_jax.sim`` with PQRM map updates.
 
 >>> from pqrm_jax import bsp
@@ -28,9 +29,9 @@ from .belief import (
     update,
 )
 from .compose import augment, triplet_link_graph
-from .env import Environment, check_environment, generate, initial_belief
+from .env import MODES, Environment, check_environment, generate, initial_belief, initial_beliefs
 from .execute import ExecParams, Lane, LaneState, Outcome, run_lane, run_lanes
-from .graph import FrameGraph, frame_graph, plan_exists
+from .graph import FrameGraph, frame_graph, plan_exists, plans_exist
 from .models import ModelParams, Models, build_models, load_models, sample_tables, stderr
 from .planner import Plan, PlannerParams, plan
 
@@ -38,7 +39,8 @@ __all__ = [
     "SCALE_MODELS", "QBelief", "belief_scales", "check_distribution", "in_belief",
     "non_detection", "scale_posteriors", "update", "augment",
     "triplet_link_graph", "Environment", "check_environment", "generate", "initial_belief",
+    "initial_beliefs", "MODES",
     "ExecParams", "Lane", "LaneState", "Outcome", "run_lane", "run_lanes", "FrameGraph",
-    "frame_graph", "plan_exists", "ModelParams", "Models", "build_models", "load_models",
-    "sample_tables", "stderr", "Plan", "PlannerParams", "plan",
+    "frame_graph", "plan_exists", "plans_exist", "ModelParams", "Models", "build_models",
+    "load_models", "sample_tables", "stderr", "Plan", "PlannerParams", "plan",
 ]

@@ -103,34 +103,40 @@ def augment(trip: np.ndarray, measured: np.ndarray, n: int, tensor: np.ndarray,
     if not sources:
         return trip, src, ncomp
     g = optimal_composition_graph(sources, landmarks=range(n))
-    done: dict[frozenset, np.ndarray] = {}  # composed triplet -> its (sorted ids) ordering
+    have = np.zeros(g.num_triplets, bool)  # graph node -> its row is measured or composed
+    have[[g.triplet_id(t) for t in sources]] = True
+    perms = list(orderings(trip[0, 0, 0], U))  # the six orderings, positions of (A, B, C)
 
-    def row(a, b, c):
-        return trip[a, b, c]
-
-    def fill(ids, p, count):
-        for perm, q in orderings(p, U).items():
-            a, b, c = (ids[x] for x in perm)
-            trip[a, b, c] = q
-            src[a, b, c] = 2
-            ncomp[a, b, c] = min(count, 127)
-
+    # every composable triplet along its minimal tree: the tree of Z Alg. 4 follows the parent
+    # pointers of the graph, so a node's row is composed once, from its two parents' rows,
+    # after them (an explicit stack; no tree object per target)
     for t in combinations(range(n), 3):
-        target = frozenset(t)
-        if target in sources or target in done:
+        root = g.triplet_id(t)
+        if not np.isfinite(g.d[root]) or have[root]:
             continue
-        tree = g.extract(target)
-        if tree is None:
-            continue
-        for head, tl, tr in tree.steps():
-            if head in sources or head in done:
+        stack = [root]
+        while stack:
+            v = stack[-1]
+            if have[v]:
+                stack.pop()
                 continue
+            pa, pb = (int(p) for p in g.parents[v])
+            missing = [p for p in (pa, pb) if not have[p]]
+            if missing:
+                stack += missing
+                continue
+            stack.pop()
+            head, tl, tr = g.triplet(v), g.triplet(pa), g.triplet(pb)
             shared = tl & tr
             (i,) = tl - shared
             (d,) = tr - shared
             (j,) = head & shared
             (k,) = shared - {j}
-            p = compose_step(row(i, j, k), row(j, k, d), tensor)
-            done[head] = p
-            fill((i, j, d), p, int(round(g.cost(head))))
+            p = compose_step(trip[i, j, k], trip[j, k, d], tensor)
+            have[v] = True
+            ids = (i, j, d)  # the composed triplet's six orderings, filled at once
+            a, b, c = (np.array([ids[x[m]] for x in perms]) for m in range(3))
+            trip[a, b, c] = np.stack(list(orderings(p, U).values()))
+            src[a, b, c] = 2
+            ncomp[a, b, c] = min(int(round(float(g.d[v]))), 127)
     return trip, src, ncomp

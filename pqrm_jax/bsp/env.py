@@ -26,6 +26,7 @@ non-finite ``size`` / ``R`` (negative ``r_min``).
 
 from __future__ import annotations
 
+from functools import partial
 from itertools import combinations
 from typing import NamedTuple
 
@@ -35,7 +36,7 @@ import numpy as np
 
 from .. import calculi
 from ..compositions import is_composable
-from ..compositions.simulation import measure_map
+from ..compositions.simulation import measured_rows, place_rows
 from ..pqrm import state_probabilities
 from .belief import COMPOSED, SCALE_ONLY, QBelief, belief_scales, check_scale_model
 from .compose import augment
@@ -226,6 +227,9 @@ def check_environment(env: Environment, L_max: int) -> None:
                          "(Z §4.2.6 assumes a composable M_1)")
 
 
+MODES = ("without", "with")  # the two tests of an environment: compositions off / on
+
+
 def initial_belief(key: jax.Array, models: Models, env: Environment, *, compositions: bool,
                    L_max: int = 12, sigma_z: float = 0.05, samples: int = 256,
                    calculus: str = "edc", scale_model: str = "composed") -> QBelief:
@@ -233,7 +237,8 @@ def initial_belief(key: jax.Array, models: Models, env: Environment, *, composit
 
     With ``scale_model="composed"`` (docs/bsp.md §Z-10) the composed rows are computed in both
     modes; without compositions they are marked ``SCALE_ONLY`` (frame scales, not
-    candidates), so both modes have the same initial frame scales.
+    candidates), so both modes have the same initial frame scales. One environment of
+    :func:`initial_beliefs` (the same numbers).
 
     Args:
         key: PRNG key of the PQRM measurement samples (initial triplets and robot state).
@@ -253,42 +258,142 @@ def initial_belief(key: jax.Array, models: Models, env: Environment, *, composit
     Raises:
         ValueError: for a bad environment or an unknown ``scale_model``.
     """
+    mode = MODES[int(bool(compositions))]
+    out = initial_beliefs(jnp.asarray(key)[None], models, [env], modes=(mode,), L_max=L_max,
+                          sigma_z=sigma_z, samples=samples, calculus=calculus,
+                          scale_model=scale_model)[mode]
+    return jax.tree.map(lambda x: x[0], out)
+
+
+def initial_beliefs(keys: jax.Array, models: Models, envs: list[Environment], *,
+                    modes: tuple[str, ...] = MODES, L_max: int = 12, sigma_z: float = 0.05,
+                    samples: int = 256, calculus: str = "edc",
+                    scale_model: str = "composed") -> dict[str, QBelief]:
+    """The initial beliefs of many environments in both modes, batched (Z §4.3).
+
+    Environment ``e`` with key ``keys[e]`` gets the belief of :func:`initial_belief` with that
+    key in each mode of ``modes``. The measurements (P eq. 2.9) and the robot's state are
+    one compiled call over all environments, the frame scales one per mode; the minimal
+    composition trees (:func:`~pqrm_jax.bsp.compose.augment`, host) are built once per
+    environment and shared by both modes (the modes differ only in the source codes under
+    the ``"composed"`` scale model, docs/bsp.md §Z-10).
+
+    Args:
+        keys: [E] PRNG keys, one per environment.
+        models: the offline tables.
+        envs: the E environments (each checked by :func:`check_environment`).
+        modes: which beliefs: ``"without"`` and/or ``"with"`` compositions (:data:`MODES`).
+        L_max: padded landmark count L.
+        sigma_z: measurement noise in units of R.
+        samples: PQRM samples per measured row (P eq. 2.9).
+        calculus: the calculus name (EDC in Z).
+        scale_model: ``"composed"`` or ``"belief"`` (docs/bsp.md §Z-10).
+
+    Returns:
+        ``{mode: QBelief}``, every field with a leading ``[E]`` axis.
+
+    Raises:
+        ValueError: for a bad environment (naming it and its index), an unknown mode or
+            ``scale_model``, or a key count that is not the environment count.
+
+    >>> import jax, numpy as np
+    >>> from pqrm_jax.bsp import Environment, initial_beliefs, load_models, ModelParams
+    >>> env = Environment(pos=np.array([[0., 0.], [1., 0.], [.5, .8], [1.4, .9]]),
+    ...                   triplets=((0, 1, 2), (1, 2, 3)), frame=(0, 1), goal=(1, 2, 3),
+    ...                   start=np.array([.5, .3]))
+    >>> models = load_models(ModelParams(samples=600, pool=1 << 18, seed=3))
+    >>> b = initial_beliefs(jax.random.split(jax.random.key(0), 2), models, [env, env])
+    >>> w, wo = b["with"], b["without"]   # ABD: composed (2); without: for scales only (3)
+    >>> w.trip.shape, int(w.trip_src[1, 0, 1, 3]), int(wo.trip_src[1, 0, 1, 3])
+    ((2, 12, 12, 12, 20), 2, 3)
+    """
     check_scale_model(scale_model)
-    check_environment(env, L_max)
+    bad = [m for m in modes if m not in MODES]
+    if bad or not modes:
+        raise ValueError(f"modes must be a non-empty subset of {MODES}, got {modes!r}")
+    envs = list(envs)
+    if len(envs) == 0:
+        raise ValueError("envs is empty: initial_beliefs needs at least one environment")
+    keys = jnp.asarray(keys)
+    if keys.shape != (len(envs),):
+        raise ValueError(f"keys must be {len(envs)} PRNG keys (one per environment), got "
+                         f"shape {keys.shape}")
+    for e, env in enumerate(envs):
+        try:
+            check_environment(env, L_max)
+        except ValueError as exc:
+            raise ValueError(f"environment {e}: {exc}") from None
     calc = calculi.get(calculus)
-    n = len(env.pos)
-    Q = calc.num_states
-    pos = np.full((L_max, 2), FAR, np.float32)
-    pos[:n] = env.pos
-    k1, k2 = jax.random.split(key)
-    probs, observed = measure_map(calc, k1, pos[:n], [tuple(sorted(t)) for t in env.triplets],
-                                  sigma_z, samples)
-    trip = np.full((L_max, L_max, L_max, Q), 1.0 / Q, np.float32)
-    trip[:n, :n, :n] = probs
-    measured = np.zeros((L_max, L_max, L_max), bool)
-    measured[:n, :n, :n] = observed
-    if compositions or scale_model == "composed":
-        U = np.asarray(models.U)
-        trip, src, ncomp = augment(trip, measured, n, np.asarray(calc.tables.prob_compose,
-                                                                 np.float32), U)
-        if not compositions:  # composed rows serve the frame scales only (§Z-10)
-            src = np.where(src == COMPOSED, SCALE_ONLY, src).astype(np.int8)
-    else:
-        src = measured.astype(np.int8)
-        ncomp = np.zeros_like(src)
-    a, b = env.frame
-    x = np.asarray(env.start, np.float32)
-    means = jnp.asarray([[pos[a] - x, pos[b] - x, np.zeros(2)]], jnp.float32)
-    robot = state_probabilities(k2, calc, means, jnp.asarray([[sigma_z, sigma_z, 0.0]]),
-                                samples)[0]
-    ref_scale = reference_scale(models, env)
-    lm = np.arange(L_max) < n
-    scale = belief_scales(models, jnp.asarray(trip), jnp.asarray(src), jnp.asarray([a, b]),
-                          jnp.asarray(ref_scale), jnp.asarray(lm), scale_model)
-    return QBelief(frame=jnp.asarray([a, b], jnp.int32), robot=jnp.asarray(robot),
-                   trip=jnp.asarray(trip), trip_src=jnp.asarray(src, jnp.int8),
-                   ncomp=jnp.asarray(ncomp, jnp.int8), scale=scale, lm_mask=jnp.asarray(lm),
-                   conflicts=jnp.zeros((), jnp.int32))
+    E, Q = len(envs), calc.num_states
+    trips = [np.asarray(sorted(tuple(sorted(int(x) for x in t)) for t in env.triplets),
+                        np.int32).reshape(-1, 3) for env in envs]
+    width = 1 << max(3, (max(len(t) for t in trips) - 1).bit_length())  # few compiled shapes
+    tri = np.zeros((E, width, 3), np.int32)
+    tri[:, :, 1], tri[:, :, 2] = 1, 2  # padding rows: a valid triplet, never placed
+    for e, t in enumerate(trips):
+        tri[e, :len(t)] = t
+    pos = np.stack([padded_positions(env, L_max) for env in envs])
+    start = np.stack([np.asarray(env.start, np.float32) for env in envs])
+    frame = np.asarray([env.frame for env in envs], np.int32)
+    rows, robot = _measurements(keys, jnp.asarray(pos), jnp.asarray(tri), jnp.asarray(start),
+                                jnp.asarray(frame), jnp.float32(sigma_z), calculus, samples)
+    rows = np.asarray(rows)
+    need_aug = "with" in modes or scale_model == "composed"
+    tensor = np.asarray(calc.tables.prob_compose, np.float32) if need_aug else None
+    U = np.asarray(models.U)
+    parts: dict[str, list] = {m: [] for m in modes}
+    for e, env in enumerate(envs):
+        n = len(env.pos)
+        trip = np.full((L_max, L_max, L_max, Q), 1.0 / Q, np.float32)
+        measured = np.zeros((L_max, L_max, L_max), bool)
+        place_rows(trip, measured, trips[e], rows[e, :len(trips[e])])
+        if need_aug:
+            aug, src_c, ncomp_c = augment(trip, measured, n, tensor, U)
+        for m in modes:
+            if m == "with":
+                parts[m].append((aug, src_c, ncomp_c))
+            elif scale_model == "composed":  # composed rows serve the frame scales only (§Z-10)
+                parts[m].append((aug, np.where(src_c == COMPOSED, SCALE_ONLY,
+                                               src_c).astype(np.int8), ncomp_c))
+            else:
+                parts[m].append((trip, measured.astype(np.int8),
+                                 np.zeros(measured.shape, np.int8)))
+    ref_scale = jnp.asarray(np.stack([reference_scale(models, env) for env in envs]))
+    lm = jnp.asarray(np.stack([np.arange(L_max) < len(env.pos) for env in envs]))
+    frame = jnp.asarray(frame)
+    out = {}
+    for m in modes:
+        trip, src, ncomp = (jnp.asarray(np.stack(x)) for x in zip(*parts[m], strict=True))
+        src = src.astype(jnp.int8)
+        scale = _batched_scales(models, trip, src, frame, ref_scale, lm, scale_model)
+        out[m] = QBelief(frame=frame, robot=robot, trip=trip, trip_src=src,
+                         ncomp=ncomp.astype(jnp.int8), scale=scale, lm_mask=lm,
+                         conflicts=jnp.zeros((E,), jnp.int32))
+    return out
+
+
+@partial(jax.jit, static_argnames=("calculus", "samples"))
+def _measurements(keys, pos, tri, start, frame, sigma_z, calculus: str, samples: int):
+    """[E, T, 6, Q] rows of the measured triplets and [E, Q] robot states (one program)."""
+    calc = calculi.get(calculus)
+
+    def one(key, pos, tri, x, fr):
+        k1, k2 = jax.random.split(key)
+        rows = measured_rows(calc, k1, pos, tri, sigma_z, samples)
+        means = jnp.stack([pos[fr[0]] - x, pos[fr[1]] - x, jnp.zeros(2, jnp.float32)])[None]
+        sig = jnp.stack([sigma_z, sigma_z, jnp.float32(0.0)])[None]
+        return rows, state_probabilities(k2, calc, means, sig, samples)[0]
+
+    return jax.vmap(one)(keys, pos, tri, start, frame)
+
+
+@partial(jax.jit, static_argnames=("scale_model",))
+def _batched_scales(models, trip, src, frame, ref_scale, lm, scale_model: str):
+    """:func:`~pqrm_jax.bsp.belief.belief_scales` over a leading environment axis: a
+    ``lax.map``, so that each environment's scales are the single-environment program's bit
+    for bit (a ``vmap`` batches the contractions and rounds some entries 1 ulp apart)."""
+    return jax.lax.map(lambda a: belief_scales(models, *a, scale_model),
+                       (trip, src, frame, ref_scale, lm))
 
 
 def reference_scale(models: Models, env: Environment) -> np.ndarray:

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .belief import in_belief
+from .belief import QBelief, in_belief
 from .models import Models
 
 INF = 10_000
@@ -132,3 +132,28 @@ def plan_exists(graph: FrameGraph, frame) -> jax.Array:
         [] bool.
     """
     return graph.hops[frame[0], frame[1]] < INF
+
+
+@partial(jax.jit, static_argnames=("eps",))
+def plans_exist(models: Models, beliefs: QBelief, goals, eps: float = 0.01) -> jax.Array:
+    """:func:`plan_exists` of the frame graph of each of E beliefs, one compiled program.
+
+    A ``lax.map`` over the environments: each answer is the single-belief program's
+    (``frame_graph`` then ``plan_exists``), not a batched contraction's rounding.
+
+    Args:
+        models: the offline tables.
+        beliefs: a :class:`~pqrm_jax.bsp.belief.QBelief` with a leading ``[E]`` axis on every
+            field (:func:`~pqrm_jax.bsp.env.initial_beliefs`).
+        goals: [E, 3] int, each environment's goal triplet.
+        eps: observability threshold ε_obs.
+
+    Returns:
+        [E] bool.
+    """
+    def one(a):
+        b, goal = a
+        fg = frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, eps)
+        return plan_exists(fg, b.frame)
+
+    return jax.lax.map(one, (beliefs, jnp.asarray(goals)))

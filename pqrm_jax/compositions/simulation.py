@@ -33,8 +33,8 @@ from .. import triplets as layouts
 from ..triplets import ORDERINGS
 from .propagation import DEFAULT_EPS, DEFAULT_PATH_WEIGHT, propagate
 
-__all__ = ["sample_compose_tensor", "random_world", "true_states", "measure_map", "score",
-           "heldout_study"]
+__all__ = ["sample_compose_tensor", "random_world", "true_states", "measured_rows",
+           "place_rows", "measure_map", "score", "heldout_study"]
 
 
 def sample_compose_tensor(calc, key, num_samples: int = 2_000_000, chunk: int = 500_000):
@@ -86,11 +86,45 @@ def true_states(calc, pos) -> np.ndarray:
     return np.asarray(layouts.true_states(calc, pos, "dense", mask_repeated=False))
 
 
+def measured_rows(calc, key, pos, trip, sigma, samples: int = 256) -> jax.Array:
+    """[N, 6, Q] PQRM rows of the triplets ``trip`` [N, 3], one per ordering (P eq. 2.9).
+
+    Each triplet is measured once with Gaussian position noise ``sigma``; the inverse sensor
+    model is sampled ``samples`` times around the measured positions and the six orderings
+    (:data:`pqrm_jax.triplets.ORDERINGS`, in that order) are classified from the same samples.
+    A row with no defined sample is uniform. Traceable (``jit``/``vmap``); the draws of a
+    triplet depend only on ``key`` and its row index (threefry is partitionable), so padding
+    ``trip`` with more rows leaves the first rows unchanged.
+
+    Args:
+        calc: the calculus.
+        key: PRNG key of the noise and the samples.
+        pos: [L, 2] true landmark positions (float32).
+        trip: [N, 3] int landmark ids of the triplets.
+        sigma: std of the position noise (and of the inverse sensor model).
+        samples: samples per triplet.
+
+    Returns:
+        [N, 6, Q] float32 distributions.
+    """
+    q = calc.num_states
+    k1, k2 = jax.random.split(key)
+    true = pos[trip]                                               # (N, 3, 2)
+    z = true + sigma * jax.random.normal(k1, true.shape)           # one measurement each
+    xs = z[:, None] + sigma * jax.random.normal(k2, (trip.shape[0], samples, 3, 2))
+    rows = []
+    for p in ORDERINGS:
+        s = calc.classify(xs[:, :, p[0]], xs[:, :, p[1]], xs[:, :, p[2]])   # (N, S)
+        cnt = (jax.nn.one_hot(s, q) * (s >= 0)[..., None]).sum(1)
+        tot = cnt.sum(-1, keepdims=True)
+        rows.append(jnp.where(tot > 0, cnt / jnp.maximum(tot, 1), 1.0 / q))
+    return jnp.stack(rows, 1)
+
+
 def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 256):
     """PQRM-style measurement of the given unordered triplets (each measured once).
 
-    The inverse sensor model is sampled around the noisy positions and every ordering of a
-    triplet is classified from the same samples (P eq. 2.9).
+    The rows of :func:`measured_rows`, placed in a dense map.
 
     Args:
         calc: the calculus.
@@ -110,21 +144,19 @@ def measure_map(calc, key, pos, observed_triplets, sigma: float, samples: int = 
     observed = np.zeros((n, n, n), bool)
     if len(trip) == 0:
         return probs, observed
-    k1, k2 = jax.random.split(key)
-    true = pos[trip]                                               # (N, 3, 2)
-    z = true + sigma * jax.random.normal(k1, true.shape)           # one measurement each
-    xs = z[:, None] + sigma * jax.random.normal(k2, (len(trip), samples, 3, 2))
-    perms = ORDERINGS
-    for p in perms:
-        s = calc.classify(xs[:, :, p[0]], xs[:, :, p[1]], xs[:, :, p[2]])   # (N, S)
-        onehot = jax.nn.one_hot(s, q) * (s >= 0)[..., None]
-        cnt = np.asarray(onehot.sum(1))
-        tot = cnt.sum(-1, keepdims=True)
-        dist = np.where(tot > 0, cnt / np.maximum(tot, 1), 1.0 / q)
-        ii, jj, kk = trip[:, p[0]], trip[:, p[1]], trip[:, p[2]]
-        probs[ii, jj, kk] = dist
-        observed[ii, jj, kk] = True
+    rows = np.asarray(measured_rows(calc, key, pos, jnp.asarray(trip), sigma, samples))
+    place_rows(probs, observed, trip, rows)
     return probs, observed
+
+
+def place_rows(probs: np.ndarray, observed: np.ndarray, trip: np.ndarray,
+               rows: np.ndarray) -> None:
+    """Write the rows [N, 6, Q] of :func:`measured_rows` of the triplets ``trip`` [N, 3] into
+    the dense map ``probs`` [L, L, L, Q] and mark them in ``observed`` [L, L, L] (in place)."""
+    for o, p in enumerate(ORDERINGS):
+        ii, jj, kk = trip[:, p[0]], trip[:, p[1]], trip[:, p[2]]
+        probs[ii, jj, kk] = rows[:, o]
+        observed[ii, jj, kk] = True
 
 
 def score(probs, truth, mask) -> dict[str, float]:

@@ -52,6 +52,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import json
 import sys
 import time
@@ -312,28 +313,26 @@ def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, d
     import jax.numpy as jnp
     from tqdm.auto import tqdm
 
-    from ..bsp import env as E
     from ..bsp import graph as G
 
     cluster = cluster or distributed.Cluster(0, 1, None)
     n, grid = cfg["calib_envs"], cfg["eps_grid"]
     bar = tqdm(total=n, desc="qbsp calibration", disable=not progress)
+    blocks = -(-n // CALIB_BLOCK)
 
-    def plan_exists(e: int) -> np.ndarray:  # [grid] int8: a plan exists at each eps
-        env = make_env(cfg, cfg["calib_seed"], e, cfg["size"])
-        b = E.initial_belief(jax.random.key(e), models, env, compositions=True,
-                             L_max=cfg["L_max"], sigma_z=cfg["execution"]["sigma_z"],
-                             samples=cfg["initial_measurement_samples"],
-                             scale_model=cfg["scale_model"])
-        ok = np.zeros(len(grid), np.int8)
-        for c, x in enumerate(grid):
-            fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask,
-                               jnp.asarray(env.goal), float(x))
-            ok[c] = bool(G.plan_exists(fg, b.frame))
-        return ok
+    def plan_exists(u: int) -> np.ndarray:  # [CALIB_BLOCK, grid] int8: a plan exists at eps
+        ids = list(range(u * CALIB_BLOCK, min(n, (u + 1) * CALIB_BLOCK)))
+        envs = [make_env(cfg, cfg["calib_seed"], e, cfg["size"]) for e in ids]
+        b = _beliefs(cfg, models, envs, [jax.random.key(e) for e in ids], ("with",))["with"]
+        goals = jnp.asarray([env.goal for env in envs], jnp.int32)
+        ok = np.stack([np.asarray(G.plans_exist(models, b, goals, float(x))) for x in grid], 1)
+        out = np.zeros((CALIB_BLOCK, len(grid)), np.int8)  # equal shapes for map_chunks
+        out[:len(ids)] = ok
+        return out
 
-    ok = np.stack(distributed.map_chunks(plan_exists, n, cluster,
-                                         done=lambda e, _: bar.update(cluster.num_processes)))
+    ok = np.concatenate(distributed.map_chunks(
+        plan_exists, blocks, cluster,
+        done=lambda u, _: bar.update(min(n, (u + 1) * CALIB_BLOCK) - u * CALIB_BLOCK)))[:n]
     bar.close()
     rates = {str(x): float(np.mean(ok[:n, c])) for c, x in enumerate(grid)}
     best = min(cfg["eps_grid"], key=lambda x: abs(rates[str(x)] - PUBLISHED["exists_with"]))
@@ -352,9 +351,9 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
     import jax.numpy as jnp
     from tqdm.auto import tqdm
 
-    from ..bsp import env as E
     from ..bsp import graph as G
     from ..bsp import planner as P
+    from ..bsp.env import MODES
 
     sw = cfg["sweep"]
     sizes = sorted(set(sw["sizes"]) | {cfg["size"]})
@@ -367,41 +366,69 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
                               nothing_seen="nothing_seen" in cfg.get("extensions", {}))
            for d in sw["depths"]}
     bar = tqdm(total=len(sizes) * sw["envs"], desc="qbsp sweep", disable=not progress)
-    topo = {m: [] for m in ("without", "with")}
+    topo: dict[str, list] = {m: [] for m in MODES}
     for size in sizes:
-        ex = {m: [] for m in ("without", "with")}
-        tex = {m: {d: [] for d in sw["depths"]} for m in ("without", "with")}
-        for e in range(sw["envs"]):
-            env = make_env(cfg, sw["seed"], e, size)
-            goal = jnp.asarray(env.goal)
-            for mode in ("without", "with"):
-                b = E.initial_belief(jax.random.key(e), models, env,
-                                     compositions=mode == "with", L_max=cfg["L_max"],
-                                     sigma_z=cfg["execution"]["sigma_z"],
-                                     samples=cfg["initial_measurement_samples"],
-                                     scale_model=cfg["scale_model"])
-                fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
-                                   float(eps))
-                ex[mode].append(bool(G.plan_exists(fg, b.frame)))
-                if size == cfg["size"]:  # the topological reading: every candidate observable
-                    fg0 = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal,
-                                        0.0)
-                    topo[mode].append(bool(G.plan_exists(fg0, b.frame)))
-                if size == cfg["size"]:
-                    for d, pp in pps.items():
-                        pl = P.plan(jax.random.key(e), models, D1, b.trip, b.scale, fg, goal,
-                                    b.frame, b.robot, pp, 1)
-                        tex[mode][d].append(bool(pl.exists))
-            bar.update(1)
-        for mode in ("without", "with"):
-            out["exists"][mode][str(size)] = float(np.mean(ex[mode]))
-            if size == cfg["size"]:
-                out["tree_exists"][mode] = {str(d): float(np.mean(v))
-                                            for d, v in tex[mode].items()}
+        envs = [make_env(cfg, sw["seed"], e, size) for e in range(sw["envs"])]
+        keys = [jax.random.key(e) for e in range(sw["envs"])]
+        goals = jnp.asarray([env.goal for env in envs], jnp.int32)
+        bels = _beliefs(cfg, models, envs, keys, MODES)
+        for mode in MODES:
+            b = bels[mode]
+            ok = np.asarray(G.plans_exist(models, b, goals, float(eps)))
+            out["exists"][mode][str(size)] = float(np.mean(ok))
+            if size == cfg["size"]:  # the topological reading: every candidate observable
+                topo[mode] = np.asarray(G.plans_exist(models, b, goals, 0.0)).tolist()
+                out["tree_exists"][mode] = {
+                    str(d): float(np.mean(_trees_exist(models, D1, b, goals, jnp.stack(keys),
+                                                       float(eps), pp).astype(bool)))
+                    for d, pp in pps.items()}
+        bar.update(sw["envs"])
     bar.close()
     out["topological"] = {"envs": sw["envs"], "size": cfg["size"],
                           **{m: float(np.mean(v)) for m, v in topo.items()}}
     return out
+
+
+CALIB_BLOCK = 50  # calibration environments per compiled call (and per distributed unit)
+
+
+def _beliefs(cfg: dict, models, envs: list, keys: list, modes: tuple[str, ...]) -> dict:
+    """The initial beliefs of ``envs`` (one PRNG key each) in ``modes``, batched
+    (:func:`~pqrm_jax.bsp.env.initial_beliefs` with the study's settings)."""
+    import jax.numpy as jnp
+
+    from ..bsp import env as E
+
+    return E.initial_beliefs(jnp.stack(keys), models, envs, modes=modes, L_max=cfg["L_max"],
+                             sigma_z=cfg["execution"]["sigma_z"],
+                             samples=cfg["initial_measurement_samples"],
+                             scale_model=cfg["scale_model"])
+
+
+def _trees_exist(models, D1, beliefs, goals, keys, eps: float, pp) -> np.ndarray:
+    """[E] bool: the planner's tree root < λ (cost 1) for each belief with its key, one
+    compiled program per (shapes, ``eps``, ``pp``): a ``lax.map``, each the single-belief
+    plan."""
+    return np.asarray(_trees_program()(models, D1, beliefs, goals, keys, eps, pp))
+
+
+@functools.cache
+def _trees_program():
+    import jax
+
+    from ..bsp import graph as G
+    from ..bsp import planner as P
+
+    @functools.partial(jax.jit, static_argnames=("eps", "pp"))
+    def run(models, D1, beliefs, goals, keys, eps, pp):
+        def one(a):
+            b, goal, key = a
+            fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, eps)
+            return P.plan(key, models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot, pp,
+                          1).exists
+        return jax.lax.map(one, (beliefs, goals, keys))
+
+    return run
 
 
 def shard_lanes(tree):
@@ -517,6 +544,7 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     from ..bsp import env as E
     from ..bsp import execute as X
     from ..bsp import planner as P
+    from ..bsp.env import MODES
 
     width = cfg["chunk"]
     pad = envs + [envs[-1]] * (width - len(envs))
@@ -535,15 +563,11 @@ def _chunk_lanes(cfg: dict, models, envs: list, ids: list[int]):
     ref = jnp.asarray([e.frame for e in pad], jnp.int32)
     rs = jnp.asarray(np.stack([E.reference_scale(models, e) for e in pad]))
     keys = jnp.stack([jax.random.fold_in(jax.random.key(cfg["seed"]), i) for i in pid])
-    beliefs = {}
-    for mode in ("without", "with"):
-        bels = [E.initial_belief(jax.random.fold_in(jax.random.key(cfg["seed"] + 1), i),
-                                 models, e, compositions=mode == "with", L_max=L,
-                                 sigma_z=ex["sigma_z"],
-                                 samples=cfg["initial_measurement_samples"],
-                                 scale_model=cfg["scale_model"])
-                for e, i in zip(pad, pid, strict=True)]
-        beliefs[mode] = jax.tree.map(lambda *x: jnp.stack(x), *bels)
+    # the padding environments repeat the last one (same id, same key): their beliefs too
+    bels = _beliefs(cfg, models, envs, [jax.random.fold_in(jax.random.key(cfg["seed"] + 1), i)
+                                        for i in ids], MODES)
+    fill = np.minimum(np.arange(width), len(envs) - 1)
+    beliefs = {m: jax.tree.map(lambda x: x[fill], b) for m, b in bels.items()}
     # all four tests of every environment in one batched call: lanes = (mode, cost, env)
     combos = COMBO_ORDER
     B = jax.tree.map(lambda *x: jnp.concatenate(x), *[beliefs[m] for m, _ in combos])
