@@ -303,3 +303,37 @@ def test_depth_one_values_from_the_definitions(mod):
                       else min(h([i, j]), h([i, k]), h([j, k])) for k in ks]
                 want = float(c[a]) + float(np.dot(w, vb))
                 assert np.isclose(float(out.q[n]), want, rtol=1e-5), (e, cost, a, out.q[n], want)
+
+
+# ------------------------------------------------------------------ the planner's draws
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(0, 2 ** 32 - 1),
+       st.lists(st.integers(0, 2 ** 32 - 1), min_size=1, max_size=6), st.integers(1, 7))
+def test_draws_equal_jax_random(w0, w1, data, n):
+    """bsp.draws' unrolled threefry gives jax.random's fold_in, split and uniform bit for
+    bit (typed and raw keys, counters up to 2³² − 1), so the planner keeps its draws."""
+    from pqrm_jax.bsp import draws
+
+    words = jnp.asarray([w0, w1], jnp.uint32)
+    key = jax.random.wrap_key_data(words)
+    assert np.array_equal(draws.key_words(key), words)
+    assert np.array_equal(draws.key_words(words), words)
+    d = jnp.asarray(data, jnp.uint32)
+    want = jax.random.key_data(jax.vmap(lambda x: jax.random.fold_in(key, x))(d))
+    assert np.array_equal(draws.fold_in(words, d), want)
+    subs = jax.random.key_data(jax.random.split(key, n))
+    for i in range(n):
+        assert np.array_equal(draws.split(words, i), subs[i])
+    batch = jax.random.split(key, 5)
+    got = draws.uniform(draws.key_words(batch))
+    assert np.array_equal(got, jax.vmap(jax.random.uniform)(batch))
+    assert np.all((got >= 0) & (got < 1))
+
+
+def test_draws_refuse_other_keys():
+    from pqrm_jax.bsp import draws
+
+    with pytest.raises(ValueError, match="key: .*threefry2x32"):
+        draws.key_words(jax.random.key(0, impl="rbg"))
+    with pytest.raises(ValueError, match="key: expected"):
+        draws.key_words(jnp.zeros(3, jnp.int32))

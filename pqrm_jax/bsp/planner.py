@@ -45,6 +45,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from . import draws
 from .belief import LINK_K
 from .graph import INF, FrameGraph
 from .models import Models
@@ -125,6 +126,7 @@ class _FramePart(NamedTuple):
     hk: jax.Array  # [L] leaf value of seeing candidate k: min over links, 0 at the goal
     link: jax.Array  # [L] the link option attaining it (0 stay, 1 (i, k), 2 (j, k))
     stuck: jax.Array  # [] h(F) + c̄
+    W: jax.Array  # [Q, L] candidate weights P(β_k | a) of every action (unnormalised)
 
 
 def transition_association(models: Models) -> jax.Array:
@@ -176,8 +178,11 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
     E = jnp.where(wsum > 0, ps * ew[0] / jnp.where(wsum > 0, wsum, 1.0)
                   + (1.0 - ps) * (h_f + cb), h_f + cb)
+    # the candidate weights of every action, W[a, k] = Σ_s (Σ_b sf_b TA[b, a, s]) tobs[k, s]:
+    # the nodes of this frame pick their chosen actions' rows (no per-node gather of trip)
+    W = _sum_first([sf[b] * TA[b] for b in range(nb)]) @ tobs.T
     return _FramePart(E=E, seen=ps, hk=hk,
-                      link=h3.argmin(0), stuck=h_f + cb)
+                      link=h3.argmin(0), stuck=h_f + cb, W=W)
 
 
 def node_costs(models, D1, sfs, robots, cost) -> jax.Array:
@@ -222,10 +227,11 @@ def _branch(models, KL, trip, fg: FrameGraph, base, frame, sf, a, k):
     the three link options (stay, (i, k), (j, k)); the draw's key is ``base`` (a function of
     the level and the frame) folded with a, then k."""
     i, j = frame[0], frame[1]
-    kk = jax.random.fold_in(jax.random.fold_in(base, a), k)
-    k1, k2 = jax.random.split(kk)
-    kb, kx, kt = jax.random.split(k1, 3)
-    u = [jax.random.uniform(q) for q in (kb, kx, kt, k2)]
+    # jax.random's fold_in, split and uniform, bit for bit, as one fusion (bsp.draws)
+    kk = draws.fold_in(draws.fold_in(base, a), k)
+    k1, k2 = draws.split(kk, 0), draws.split(kk, 1)
+    u = [draws.uniform(q) for q in (draws.split(k1, 0), draws.split(k1, 1), draws.split(k1, 2),
+                                    k2)]
     # b, then x | b, then t | x, b, then ẑ | x, t, b: nb + Q + Q + Q² cells
     g = sf[:, None] * models.T[:, a]  # [nb, Q]: P_F(b) T[b, a, x]
     tab = g * fg.Ab[i, j, k].T  # [nb, Q]: ... · Ab[x, b]
@@ -297,10 +303,7 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     sfs = scale[i, j]  # [N, nb]
     cst = node_costs(models, D1, sfs, robots, cost)
     _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
-    # the candidate weights of the chosen actions only (na of Q rows per node)
-    rows = _sum_first([sfs[:, b, None, None] * TA[b][acts] for b in range(TA.shape[0])])
-    wt = jnp.einsum("nas,nks->nak", rows, trip[i, j])  # [N, na, L]
-    wt = jnp.where(fg.obs[i, j][:, None], wt, 0.0)
+    wt = fp.W[slot[:, None], acts]  # [N, na, L] the candidate weights of the chosen actions
     wk, ks = top_k(wt, pp.n_beta)  # [N, na, nb]
     tot = wk.sum(-1, keepdims=True)
     w = wk / jnp.where(tot > 0, tot, 1.0)
@@ -315,7 +318,7 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
                       links=jnp.where(w > 0, fp.link[sl, ks], 0))
     # one key per (level, frame), the same as before issue 25's fourth session (so the same
     # draws); each branch folds in a, then k
-    base = jax.vmap(lambda c: jax.random.fold_in(jax.random.fold_in(key, level), c))(codes)
+    base = draws.fold_in(draws.fold_in(key, level), codes)  # [N, 2] key words
 
     def node(frame, base_n, acts_n, ks_n):
         sf = scale[frame[0], frame[1]]
@@ -397,6 +400,7 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
     if pp.depth < 1:
         raise ValueError(f"planner depth must be >= 1, got {pp.depth}")
     cost = pp.cost if cost is None else cost
+    key = draws.key_words(key)
     cb = cbar(models, D1, cost)
     lam = jnp.asarray(pp.lam, jnp.float32)
     L = trip.shape[0]
