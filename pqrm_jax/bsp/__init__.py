@@ -8,7 +8,8 @@
 * :mod:`.compose` — the augmented belief from minimal composition trees (Z eqs. 4.26–4.28),
   the Link-Graph (Thm 4.1).
 * :mod:`.graph` — frame graph of a frozen belief: observability, hops, "plan exists".
-* :mod:`.planner` — the level-synchronous expectimax belief tree, costs eq. 4.29 / 4.30.
+* :mod:`.planner` — the level-synchronous expectimax belief tree, costs eq. 4.29 / 4.30;
+  :mod:`.draws` — its random draws (``jax.random``'s threefry bits, unrolled).
 * :mod:`.env` — random study environments, composable initial beliefs (Z §4.3), one or
   many environments at a time.
 * :mod:`.execute` — receding-horizon execution in ``pqrm_jax.sim`` with PQRM map updates.

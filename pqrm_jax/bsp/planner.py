@@ -34,7 +34,8 @@ of each candidate at a leaf) is computed once per distinct frame of a level; at 
 level a branch's value is the frame's leaf value of its candidate, so no child frame is built
 there. Short contractions are written as fused sums and ``top_k`` as comparison counts
 (XLA:CPU runs a reduction over a 6-long axis or a sort-based TopK as slow library calls;
-docs/bsp.md §benchmark).
+docs/bsp.md §benchmark), and a branch's keys and uniforms come from :mod:`.draws`
+(``jax.random``'s bits, with the threefry hash unrolled into one fusion).
 """
 
 from __future__ import annotations

@@ -42,7 +42,8 @@ cannot be read fails the study with a :class:`~pqrm_jax.studies.store.StudyError
 
 As N processes on ``jax.distributed`` (``--coordinator/--processes/--process-id``, the
 environment or Slurm; :mod:`pqrm_jax.studies.distributed`) process ``p`` computes the
-calibration environments and the environment chunks ``≡ p (mod N)`` whole, on its own devices;
+calibration blocks (:data:`CALIB_BLOCK` environments) and the environment chunks ``≡ p (mod N)``
+whole, on its own devices;
 the answers are gathered and process 0 alone reads and writes the store, so the files are
 bit-identical to one process (which is why the process count is not part of the config).
 """
@@ -306,8 +307,10 @@ def make_env(cfg: dict, seed: int, e: int, size: float):
 def calibrate(cfg: dict, models, progress: bool, cluster=None) -> tuple[float, dict]:
     """Choose eps_obs on the calibration seed (with-composition plan-exists rate vs 81.6 %).
 
-    With a multi-process ``cluster`` process ``p`` of ``K`` computes the environments
-    ``e ≡ p (mod K)`` and the answers are gathered: the same result on every process.
+    The environments go in blocks of :data:`CALIB_BLOCK` (one compiled call each: batched
+    initial beliefs, ``plans_exist`` per threshold). With a multi-process ``cluster`` process
+    ``p`` of ``K`` computes the blocks ``≡ p (mod K)`` and the answers are gathered: the same
+    result on every process.
     """
     import jax
     import jax.numpy as jnp
