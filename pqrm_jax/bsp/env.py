@@ -324,7 +324,7 @@ def initial_beliefs(keys: jax.Array, models: Models, envs: list[Environment], *,
         except ValueError as exc:
             raise ValueError(f"environment {e}: {exc}") from None
     calc = calculi.get(calculus)
-    E, Q = len(envs), calc.num_states
+    E = len(envs)
     trips = [np.asarray(sorted(tuple(sorted(int(x) for x in t)) for t in env.triplets),
                         np.int32).reshape(-1, 3) for env in envs]
     width = 1 << max(3, (max(len(t) for t in trips) - 1).bit_length())  # few compiled shapes
@@ -338,26 +338,7 @@ def initial_beliefs(keys: jax.Array, models: Models, envs: list[Environment], *,
     rows, robot = _measurements(keys, jnp.asarray(pos), jnp.asarray(tri), jnp.asarray(start),
                                 jnp.asarray(frame), jnp.float32(sigma_z), calculus, samples)
     rows = np.asarray(rows)
-    need_aug = "with" in modes or scale_model == "composed"
-    tensor = np.asarray(calc.tables.prob_compose, np.float32) if need_aug else None
-    U = np.asarray(models.U)
-    parts: dict[str, list] = {m: [] for m in modes}
-    for e, env in enumerate(envs):
-        n = len(env.pos)
-        trip = np.full((L_max, L_max, L_max, Q), 1.0 / Q, np.float32)
-        measured = np.zeros((L_max, L_max, L_max), bool)
-        place_rows(trip, measured, trips[e], rows[e, :len(trips[e])])
-        if need_aug:
-            aug, src_c, ncomp_c = augment(trip, measured, n, tensor, U)
-        for m in modes:
-            if m == "with":
-                parts[m].append((aug, src_c, ncomp_c))
-            elif scale_model == "composed":  # composed rows serve the frame scales only (§Z-10)
-                parts[m].append((aug, np.where(src_c == COMPOSED, SCALE_ONLY,
-                                               src_c).astype(np.int8), ncomp_c))
-            else:
-                parts[m].append((trip, measured.astype(np.int8),
-                                 np.zeros(measured.shape, np.int8)))
+    parts = _mode_rows(models, envs, trips, rows, modes, L_max, calc, scale_model)
     ref_scale = jnp.asarray(np.stack([reference_scale(models, env) for env in envs]))
     lm = jnp.asarray(np.stack([np.arange(L_max) < len(env.pos) for env in envs]))
     frame = jnp.asarray(frame)
@@ -370,6 +351,34 @@ def initial_beliefs(keys: jax.Array, models: Models, envs: list[Environment], *,
                          ncomp=ncomp.astype(jnp.int8), scale=scale, lm_mask=lm,
                          conflicts=jnp.zeros((E,), jnp.int32))
     return out
+
+
+def _mode_rows(models: Models, envs: list, trips: list, rows: np.ndarray, modes, L_max: int,
+               calc, scale_model: str) -> dict[str, list]:
+    """Host part of :func:`initial_beliefs`: per environment and mode the dense (trip, src,
+    ncomp) of the measured rows ``rows`` [E, T, 6, Q] of ``trips``, the composition trees
+    built once per environment and shared by the modes (docs/bsp.md §Z-10)."""
+    Q = calc.num_states
+    need_aug = "with" in modes or scale_model == "composed"
+    tensor = np.asarray(calc.tables.prob_compose, np.float32) if need_aug else None
+    U = np.asarray(models.U)
+    parts: dict[str, list] = {m: [] for m in modes}
+    for e, env in enumerate(envs):
+        trip = np.full((L_max, L_max, L_max, Q), 1.0 / Q, np.float32)
+        measured = np.zeros((L_max, L_max, L_max), bool)
+        place_rows(trip, measured, trips[e], rows[e, :len(trips[e])])
+        if need_aug:
+            aug, src_c, ncomp_c = augment(trip, measured, len(env.pos), tensor, U)
+        for m in modes:
+            if m == "with":
+                parts[m].append((aug, src_c, ncomp_c))
+            elif scale_model == "composed":  # composed rows serve the frame scales only (§Z-10)
+                parts[m].append((aug, np.where(src_c == COMPOSED, SCALE_ONLY,
+                                               src_c).astype(np.int8), ncomp_c))
+            else:
+                parts[m].append((trip, measured.astype(np.int8),
+                                 np.zeros(measured.shape, np.int8)))
+    return parts
 
 
 @partial(jax.jit, static_argnames=("calculus", "samples"))
