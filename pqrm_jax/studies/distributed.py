@@ -335,10 +335,14 @@ class _Watch:
     process at once with exit code 2 and one line naming the process that died, instead of
     waiting in a collective (gloo) for a peer that never comes; process 0 first tells the
     other processes which one died. :func:`finish` says goodbye (the CLI calls it; an
-    ``atexit`` hook does it for scripts: clean unless an exception went uncaught).
+    ``atexit`` hook does it for scripts: clean unless an exception went uncaught). An uncaught
+    exception first waits up to ``GRACE_S`` for the watcher: when it came from a collective
+    whose peer died, the process ends with that line and exit 2, not a traceback and a hang
+    in JAX's shutdown.
     """
 
     BYE, FAILED, DIED, FAILED_FWD = b"B", b"X", b"D", b"Y"
+    GRACE_S = 5.0  # how long an uncaught exception waits for the watcher (``start``)
 
     def __init__(self) -> None:
         import threading
@@ -352,12 +356,23 @@ class _Watch:
         import atexit
         import sys
         import threading
+        import time
 
         self.pid, self.n, self.chans, self.done = pid, n, dict(chans), False
         prev = sys.excepthook
 
         def hook(*exc):  # an uncaught exception: the goodbye says "failed"
             self.failed = True
+            # a collective fails when a peer died, at times before the watcher has read the
+            # closed channel: give the watcher GRACE_S to name the dead peer and end this
+            # process (exit 2, one line) before the traceback and the interpreter's exit,
+            # which says goodbye (stopping the watcher) and runs JAX's shutdown, which then
+            # waits for, or aborts on, the dead peer (seen in CI under load: a gloo error's
+            # traceback, then a hang or a SIGABRT instead of exit 2)
+            for _ in range(int(self.GRACE_S / 0.05)):
+                if self.done:
+                    break
+                time.sleep(0.05)
             prev(*exc)
 
         sys.excepthook = hook
