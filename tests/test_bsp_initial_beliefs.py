@@ -168,3 +168,25 @@ def test_plans_exist_equals_one_by_one(mod):
             assert bool(got[e]) == bool(G.plan_exists(fg, b.frame))
         seen |= set(got.tolist())
     assert seen == {True, False}  # both answers occur: the comparison could fail
+
+
+def test_trees_exist_equals_one_by_one(mod):
+    from pqrm_jax.bsp import planner as P
+
+    D1 = jnp.asarray(EDC.tables.neighbor_distance, jnp.float32)
+    envs = _envs(6, seed=9)
+    keys = jax.random.split(jax.random.key(2), len(envs))
+    goals = jnp.asarray([e.goal for e in envs], jnp.int32)
+    b = E.initial_beliefs(keys, mod, envs)["with"]
+    pp = P.PlannerParams(depth=1)
+    seen = set()
+    for eps in (0.1, 1.01):
+        got = np.asarray(P.trees_exist(keys, mod, D1, b, goals, eps, pp))
+        for e in range(len(envs)):
+            one = jax.tree.map(lambda x, e=e: x[e], b)
+            fg = G.frame_graph(mod, one.trip, one.trip_src, one.scale, one.lm_mask, goals[e], eps)
+            want = P.plan(keys[e], mod, D1, one.trip, one.scale, fg, goals[e], one.frame,
+                          one.robot, pp, 1).exists
+            assert bool(got[e]) == bool(want)
+        seen |= set(got.tolist())
+    assert seen == {True, False}

@@ -34,7 +34,7 @@ from .env import MODES, Environment, check_environment, generate, initial_belief
 from .execute import ExecParams, Lane, LaneState, Outcome, run_lane, run_lanes
 from .graph import FrameGraph, frame_graph, plan_exists, plans_exist
 from .models import ModelParams, Models, build_models, load_models, sample_tables, stderr
-from .planner import Plan, PlannerParams, plan
+from .planner import Plan, PlannerParams, plan, trees_exist
 
 __all__ = [
     "SCALE_MODELS", "QBelief", "belief_scales", "check_distribution", "in_belief",
@@ -43,5 +43,5 @@ __all__ = [
     "initial_beliefs", "MODES",
     "ExecParams", "Lane", "LaneState", "Outcome", "run_lane", "run_lanes", "FrameGraph",
     "frame_graph", "plan_exists", "plans_exist", "ModelParams", "Models", "build_models",
-    "load_models", "sample_tables", "stderr", "Plan", "PlannerParams", "plan",
+    "load_models", "sample_tables", "stderr", "Plan", "PlannerParams", "plan", "trees_exist",
 ]

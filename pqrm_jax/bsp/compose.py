@@ -105,7 +105,6 @@ def augment(trip: np.ndarray, measured: np.ndarray, n: int, tensor: np.ndarray,
     g = optimal_composition_graph(sources, landmarks=range(n))
     have = np.zeros(g.num_triplets, bool)  # graph node -> its row is measured or composed
     have[[g.triplet_id(t) for t in sources]] = True
-    perms = list(orderings(trip[0, 0, 0], U))  # the six orderings, positions of (A, B, C)
 
     # every composable triplet along its minimal tree: the tree of Z Alg. 4 follows the parent
     # pointers of the graph, so a node's row is composed once, from its two parents' rows,
@@ -134,9 +133,9 @@ def augment(trip: np.ndarray, measured: np.ndarray, n: int, tensor: np.ndarray,
             (k,) = shared - {j}
             p = compose_step(trip[i, j, k], trip[j, k, d], tensor)
             have[v] = True
-            ids = (i, j, d)  # the composed triplet's six orderings, filled at once
-            a, b, c = (np.array([ids[x[m]] for x in perms]) for m in range(3))
-            trip[a, b, c] = np.stack(list(orderings(p, U).values()))
+            rows = orderings(p, U)  # the composed triplet's six orderings, filled at once
+            a, b, c = np.asarray((i, j, d))[np.asarray(list(rows))].T  # [6] landmark ids each
+            trip[a, b, c] = np.stack(list(rows.values()))
             src[a, b, c] = 2
             ncomp[a, b, c] = min(int(round(float(g.d[v]))), 127)
     return trip, src, ncomp

@@ -47,8 +47,8 @@ import jax
 import jax.numpy as jnp
 
 from . import draws
-from .belief import LINK_K
-from .graph import INF, FrameGraph
+from .belief import LINK_K, QBelief
+from .graph import INF, FrameGraph, frame_graph
 from .models import Models
 
 
@@ -434,3 +434,35 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
     value = values[0]
     return Plan(value=value, action=root.acts[0, best], exists=value < 0.5 * lam * cb,
                 actions=root.acts[0], ks=root.ks[0], links=links[0], q=q[0])
+
+
+@partial(jax.jit, static_argnames=("eps", "pp"))
+def trees_exist(keys: jax.Array, models: Models, D1, beliefs: QBelief, goals, eps: float,
+                pp: PlannerParams = DEFAULT, cost=1) -> jax.Array:
+    """[E] bool: :attr:`Plan.exists` (root value < λ c̄) of E frozen beliefs, one compiled
+    program — each belief's frame graph at ``eps`` and its :func:`plan` with its key.
+
+    A ``lax.map`` over the environments: each answer is the single-belief program's, not a
+    batched contraction's rounding (the qbsp sweep's depth panel).
+
+    Args:
+        keys: [E] PRNG keys, one per belief.
+        models: the offline tables.
+        D1: [Q, Q] neighbour distance (eq. 4.29).
+        beliefs: a :class:`~pqrm_jax.bsp.belief.QBelief` with a leading ``[E]`` axis
+            (:func:`~pqrm_jax.bsp.env.initial_beliefs`).
+        goals: [E, 3] int goal triplets.
+        eps: observability threshold ε_obs of the frame graphs.
+        pp: static planner settings.
+        cost: 1 (eq. 4.29) or 2 (eq. 4.30).
+
+    Returns:
+        [E] bool.
+    """
+    def one(a):
+        key, b, goal = a
+        fg = frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, eps)
+        return plan(key, models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot, pp,
+                    cost).exists
+
+    return jax.lax.map(one, (keys, beliefs, jnp.asarray(goals)))

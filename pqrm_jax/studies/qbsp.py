@@ -53,7 +53,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import functools
 import json
 import sys
 import time
@@ -382,8 +381,8 @@ def sweep(cfg: dict, models, D1, eps: float, progress: bool) -> dict:
             if size == cfg["size"]:  # the topological reading: every candidate observable
                 topo[mode] = np.asarray(G.plans_exist(models, b, goals, 0.0)).tolist()
                 out["tree_exists"][mode] = {
-                    str(d): float(np.mean(_trees_exist(models, D1, b, goals, jnp.stack(keys),
-                                                       float(eps), pp).astype(bool)))
+                    str(d): float(np.mean(np.asarray(P.trees_exist(jnp.stack(keys), models, D1,
+                                                                   b, goals, float(eps), pp))))
                     for d, pp in pps.items()}
         bar.update(sw["envs"])
     bar.close()
@@ -406,32 +405,6 @@ def _beliefs(cfg: dict, models, envs: list, keys: list, modes: tuple[str, ...]) 
                              sigma_z=cfg["execution"]["sigma_z"],
                              samples=cfg["initial_measurement_samples"],
                              scale_model=cfg["scale_model"])
-
-
-def _trees_exist(models, D1, beliefs, goals, keys, eps: float, pp) -> np.ndarray:
-    """[E] bool: the planner's tree root < λ (cost 1) for each belief with its key, one
-    compiled program per (shapes, ``eps``, ``pp``): a ``lax.map``, each the single-belief
-    plan."""
-    return np.asarray(_trees_program()(models, D1, beliefs, goals, keys, eps, pp))
-
-
-@functools.cache
-def _trees_program():
-    import jax
-
-    from ..bsp import graph as G
-    from ..bsp import planner as P
-
-    @functools.partial(jax.jit, static_argnames=("eps", "pp"))
-    def run(models, D1, beliefs, goals, keys, eps, pp):
-        def one(a):
-            b, goal, key = a
-            fg = G.frame_graph(models, b.trip, b.trip_src, b.scale, b.lm_mask, goal, eps)
-            return P.plan(key, models, D1, b.trip, b.scale, fg, goal, b.frame, b.robot, pp,
-                          1).exists
-        return jax.lax.map(one, (beliefs, goals, keys))
-
-    return run
 
 
 def shard_lanes(tree):
