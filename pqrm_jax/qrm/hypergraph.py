@@ -86,20 +86,29 @@ def _lift(table, s):
 
 
 def _compose_chunks(spec: QRMSpec) -> jax.Array:
-    """[C, Q, 32] uint32: ``[k, i, v]`` = COMPOSE({i}, the states ``5k + bits of v``).
+    """[C, Q, 32] uint32: ``[m, k, v]`` = the states ``i`` with ``k ∈ COMPOSE({i}, {j})`` for
+    some ``j`` among the states ``5m + bits of v``.
 
-    COMPOSE({i}, S) is the OR of these over the C = ⌈Q/5⌉ five-bit chunks of S, so the
-    lifted composition is C gathers instead of a Q × Q masked reduction.
+    So ``H[k] = {i : k ∈ COMPOSE({i}, S)}`` is the OR of these over the C = ⌈Q/5⌉ five-bit
+    chunks of S (C gathers), and ``k ∈ COMPOSE(R, S)`` exactly when ``R & H[k] ≠ 0``
+    (:func:`_sweep`).
     """
     ct = np.asarray(spec.compose, np.uint32)  # (Q, Q): [i, j] -> mask of k
     q = ct.shape[0]
     nc = -(-q // 5)
+    # by_k[j, k] = the mask of the states i with k in COMPOSE({i}, {j})
+    by_k = np.zeros((q, q), np.uint32)
+    for i in range(q):
+        for j in range(q):
+            for k in range(q):
+                if ct[i, j] >> k & 1:
+                    by_k[j, k] |= np.uint32(1) << np.uint32(i)
     out = np.zeros((nc, q, 32), np.uint32)
-    for k in range(nc):
+    for m in range(nc):
         for v in range(32):
             for b in range(5):
-                if v >> b & 1 and 5 * k + b < q:
-                    out[k, :, v] |= ct[:, 5 * k + b]
+                if v >> b & 1 and 5 * m + b < q:
+                    out[m, :, v] |= by_k[5 * m + b]
     return jnp.asarray(out)
 
 
@@ -124,25 +133,21 @@ def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     n = r.shape[0]
     idx = jnp.arange(n)
 
-    chunks = _compose_chunks(spec)  # (C, Q, 32): COMPOSE({i}, 5-bit chunk k of a set)
+    chunks = _compose_chunks(spec)  # (C, Q, 32), :func:`_compose_chunks`
 
     def through(c, acc):
-        # h[b,d,i] = COMPOSE({i}, rel[b,c,d]): an OR of table lookups, one per 5-bit chunk
+        # H[k,b,d] = {i : k ∈ COMPOSE({i}, rel[b,c,d])}: an OR of table lookups, one per 5-bit
+        # chunk of rel[b,c,d]
         s = r[:, c, :]  # (b, d)
-        h = jnp.zeros(s.shape + (q,), jnp.uint32)
-        for k in range(chunks.shape[0]):
-            h = h | chunks[k][:, (s >> (5 * k)) & 31].transpose(1, 2, 0)
-        # g[a,b,d] = OR of h[b,d,i] over the states i of rel[a,b,c]: per 5-bit chunk of i a
-        # table of the 32 ORs of h (built by doubling), then one lookup per chunk
+        H = jnp.zeros((q,) + s.shape, jnp.uint32)  # [k, b, d]
+        for m in range(chunks.shape[0]):
+            H = H | chunks[m][:, (s >> (5 * m)) & 31]
+        # g[a,b,d] = COMPOSE(rel[a,b,c], rel[b,c,d]): state k is in it exactly when some
+        # state of rel[a,b,c] is in H[k,b,d] (Q bitwise tests a relation, no gather)
+        ab = r[:, :, c][:, :, None]  # (a, b, 1)
         g = jnp.zeros(r.shape, jnp.uint32)
-        ab = r[:, :, c]  # (a, b)
-        bi = idx[None, :]
-        for k in range(chunks.shape[0]):
-            tab = jnp.zeros(h.shape[:2] + (1,), jnp.uint32)  # (b, d, 2^j)
-            for j in range(5):
-                col = h[:, :, 5 * k + j, None] if 5 * k + j < q else jnp.zeros_like(tab[..., :1])
-                tab = jnp.concatenate([tab, tab | col], -1)
-            g = g | tab[bi, :, (ab >> (5 * k)) & 31]  # (a, b, d)
+        for k in range(q):
+            g = g | jnp.where((ab & H[k][None]) != 0, jnp.uint32(1 << k), jnp.uint32(0))
         skip = (idx[:, None, None] == c) | (idx[None, :, None] == c) | (idx[None, None, :] == c)
         return acc & jnp.where(skip, full, g)
 
