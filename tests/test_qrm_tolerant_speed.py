@@ -161,3 +161,23 @@ def test_screen_buffer_size(n):
     assert X.screen_buffers(816) == (17, 51)
     sizes = X.screen_buffers(n)
     assert sizes[-1] == X.screen_buffer(n) and list(sizes) == sorted(set(sizes))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(1, 9), min_size=2, max_size=4), st.data(), st.booleans(),
+       st.integers(0, 2**32 - 1))
+def test_fold_equals_the_plain_reduction(shape, data, big, seed):
+    """The halving OR (arrays from ``_FOLD_MIN`` elements) and the plain reduce give the
+    same bits as NumPy's, over any axes, odd and even lengths, bool and uint32."""
+    shape = list(shape)
+    if big:  # past the threshold: the halving path
+        shape[-1] = -(-X._FOLD_MIN // int(np.prod(shape[:-1])))
+    axes = tuple(sorted(data.draw(st.sets(st.integers(0, len(shape) - 1), min_size=1,
+                                          max_size=len(shape) - 1))))
+    rng = np.random.default_rng(seed)
+    u = rng.integers(0, 2**32, shape, dtype=np.uint64).astype(np.uint32)
+    u &= rng.integers(0, 2**32, shape, dtype=np.uint64).astype(np.uint32)  # sparser bits
+    b = rng.random(shape) < 0.02
+    np.testing.assert_array_equal(np.asarray(X._or(jnp.asarray(u), axes)),
+                                  np.bitwise_or.reduce(u, axis=axes))
+    np.testing.assert_array_equal(np.asarray(X._any(jnp.asarray(b), axes)), b.any(axis=axes))
