@@ -4,11 +4,11 @@ flags (issue #27 item 4: the Mars-Yard traverse's speed; docs/qrm.md §camera).
 :func:`pqrm_jax.qrm.exact_camera.exact_sets` screens every triple
 (:func:`~pqrm_jax.qrm.exact_camera.tolerant_flags`): an unflagged triple keeps its exact edge
 sets, which the screen proves equal to the tolerant ones; the flagged ones run the full
-tolerant decision in the smallest of two buffers that holds them, or every triple does when
-more are flagged than the larger holds.
+tolerant decision in the smaller buffer when it holds them, else in chunks of the larger
+buffer's size (as many as they fill).
 The sets must equal the all-triples path (``screen=False``, the decision before the screen)
 bit for bit, on generic, near-degenerate (narrow spreads, two or three nearly equal
-bearings) and mixed batches, through the buffer and through the fallback.
+bearings) and mixed batches, through the buffers and through several chunks.
 """
 
 from __future__ import annotations
@@ -122,9 +122,10 @@ def test_flagged_triples_go_through_the_buffer_and_generic_ones_not():
     _assert_same_sets(got, ref)
 
 
-def test_fallback_when_the_buffer_overflows(monkeypatch):
-    """More flagged triples than the buffer holds: every triple takes the full tolerant
-    decision (forced with a 1-triple buffer); same sets as the all-triples path."""
+def test_chunks_when_the_buffer_overflows(monkeypatch):
+    """More flagged triples than the buffer holds: they take the full tolerant decision in
+    as many buffer-sized chunks as they fill (forced with a 1-triple buffer: one chunk per
+    flagged triple); same sets as the all-triples path."""
     monkeypatch.setattr(X, "SCREEN_MIN", 1)
     monkeypatch.setattr(X, "SCREEN_SHARE", 0.0)
     assert X.screen_buffer(T) == 1
