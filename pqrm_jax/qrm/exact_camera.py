@@ -434,7 +434,7 @@ def _fold(x, axes, init, op):
     if x.size < _FOLD_MIN:
         return jax.lax.reduce(x, init, op, axes)
     keep = tuple(a for a in range(x.ndim) if a not in axes)
-    x = jnp.transpose(x, axes + keep) if axes != tuple(range(len(axes))) else x
+    x = jnp.transpose(x, axes + keep)
     x = x.reshape((-1,) + x.shape[len(axes):])
     while x.shape[0] > 1:
         h = x.shape[0] // 2

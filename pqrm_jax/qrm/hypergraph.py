@@ -96,13 +96,10 @@ def _compose_chunks(spec: QRMSpec) -> jax.Array:
     ct = np.asarray(spec.compose, np.uint32)  # (Q, Q): [i, j] -> mask of k
     q = ct.shape[0]
     nc = -(-q // 5)
-    # by_k[j, k] = the mask of the states i with k in COMPOSE({i}, {j})
-    by_k = np.zeros((q, q), np.uint32)
-    for i in range(q):
-        for j in range(q):
-            for k in range(q):
-                if ct[i, j] >> k & 1:
-                    by_k[j, k] |= np.uint32(1) << np.uint32(i)
+    # by_k[j, k] = the mask of the states i with k in COMPOSE({i}, {j}) (distinct bits: a sum)
+    bits = (ct[:, :, None] >> np.arange(q, dtype=np.uint32)) & 1  # [i, j, k]
+    by_k = (bits.astype(np.uint64) << np.arange(q, dtype=np.uint64)[:, None, None]).sum(0)
+    by_k = by_k.astype(np.uint32)
     out = np.zeros((nc, q, 32), np.uint32)
     for m in range(nc):
         for v in range(32):
