@@ -823,42 +823,32 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0, *,
         flag = _screen(spec, st, g, tol, loose)
         n = jnp.sum(flag)
         sizes = screen_buffers(T)
-        chunk = sizes[-1]
 
-        def decide(idx):
-            """The flagged triples ``idx`` [size] (fill: T) through the full decision."""
-            sub = bearings[jnp.minimum(idx, T - 1)]
-            return _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
-
-        def buffered(size):
+        def in_chunks(size):
+            # the flagged triples through the full decision, ``size`` at a time, as many
+            # chunks as they fill: the cost grows with their count, and the program's
+            # temporary memory stays one chunk's (a branch on all T triples, even never
+            # taken, made every call allocate — and the OS page in — its ~T-sized
+            # temporaries; docs/qrm.md §camera)
             def run():
-                idx = jnp.nonzero(flag, size=size, fill_value=T)[0]
-                w_, p_ = decide(idx)
-                return (wit0.at[:, idx].set(w_, mode="drop"),
-                        poss0.at[:, idx].set(p_, mode="drop"))
+                idx_all = jnp.nonzero(flag, size=-(-T // size) * size,
+                                      fill_value=T)[0].reshape(-1, size)
+
+                def body(c, ws):
+                    idx = idx_all[c]  # fill T: dropped when scattered back
+                    sub = bearings[jnp.minimum(idx, T - 1)]
+                    w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
+                    return (ws[0].at[:, idx].set(w_, mode="drop"),
+                            ws[1].at[:, idx].set(p_, mode="drop"))
+
+                return jax.lax.fori_loop(0, (n + size - 1) // size, body, (wit0, poss0))
             return run
 
-        def chunked():
-            # the flagged triples, ``chunk`` at a time, as many chunks as they fill: the
-            # cost grows with their count, and the program's temporary memory stays one
-            # chunk's (a branch on all T triples, even never taken, made every call
-            # allocate — and the OS page in — its ~T-sized temporaries)
-            idx_all = jnp.nonzero(flag, size=-(-T // chunk) * chunk,
-                                  fill_value=T)[0].reshape(-1, chunk)
-
-            def body(c, ws):
-                idx = idx_all[c]
-                w_, p_ = decide(idx)
-                return (ws[0].at[:, idx].set(w_, mode="drop"),
-                        ws[1].at[:, idx].set(p_, mode="drop"))
-
-            return jax.lax.fori_loop(0, (n + chunk - 1) // chunk, body, (wit0, poss0))
-
-        # branch 0: none flagged; 1 + i: they fit sizes[i] (the smallest that holds them);
-        # the last: chunks of the largest buffer
+        # branch 0: none flagged; 1 + i: chunks of sizes[i], the smallest that holds them
+        # (the largest when none does)
         branch = jnp.where(n == 0, 0, 1 + sum((n > m).astype(jnp.int32) for m in sizes[:-1]))
         wit, poss = jax.lax.switch(
-            branch, [lambda: (wit0, poss0), *(buffered(m) for m in sizes[:-1]), chunked])
+            branch, [lambda: (wit0, poss0), *(in_chunks(m) for m in sizes)])
     # region points: R_s inside the image of the cone
     rwit, rposs = _region_atoms(spec, st, g.w, tol, loose, inv)
     wit = wit | rwit
