@@ -8,12 +8,16 @@
 #   bash scripts/accelerator_check.sh [OUT.json]     # default benchmarks/results/accelerator_check_<backend>.json
 #
 # Each step has its own time limit (STEP_S, default 90 s; QRM_S 150 s; SERGE_S 75 s; the
-# reduced study STUDY_S 60 s; the full study FULL_S 300 s: at most ~20 min in all, ~4 min on a
-# GPU) and its wall time, user+system CPU seconds and peak memory are recorded
-# (/usr/bin/time); a step that fails or times out is recorded as such (rc, timed_out, the tail
+# reduced study STUDY_S 60 s; the full study FULL_S 300 s) and TOTAL_S (default 1200 s) bounds
+# the whole check: a step gets at most what is left of it (less 15 s to write the JSON) and is
+# recorded as skipped when under 10 s is left, so a check on a time-limited machine always
+# writes its JSON. The steps the accelerator targets name come first (PQRM kernel, padgett
+# runner, BSP batched vs loop at 256 environments (BSP_S 180 s; 1024 ran past 90 s on an H200), Q-Link, HSSH, the full study). Each step's
+# wall time, user+system CPU seconds and peak memory are recorded (/usr/bin/time); a step that fails or times out is recorded as such (rc, timed_out, the tail
 # of its log) and the check goes on. Every step's JSON carries "env" (where it ran:
 # backend, device kind, host, load; benchmarks/_env.py). SKIP="bsp hssh ..." leaves steps out.
 # The compilation cache is off (PQRM_JAX_COMPILE_CACHE=off): every step compiles cold.
+# LOGS_TGZ=path.tgz keeps every step's log (and the studies' outputs) as one archive.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-.venv/bin/python}
@@ -23,16 +27,24 @@ QRM_S=${QRM_S:-150}
 SERGE_S=${SERGE_S:-75}
 STUDY_S=${STUDY_S:-60}
 FULL_S=${FULL_S:-300}
+TOTAL_S=${TOTAL_S:-1200}
+BSP_S=${BSP_S:-180}
+BSP_ARGS=${BSP_ARGS:---envs 256 --chunks 16 256}
 SKIP=${SKIP:-}
 export PQRM_JAX_COMPILE_CACHE=off
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/pqrm-accel.XXXXXX")
-trap 'rm -rf "$WORK"' EXIT
+trap '[ -n "${LOGS_TGZ:-}" ] && tar czf "$LOGS_TGZ" -C "$WORK" .; rm -rf "$WORK"' EXIT
 T0=$(date +%s)
 
 step() {  # step NAME LIMIT_S command...
   local name=$1 limit=$2; shift 2
-  local t0 rc
+  local t0 rc left
   case " $SKIP " in *" $name "*) printf '%-14s skipped\n' "$name"; return;; esac
+  left=$(( TOTAL_S - 15 - $(date +%s) + T0 ))
+  if [ "$left" -lt 10 ]; then
+    echo "$name skipped 0" >>"$WORK/steps.txt"; printf '%-14s skipped (TOTAL_S)\n' "$name"; return
+  fi
+  [ "$left" -lt "$limit" ] && limit=$left
   t0=$(date +%s%N)
   if [ -x /usr/bin/time ]; then
     /usr/bin/time -f "%e %U %S %M" -o "$WORK/$name.time" \
@@ -49,26 +61,27 @@ step pqrm "$STEP_S" "$PY" benchmarks/bench_pqrm.py --triplets 7200 --samples 102
   --study-runs 0 --out "$WORK/pqrm.json"
 step padgett "$STEP_S" "$PY" benchmarks/bench_padgett.py --runs 100 --repeat 2 \
   --out "$WORK/padgett.json"
-step tables "$STEP_S" "$PY" benchmarks/bench_tables.py --repeat 1 --single-problems 10 \
-  --random 48 --random-only --out "$WORK/tables.json"
-step qrm "$QRM_S" "$PY" benchmarks/bench_qrm.py --quick --out "$WORK/qrm.json"
-step serge "$SERGE_S" "$PY" benchmarks/bench_serge.py --trials 64 --seq-trials 4 --ref-trials 4 \
-  --out "$WORK/serge.json"
-step compositions "$STEP_S" "$PY" benchmarks/bench_compositions.py --quick \
-  --out "$WORK/compositions.json"
-step bsp "$STEP_S" "$PY" benchmarks/bench_bsp.py --quick --out "$WORK/bsp.json"
+# shellcheck disable=SC2086
+step bsp "$BSP_S" "$PY" benchmarks/bench_bsp.py $BSP_ARGS --out "$WORK/bsp.json"
 step qlink "$STEP_S" "$PY" benchmarks/bench_qlink.py --quick --out "$WORK/qlink.json"
 step hssh "$STEP_S" "$PY" benchmarks/bench_hssh.py --batch 16 --repeats 2 --out "$WORK/hssh.json"
 step hssh_global "$STEP_S" "$PY" benchmarks/bench_hssh_global.py --quick \
   --out "$WORK/hssh_global.json"
 step hssh_reloc "$STEP_S" "$PY" benchmarks/bench_hssh_reloc.py --quick --repeat 2 \
   --out "$WORK/hssh_reloc.json"
-step study "$STUDY_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 20 --levels 2 \
-  --quiet --out "$WORK/study"
 step study_full "$FULL_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 1000 \
   --quiet --out "$WORK/study_full"
+step study "$STUDY_S" "$PY" -m pqrm_jax.cli study padgett-mc --runs 20 --levels 2 \
+  --quiet --out "$WORK/study"
+step compositions "$STEP_S" "$PY" benchmarks/bench_compositions.py --quick \
+  --out "$WORK/compositions.json"
+step tables "$STEP_S" "$PY" benchmarks/bench_tables.py --repeat 1 --single-problems 10 \
+  --random 48 --random-only --out "$WORK/tables.json"
+step serge "$SERGE_S" "$PY" benchmarks/bench_serge.py --trials 64 --seq-trials 4 --ref-trials 4 \
+  --out "$WORK/serge.json"
+step qrm "$QRM_S" "$PY" benchmarks/bench_qrm.py --quick --out "$WORK/qrm.json"
 
-"$PY" - "$WORK" "${1:-}" "$T0" <<'EOF'
+"$PY" - "$WORK" "${1:-}" "$T0" "$TOTAL_S" <<'EOF'
 import json, sys, time
 from pathlib import Path
 
@@ -82,6 +95,9 @@ for line in (work / "steps.txt").read_text().split("\n"):
     if not line.strip():
         continue
     name, rc, secs = line.split()
+    if rc == "skipped":
+        res["steps"][name] = {"skipped": "TOTAL_S exhausted"}
+        continue
     rc = int(rc)
     entry = {"rc": rc, "timed_out": rc in (124, 137), "wall_s": round(float(secs), 2)}
     tfile = work / f"{name}.time"
@@ -103,7 +119,8 @@ for line in (work / "steps.txt").read_text().split("\n"):
         entry["log_tail"] = (work / f"{name}.log").read_text()[-1500:]
     res["steps"][name] = entry
 res["total_s"] = round(time.time() - t0, 1)
-res["all_ok"] = all(s["rc"] == 0 for s in res["steps"].values())
+res["all_ok"] = all(s.get("rc") == 0 for s in res["steps"].values())
+res["total_budget_s"] = float(sys.argv[4])
 path = Path(out or f"benchmarks/results/accelerator_check_{env['backend']}.json")
 path.parent.mkdir(parents=True, exist_ok=True)
 path.write_text(json.dumps(res, indent=1, default=float) + "\n")
