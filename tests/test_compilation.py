@@ -193,3 +193,16 @@ def test_hssh_global_drive_compiles_once():
     with count_compiles() as again:
         hs.explore_sim(sw, 2, seed=2)
     assert again == [], again
+
+
+def test_prepass_classification_compiles_once():
+    """``tables.exact.realised`` jitted a fresh lambda per call: every table build compiled
+    the pre-pass program again (issue 31 item 4)."""
+    from pqrm_jax.tables import exact
+
+    calc = calculi.get("edc")
+    atoms, _ = pb.atoms(calc)
+    exact.realised(calc, atoms, exact.sample_configs(jax.random.PRNGKey(0), 256))
+    with count_compiles() as again:
+        exact.realised(calc, atoms, exact.sample_configs(jax.random.PRNGKey(1), 256))
+    assert again == []

@@ -115,6 +115,45 @@ def test_decide_many_pool_equals_in_process():
     assert certify.decide_many(probs, workers=2) == certify.decide_many(probs, workers=1)
 
 
+def test_decide_many_keeps_its_pool():
+    """The z3 pool lives for the process: a second build starts no workers (each start ran
+    the caller's main script again, ≈ 1.1 s from a script importing JAX; issue 31 item 4),
+    and small batches go to it once it runs."""
+    import os
+
+    job = [(Poly.var(1, 0) * Poly.var(1, 0) + Poly.const(1, 1), -1)]
+    probs = [job] * certify.MIN_POOL_BATCH
+    assert certify.decide_many(probs, workers=2) == [(certify.UNSAT, None)] * len(probs)
+    ex = certify.pool(2)
+    assert ex.submit(os.getpid).result() != os.getpid()
+    assert certify.decide_many(probs[:3], workers=2) == [(certify.UNSAT, None)] * 3
+    assert certify.pool(2) is ex
+    fresh = certify.pool(2, fresh=True)
+    assert fresh is not ex and certify.pool(2) is fresh
+
+
+def test_to_batch_equals_entry_by_entry():
+    """The vectorised ``to_batch`` fills exactly what filling every entry in turn fills."""
+    for name in ("edc", "dcc"):
+        calc = calculi.get(name)
+        probs = pb.random_compose_problems(calc, 300, seed=3)
+        got = pb.to_batch(probs, 8.0)
+        K = max(len(pr.constraints) + len(pr.domain) for pr in probs)
+        want = {f: np.zeros_like(getattr(got, f)) for f in ("A", "b", "c", "sign", "active")}
+        used = np.zeros((len(probs), pb.NV), bool)
+        for i, pr in enumerate(probs):
+            for k, (poly, s) in enumerate(pr.constraints + pr.domain):
+                c, b, A = poly.quadratic_form()
+                want["c"][i, k], want["b"][i, k], want["A"][i, k] = c, b, A
+                want["sign"][i, k], want["active"][i, k] = s, True
+                used[i, list(poly.variables())] = True
+        assert got.A.shape[1] == K
+        for f, w in want.items():
+            np.testing.assert_array_equal(getattr(got, f), w)
+        np.testing.assert_array_equal(got.lo, np.where(used, -8.0, 0.0))
+        np.testing.assert_array_equal(got.hi, np.where(used, 8.0, 0.0))
+
+
 def test_z3_workers_start_without_jax():
     """The pool's workers import z3, not JAX (2.4 s each on the old spawned pool; docs/tables.md
     §method): the worker module alone, and a worker of the pool itself."""
@@ -173,6 +212,18 @@ def test_integer_exact_signs_equal_fraction_evaluation():
             else:  # float32 samples, as the pre-pass draws them
                 P = rng.uniform(-5, 5, (3, 2)).astype(np.float32).astype(float).tolist()
             assert exact.exact_signs(calc, *P) == _fraction_signs(calc, *P), (calc.name, P)
+    # every number type a caller may pass is read exactly (NumPy scalars, ints, text)
+    edc = calculi.get("edc")
+    f32 = rng.uniform(-5, 5, (200, 3, 2)).astype(np.float32)
+    for P in f32:
+        want = _fraction_signs(edc, *P.astype(float).tolist())
+        assert exact.exact_signs(edc, *P) == want  # np.float32 scalars
+        assert exact.exact_signs(edc, *P.astype(np.float64)) == want
+    P = [["0", "0"], ["0", "1"], ["1/3", "2/3"]]
+    assert exact.exact_signs(edc, *P) == _fraction_signs(
+        edc, *[[Fraction(v) for v in r] for r in P])
+    assert exact.exact_signs(edc, *np.array([[0, 0], [0, 1], [1, 1]])) == _fraction_signs(
+        edc, [0, 0], [0, 1], [1, 1])
 
 
 @pytest.mark.parametrize(("base", "cols", "n"), [(20, 3, 100_000), (5, 2, 50), (300, 3, 1000),

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from fractions import Fraction
+from functools import lru_cache
 
 from .._parallel import usable_cpus
 from ..calculi.poly import Poly
 from ..nlsat import DEFAULT_RLIMIT, SAT, UNKNOWN, UNSAT, decide_job, decide_smtlib
 
 __all__ = ["DEFAULT_RLIMIT", "SAT", "UNKNOWN", "UNSAT", "count_unknown", "decide", "decide_many",
-           "decide_smtlib", "pool_context", "smtlib"]
+           "decide_smtlib", "pool", "pool_context", "smtlib"]
 
 _OP = {1: ">", -1: "<", 0: "="}
 
@@ -40,10 +42,16 @@ def smtlib(constraints: list[tuple[Poly, int]]) -> str:
     nv = constraints[0][0].nvars if constraints else 0
     out = [f"(declare-fun x{i} () Real)" for i in range(nv)]
     for poly, sign in constraints:
-        terms = [_term(m, c) for m, c in poly.terms.items()] or ["0"]
-        lhs = terms[0] if len(terms) == 1 else f"(+ {' '.join(terms)})"
-        out.append(f"(assert ({_OP[(sign > 0) - (sign < 0)]} {lhs} 0))")
+        out.append(f"(assert ({_OP[(sign > 0) - (sign < 0)]} {_lhs(poly)} 0))")
     return "\n".join(out)
+
+
+@lru_cache(maxsize=1 << 14)
+def _lhs(poly: Poly) -> str:
+    """SMT-LIB text of one polynomial (a build's problems share most of their polynomials:
+    memoised, Polys are immutable and hashable)."""
+    terms = [_term(m, c) for m, c in poly.terms.items()] or ["0"]
+    return terms[0] if len(terms) == 1 else f"(+ {' '.join(terms)})"
 
 
 def decide(constraints: list[tuple[Poly, int]], rlimit: int = DEFAULT_RLIMIT):
@@ -53,8 +61,9 @@ def decide(constraints: list[tuple[Poly, int]], rlimit: int = DEFAULT_RLIMIT):
     return decide_smtlib(smtlib(constraints), nv, rlimit)
 
 
-#: below this many problems a batch is decided in-process: the in-process work of a few
-#: hundred problems is about what starting the workers costs where only ``spawn`` exists
+#: below this many problems a batch is decided in-process unless the process's pool is
+#: already running (:func:`pool`): the in-process work of a few hundred problems is about
+#: what starting the workers costs
 MIN_POOL_BATCH = 256
 
 
@@ -83,21 +92,51 @@ def decide_many(problems: list, workers: int | None = None, progress: bool = Fal
     :func:`count_unknown` counts the ``UNKNOWN`` ones.
     """
     workers = workers or min(usable_cpus(), 8)
-    jobs = [(smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems]
-    if workers <= 1 or len(jobs) < MIN_POOL_BATCH:
+    # a generator: the workers decide the first chunks while the rest are written
+    jobs = ((smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems)
+    if workers <= 1 or (len(problems) < MIN_POOL_BATCH and workers not in _POOLS):
         it = jobs
         if progress:
             from tqdm.auto import tqdm
 
-            it = tqdm(it, desc=desc, leave=False)
+            it = tqdm(it, total=len(problems), desc=desc, leave=False)
         return [decide_smtlib(*job) for job in it]
-    with ProcessPoolExecutor(workers, mp_context=pool_context()) as ex:
-        it = ex.map(decide_job, jobs, chunksize=32)
+    for fresh in (False, True):  # a pool whose worker died is replaced once
+        if fresh:
+            jobs = ((smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems)
+        chunk = max(1, min(32, len(problems) // (4 * workers)))
+        it = pool(workers, fresh=fresh).map(decide_job, jobs, chunksize=chunk)
         if progress:
             from tqdm.auto import tqdm
 
-            it = tqdm(it, total=len(jobs), desc=desc, leave=False)
-        return list(it)
+            it = tqdm(it, total=len(problems), desc=desc, leave=False)
+        try:
+            return list(it)
+        except BrokenProcessPool:
+            if fresh:
+                raise
+    raise AssertionError("unreachable")
+
+
+_POOLS: dict[int, ProcessPoolExecutor] = {}
+
+
+def pool(workers: int, fresh: bool = False) -> ProcessPoolExecutor:
+    """The process's pool of ``workers`` z3 workers (:func:`pool_context`), started on first
+    use and kept until the interpreter exits (``fresh``: replace it).
+
+    Starting workers is not cheap even from the forkserver: Python's multiprocessing runs the
+    caller's main script again in every worker it starts (the forkserver's ``__main__``
+    preload does not take effect on Python 3.11), and a script that imports JAX makes that
+    ≈ 1.1 s a pool (measured: an empty two-worker pool from a script importing JAX, 1.1–1.3 s
+    each time; 0.02–0.06 s without JAX). Kept, a warm table build starts none.
+    """
+    ex = _POOLS.get(workers)
+    if ex is None or fresh:
+        if ex is not None:
+            ex.shutdown(wait=False, cancel_futures=True)
+        ex = _POOLS[workers] = ProcessPoolExecutor(workers, mp_context=pool_context())
+    return ex
 
 
 def count_unknown(verdicts: list) -> int:

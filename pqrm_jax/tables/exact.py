@@ -35,15 +35,28 @@ def _integer_forms(calc: Calculus) -> tuple:
     return tuple(out)
 
 
+def _ratio(v) -> tuple[int, int]:
+    """(numerator, denominator > 0) of a number, exactly: ``as_integer_ratio`` of a float, an
+    int, a NumPy scalar or a Fraction (C-level for floats; ``Fraction(v)`` cost a third of
+    the table build's witness re-verification), ``Fraction(v)`` for anything else (text)."""
+    if isinstance(v, int | np.integer):
+        return int(v), 1
+    if isinstance(v, float | Fraction | np.floating):
+        num, den = v.as_integer_ratio()
+        return int(num), int(den)
+    f = Fraction(v)
+    return f.numerator, f.denominator
+
+
 def exact_signs(calc: Calculus, X, Y, Z):
     """Signs of the calculus constraints for ``XY:Z`` (rationals), or 'dou'/'tri' if X=Y.
 
     Exact in integers: the coordinates are scaled to integers by their common denominator
     (a similarity, so the relation is unchanged) and each constraint is evaluated in its
     homogenised integer form, a positive multiple of n^D f(u/n, v/n, m/n)."""
-    q = [Fraction(v) for P in (X, Y, Z) for v in P]
-    den = math.lcm(*(f.denominator for f in q))
-    x0, y0, x1, y1, x2, y2 = (f.numerator * (den // f.denominator) for f in q)
+    q = [_ratio(v) for P in (X, Y, Z) for v in P]
+    den = math.lcm(*(d for _, d in q))
+    x0, y0, x1, y1, x2, y2 = (num * (den // d) for num, d in q)
     dx, dy = x1 - x0, y1 - y0
     ex, ey = x2 - x0, y2 - y0
     n = dx * dx + dy * dy
@@ -97,19 +110,25 @@ def _atoms_of(calc: Calculus, lut, dou, tri, X, Y, Z):
     return jnp.where(n == 0, jnp.where(m == 0, tri, dou), at)
 
 
+#: :func:`_atoms_of` compiled once per calculus (a ``jax.jit`` of a fresh lambda in every call
+#: compiled again on every table build)
+_atoms_jit = jax.jit(_atoms_of, static_argnums=(0, 2, 3))
+
+
 def realised(calc: Calculus, atoms: list, configs: np.ndarray) -> dict[str, np.ndarray]:
     """Atom indices of the relations of configurations [M, 4, 2] = (A, B, C, D).
 
     Returns arrays for AB:C, BC:A, CA:B, BA:C, BC:D and AB:D (−1 = not an atom). One jitted
     float64 program for the six relations (eagerly, each of its ~50 operations would compile
-    on its own; same atoms on the EDC and DCC pre-passes); hits are re-verified exactly.
+    on its own; same atoms on the EDC and DCC pre-passes), compiled once per calculus and
+    shape; hits are re-verified exactly.
     """
     lut = atom_lookup(calc, atoms)
     dou = atoms.index("dou") if "dou" in atoms else -1
     tri = atoms.index("tri") if "tri" in atoms else -1
     with jax.enable_x64(True):
         P = jnp.asarray(configs, jnp.float64)
-        f = jax.jit(lambda X, Y, Z: _atoms_of(calc, lut, dou, tri, X, Y, Z))
+        f = partial(_atoms_jit, calc, jnp.asarray(lut), dou, tri)
         A, B, C, D = P[:, 0], P[:, 1], P[:, 2], P[:, 3]
         return {k: np.asarray(f(X, Y, Z)) for k, (X, Y, Z) in
                 {"abc": (A, B, C), "bca": (B, C, A), "cab": (C, A, B), "bac": (B, A, C),

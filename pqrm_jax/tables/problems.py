@@ -282,22 +282,38 @@ def to_batch(problems: list[Problem], box: float) -> ProblemBatch:
     """Dense quadratic-form arrays for the solver (problems must not be trivially infeasible)."""
     K = max((len(pr.constraints) + len(pr.domain) for pr in problems), default=1) or 1
     P = len(problems)
+    # problems share their polynomial objects: each distinct one's form once (by id), then
+    # every (problem, slot) filled by one fancy-indexed assignment
+    forms: dict[int, int] = {}
+    fc, fb, fA, fv = [0.0], [np.zeros(NV)], [np.zeros((NV, NV))], [np.zeros(NV, bool)]
+    ii, kk, ff, ss = [], [], [], []
+    for i, pr in enumerate(problems):
+        for k, (poly, s) in enumerate(pr.constraints + pr.domain):
+            j = forms.get(id(poly))
+            if j is None:
+                j = forms[id(poly)] = len(fc)
+                c0, b0, A0 = poly.quadratic_form()
+                fc.append(c0)
+                fb.append(np.asarray(b0, float))
+                fA.append(np.asarray(A0, float))
+                fv.append(np.isin(np.arange(NV), list(poly.variables())))
+            ii.append(i)
+            kk.append(k)
+            ff.append(j)
+            ss.append(s)
+    ff = np.asarray(ff, np.int64)
     A = np.zeros((P, K, NV, NV))
     b = np.zeros((P, K, NV))
     c = np.zeros((P, K))
     sign = np.zeros((P, K), np.int8)
     active = np.zeros((P, K), bool)
     used = np.zeros((P, NV), bool)
-    forms: dict[int, tuple] = {}  # by id: problems share their polynomial objects
-    for i, pr in enumerate(problems):
-        for k, (poly, s) in enumerate(pr.constraints + pr.domain):
-            form = forms.get(id(poly))
-            if form is None:
-                form = forms[id(poly)] = (*poly.quadratic_form(), list(poly.variables()))
-            c[i, k], b[i, k], A[i, k], var = form
-            sign[i, k] = s
-            active[i, k] = True
-            used[i, var] = True
+    A[ii, kk] = np.stack(fA)[ff]
+    b[ii, kk] = np.stack(fb)[ff]
+    c[ii, kk] = np.asarray(fc)[ff]
+    sign[ii, kk] = ss
+    active[ii, kk] = True
+    np.logical_or.at(used, np.asarray(ii, np.int64), np.stack(fv)[ff])
     lo = np.where(used, -box, 0.0)
     hi = np.where(used, box, 0.0)
     return ProblemBatch(A, b, c, sign, active, lo, hi)
