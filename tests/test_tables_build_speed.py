@@ -5,6 +5,7 @@ Decisions tested: docs/decisions.md §2.3.
 
 import subprocess
 import sys
+from concurrent.futures.process import BrokenProcessPool
 from fractions import Fraction
 
 import jax
@@ -130,6 +131,18 @@ def test_decide_many_keeps_its_pool():
     assert certify.pool(2) is ex
     fresh = certify.pool(2, fresh=True)
     assert fresh is not ex and certify.pool(2) is fresh
+
+
+def test_decide_many_replaces_a_broken_pool():
+    """A kept pool whose worker died (killed, out of memory) is replaced, not fatal."""
+    import os
+
+    job = [(Poly.var(1, 0) * Poly.var(1, 0) + Poly.const(1, 1), -1)]
+    broken = certify.pool(2)
+    with pytest.raises(BrokenProcessPool):
+        broken.submit(os._exit, 1).result()
+    assert certify.decide_many([job] * 5, workers=2) == [(certify.UNSAT, None)] * 5
+    assert certify.pool(2) is not broken
 
 
 def test_to_batch_equals_entry_by_entry():

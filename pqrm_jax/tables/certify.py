@@ -92,30 +92,24 @@ def decide_many(problems: list, workers: int | None = None, progress: bool = Fal
     :func:`count_unknown` counts the ``UNKNOWN`` ones.
     """
     workers = workers or min(usable_cpus(), 8)
-    # a generator: the workers decide the first chunks while the rest are written
-    jobs = ((smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems)
+
+    def jobs():  # a generator: the workers decide the first chunks while the rest are written
+        return ((smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems)
+
+    def shown(it):
+        if not progress:
+            return it
+        from tqdm.auto import tqdm
+
+        return tqdm(it, total=len(problems), desc=desc, leave=False)
+
     if workers <= 1 or (len(problems) < MIN_POOL_BATCH and workers not in _POOLS):
-        it = jobs
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(it, total=len(problems), desc=desc, leave=False)
-        return [decide_smtlib(*job) for job in it]
-    for fresh in (False, True):  # a pool whose worker died is replaced once
-        if fresh:
-            jobs = ((smtlib(c), c[0][0].nvars if c else 0, rlimit) for c in problems)
-        chunk = max(1, min(32, len(problems) // (4 * workers)))
-        it = pool(workers, fresh=fresh).map(decide_job, jobs, chunksize=chunk)
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(it, total=len(problems), desc=desc, leave=False)
-        try:
-            return list(it)
-        except BrokenProcessPool:
-            if fresh:
-                raise
-    raise AssertionError("unreachable")
+        return [decide_smtlib(*job) for job in shown(jobs())]
+    chunk = max(1, min(32, len(problems) // (4 * workers)))
+    try:
+        return list(shown(pool(workers).map(decide_job, jobs(), chunksize=chunk)))
+    except BrokenProcessPool:  # a worker of the kept pool died: replace the pool once
+        return list(shown(pool(workers, fresh=True).map(decide_job, jobs(), chunksize=chunk)))
 
 
 _POOLS: dict[int, ProcessPoolExecutor] = {}
