@@ -7,14 +7,15 @@
 #
 #   bash scripts/accelerator_check.sh [OUT.json]     # default benchmarks/results/accelerator_check_<backend>.json
 #
-# Each step has its own time limit (STEP_S, default 90 s; QRM_S 150 s; SERGE_S 75 s; the
-# reduced study STUDY_S 60 s; the full study FULL_S 300 s) and TOTAL_S (default 1200 s) bounds
-# the whole check: a step gets at most what is left of it (less 15 s to write the JSON) and is
-# recorded as skipped when under 10 s is left, so a check on a time-limited machine always
-# writes its JSON. The steps the accelerator targets name come first (PQRM kernel, padgett
-# runner, BSP batched vs loop at 256 environments (BSP_S 180 s; 1024 ran past 90 s on an H200), Q-Link, HSSH, the full study). Each step's
-# wall time, user+system CPU seconds and peak memory are recorded (/usr/bin/time); a step that fails or times out is recorded as such (rc, timed_out, the tail
-# of its log) and the check goes on. Every step's JSON carries "env" (where it ran:
+# Each step has its own time limit (STEP_S, default 90 s; QRM_S 150 s; SERGE_S 75 s; BSP_S 180 s;
+# the reduced study STUDY_S 60 s; the full study FULL_S 300 s), and TOTAL_S (default 1200 s)
+# bounds the whole check: a step gets at most what is left of it (less 15 s to write the JSON)
+# and is recorded as skipped when under 10 s is left, so a check on a time-limited machine
+# always writes its JSON. The steps the accelerator targets name come first (PQRM kernel,
+# padgett runner, BSP batched vs loop at 256 environments — BSP_ARGS; 1 024 ran past 90 s on an
+# H200 —, Q-Link, HSSH, the full study). Each step's wall time, user+system CPU seconds and peak
+# memory are recorded (/usr/bin/time); a step that fails or times out is recorded as such (rc,
+# timed_out, the tail of its log) and the check goes on. Every step's JSON carries "env" (where it ran:
 # backend, device kind, host, load; benchmarks/_env.py). SKIP="bsp hssh ..." leaves steps out.
 # The compilation cache is off (PQRM_JAX_COMPILE_CACHE=off): every step compiles cold.
 # LOGS_TGZ=path.tgz keeps every step's log (and the studies' outputs) as one archive.

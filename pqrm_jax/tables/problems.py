@@ -283,7 +283,8 @@ def to_batch(problems: list[Problem], box: float) -> ProblemBatch:
     K = max((len(pr.constraints) + len(pr.domain) for pr in problems), default=1) or 1
     P = len(problems)
     # problems share their polynomial objects: each distinct one's form once (by id), then
-    # every (problem, slot) filled by one fancy-indexed assignment
+    # every (problem, slot) filled by one fancy-indexed assignment; entry 0 is never
+    # referenced, it keeps the stacks well-shaped for an empty list of problems
     forms: dict[int, int] = {}
     fc, fb, fA, fv = [0.0], [np.zeros(NV)], [np.zeros((NV, NV))], [np.zeros(NV, bool)]
     ii, kk, ff, ss = [], [], [], []
