@@ -27,7 +27,7 @@ __all__ = [
     "EDC_NUM_STATES", "fine_counts", "state_counts", "state_probabilities",
     "multi_state_probabilities", "aggregation_matrix", "root_of", "edc_states_fused",
     "check_measurement_inputs", "normal_bank_rows", "sample_block", "working_set_bytes",
-    "MAX_NUM_SAMPLES", "DEFAULT_MAX_BYTES",
+    "MAX_NUM_SAMPLES", "DEFAULT_MAX_BYTES", "KERNEL_COMPILER_OPTIONS",
 ]
 
 EDC_NUM_STATES = 20
@@ -40,6 +40,13 @@ DEFAULT_MAX_BYTES = 8 << 30  # refuse a request whose estimated working set is a
 _BLOCK_PAIRS = 1 << 24  # sample–triplet pairs per streamed block (EDC kernel)
 _BLOCK_SAMPLES_MAX = 1 << 18  # samples per streamed block at most (bank rows 6 MiB)
 _GENERIC_BLOCK_PAIRS = 1 << 20  # the generic path materialises (B, S, Q) per block
+#: XLA options of the programs that run the sampling kernel (``jax.jit(...,
+#: compiler_options=KERNEL_COMPILER_OPTIONS)``): on a CPU with 512-bit vectors XLA otherwise
+#: emits the kernel's loop 8 floats wide; at 16 the 2-core benchmark ran 1.3–1.5x the samples
+#: a second, same counts (docs/benchmarks.md §bench_pqrm). Per program, not process-wide: other
+#: programs' float reductions keep their order. A CPU without 512-bit vectors, or another
+#: backend, ignores it.
+KERNEL_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
 # Realisable (inside A-circle, inside B-circle) pairs per band, behind A .. in front of B; the
 # key uses c = cA + cB, which identifies the pair within a band (P Fig. 2.5,
@@ -169,11 +176,31 @@ def edc_block_counts(mT, sT, zc):
     ``zc`` is the sample bank, [c, C, 6] shared by the B triplets, or [c, C, 6, B] with one bank
     per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
     """
+    return _unpack_counts(_edc_packed(mT, sT, zc))
+
+
+def _unpack_counts(packed):
+    """[..., c, B, W] packed byte fields (:func:`_edc_packed`) → [..., B, 20] int32 counts."""
+    shifts = jnp.arange(4, dtype=jnp.uint32) * _FIELD_BITS
+    fields = (packed[..., None] >> shifts) & jnp.uint32((1 << _FIELD_BITS) - 1)  # (.., W, 4)
+    counts = jnp.sum(fields.astype(jnp.int32), axis=-4)  # (..., B, W, 4)
+    return counts.reshape(*counts.shape[:-2], _WORDS * 4)[..., :EDC_NUM_STATES]
+
+
+def _edc_packed(mT, sT, zc):
+    """[c, B, W] uint32: the counts of each chunk of ≤ 255 samples in key order, four byte
+    fields a word (:func:`edc_block_counts`)."""
     def col(x):
         return x[None, None, :]
 
+    if zc.ndim == 3:
+        # the shared bank sample-major, [c, 6, C], written once: XLA vectorises the kernel
+        # along the samples, and reading the six values of a sample from [c, C, 6] took more
+        # shuffles than the arithmetic (the same values: counts identical)
+        zt = jax.lax.optimization_barrier(jnp.swapaxes(zc, 1, 2))
+
     def zz(j):
-        return zc[:, :, j, None] if zc.ndim == 3 else zc[:, :, j, :]
+        return zt[:, j, :, None] if zc.ndim == 3 else zc[:, :, j, :]
 
     # translate each triplet to A and rescale it (means and sigmas) by a power of two: exact,
     # so the per-sample arithmetic below is the unscaled one times 2^-k (no over/underflow)
@@ -192,11 +219,7 @@ def edc_block_counts(mT, sT, zc):
     val = jnp.left_shift(jnp.uint32(1), (key & 3) * _FIELD_BITS)
     zero = jnp.uint32(0)
     packed = _variadic_sum([jnp.where(word == w, val, zero) for w in range(_WORDS)], 1)
-    packed = jnp.stack(packed, axis=-1)  # (c, B, words)
-    shifts = jnp.arange(4, dtype=jnp.uint32) * _FIELD_BITS
-    fields = (packed[..., None] >> shifts) & jnp.uint32((1 << _FIELD_BITS) - 1)  # (c,B,W,4)
-    counts = jnp.sum(fields.astype(jnp.int32), axis=0)  # (B, W, 4)
-    return counts.reshape(counts.shape[0], _WORDS * 4)[:, :EDC_NUM_STATES]
+    return jnp.stack(packed, axis=-1)  # (c, B, words)
 
 
 def sample_bank(key, num_samples: int, dtype):
@@ -207,7 +230,7 @@ def sample_bank(key, num_samples: int, dtype):
     """
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
-    if _threefry_key_data(key) is not None and jnp.dtype(dtype).itemsize in (4, 8):
+    if _is_threefry(key) and jnp.dtype(dtype).itemsize in (4, 8):
         z = _bank_rows(key, 0, num_samples, dtype)
     else:
         z = jax.random.normal(key, (num_samples, 6), dtype)
@@ -217,18 +240,20 @@ def sample_bank(key, num_samples: int, dtype):
     return z.reshape(nchunks, size, 6)
 
 
+def _is_threefry(key) -> bool:
+    """Whether ``key`` is a threefry key under ``jax_threefry_partitionable`` (no array op)."""
+    if not jax.config.jax_threefry_partitionable:
+        return False
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return "threefry" in str(jax.random.key_impl(key))
+    return jax.config.jax_default_prng_impl == "threefry2x32" and key.shape == (2,)
+
+
 def _threefry_key_data(key):
     """(k1, k2) uint32 words of a threefry key, or None for another PRNG implementation."""
-    if not jax.config.jax_threefry_partitionable:
+    if not _is_threefry(key):
         return None
-    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-        if "threefry" not in str(jax.random.key_impl(key)):
-            return None
-        data = jax.random.key_data(key)
-    else:
-        if jax.config.jax_default_prng_impl != "threefry2x32" or key.shape != (2,):
-            return None
-        data = key
+    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
     data = data.astype(jnp.uint32)
     return data[0], data[1]
 
@@ -265,7 +290,7 @@ def normal_bank_rows(key: jax.Array, start, num_rows: int, dtype=jnp.float32) ->
     >>> bool(jnp.array_equal(normal_bank_rows(k, 5, 4), jax.random.normal(k, (12, 6))[5:9]))
     True
     """
-    if _threefry_key_data(key) is None:
+    if not _is_threefry(key):
         raise ValueError("normal_bank_rows needs a threefry key with jax_threefry_partitionable")
     return _bank_rows_jit(key, start, num_rows=int(num_rows), dtype=jnp.dtype(dtype))
 
@@ -399,8 +424,9 @@ def _counts_all_blocks(mT, sT, z, nblk: int, blk: int):
         return edc_block_counts(mT, sT, z)
     mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
     sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
-    counts = jax.lax.map(lambda ms: edc_block_counts(ms[0], ms[1], z), (mB, sB))
-    return counts.reshape(nblk * blk, EDC_NUM_STATES)
+    # the blocks' packed fields, unpacked after the loop in one vectorised pass
+    packed = jax.lax.map(lambda ms: _edc_packed(ms[0], ms[1], z), (mB, sB))
+    return _unpack_counts(packed).reshape(nblk * blk, EDC_NUM_STATES)
 
 
 def _streamed_bank(key, num_samples: int, block: int, dtype):
@@ -458,7 +484,8 @@ def _prepare_edc(means, sigma, *, chunk_triplets: int):
     return _pad_triplets(means.reshape(n, 6).T, sigma.T, blk, means.dtype)[:2]
 
 
-@partial(jax.jit, static_argnames=("nblk", "blk"), donate_argnums=(0,))
+@partial(jax.jit, static_argnames=("nblk", "blk"), donate_argnums=(0,),
+         compiler_options=KERNEL_COMPILER_OPTIONS)
 def _accumulate_block(acc, mT, sT, z, *, nblk: int, blk: int):
     return acc + _counts_all_blocks(mT, sT, z, nblk, blk)
 
@@ -524,12 +551,26 @@ def _broadcast_sigma(sigma, n: int, dtype):
     return jnp.broadcast_to(sigma, (n, 3))
 
 
-@partial(jax.jit, static_argnames=("root", "num_samples", "chunk_triplets"))
-def root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
+def _root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_triplets: int):
     sigma = _broadcast_sigma(sigma, means.shape[0], means.dtype)
     if is_edc(root):
         return _fine_counts_edc(key, means, sigma, num_samples, chunk_triplets)
     return _fine_counts_generic(key, root, means, sigma, num_samples, max(1, chunk_triplets // 16))
+
+
+def _staged() -> bool:
+    """Whether this call is being traced into an outer ``jit`` (where JAX refuses a nested
+    program with compiler options): there a fresh array operation yields a tracer."""
+    return isinstance(jnp.zeros(()), jax.core.Tracer)
+
+
+_STATIC = ("root", "num_samples", "chunk_triplets")
+#: [N, Q_root] counts of ``root``'s states; callable inside ``jit``/``vmap``.
+root_counts = jax.jit(_root_counts, static_argnames=_STATIC)
+# the same as its own top-level program, with the kernel's XLA options (which JAX accepts on
+# a top-level jit only): what an eager :func:`fine_counts` runs
+_root_counts_top = jax.jit(_root_counts, static_argnames=_STATIC,
+                           compiler_options=KERNEL_COMPILER_OPTIONS)
 
 
 def _as_real_array(x, name: str):
@@ -644,10 +685,11 @@ def fine_counts(
     means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
     root = root_of(calc)
     traced = any(isinstance(x, jax.core.Tracer) for x in (key, means, sigma))
-    if (not traced and is_edc(root) and _threefry_key_data(key) is not None
+    if (not traced and is_edc(root) and _is_threefry(key)
             and int(num_samples) > sample_block(int(chunk_triplets), means.shape[0])):
         return _fine_counts_edc_eager(key, means, sigma, int(num_samples), int(chunk_triplets))
-    return root_counts(key, means, sigma, root=root, num_samples=int(num_samples),
+    counts = root_counts if _staged() else _root_counts_top
+    return counts(key, means, sigma, root=root, num_samples=int(num_samples),
                         chunk_triplets=int(chunk_triplets))
 
 
