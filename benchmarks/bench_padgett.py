@@ -41,14 +41,16 @@ from pqrm_jax.pqrm import map as pqrm_map  # noqa: E402
 from pqrm_jax.studies import padgett_mc  # noqa: E402
 
 
-def LEGACY_sample_bank(key, num_samples: int, dtype):  # noqa: N802  (main 45bfc0d)
+def LEGACY_sample_bank(key, num_samples: int, dtype, *, sample_major=False):  # noqa: N802
+    """The bank of main ``45bfc0d`` (by ``jax.random.normal``), in the layout asked for."""
     nchunks = -(-num_samples // 255)
     size = -(-num_samples // nchunks)
     z = jax.random.normal(key, (num_samples, 6), dtype)
     pad = nchunks * size - num_samples
     if pad:
         z = jnp.concatenate([z, jnp.full((pad, 6), jnp.nan, dtype)])
-    return z.reshape(nchunks, size, 6)
+    z = z.reshape(nchunks, size, 6)
+    return jnp.swapaxes(z, 1, 2) if sample_major else z
 
 
 class legacy:  # noqa: N801

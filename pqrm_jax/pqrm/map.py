@@ -220,7 +220,12 @@ def _prepare(positions, visible, sigma, triplets):
         # per landmark, once: without the barrier XLA fuses the observation's arithmetic into
         # the per-triplet gathers and recomputes it for every one of the T rows
         pos, sig, seen_lm = jax.lax.optimization_barrier((pos, sig, seen_lm))
-    seen = jnp.all(seen_lm[tri], axis=-1)
+    # a triplet is seen when its three landmarks are: counted by one product with the
+    # landmark–triplet incidence (exact small integers) — as a per-triplet gather of three
+    # flags XLA:CPU took longer than the rest of a padgett-mc step's bookkeeping
+    inc = np.zeros((m, len(triplets)), np.float32)
+    np.add.at(inc, (np.asarray(triplets), np.arange(len(triplets))[:, None]), 1.0)
+    seen = (seen_lm.astype(jnp.float32) @ jnp.asarray(inc)) == 3.0
     return pos[tri], sig[tri], seen, dropped
 
 
@@ -274,7 +279,8 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     g = groups
     if g < 1 or r % g:
         raise ValueError(f"{r} maps cannot be split into {g} groups")
-    z = jax.vmap(lambda k: sample_bank(k, num_samples, means.dtype))(keys)  # (R, c, C, 6)
+    z = jax.vmap(lambda k: sample_bank(k, num_samples, means.dtype, sample_major=True))(
+        keys)  # (R, c, 6, C)
     rows = (state.probs, state.mapped, state.num_updates, state.num_conflicts,
             state.num_rejected)
 
@@ -310,8 +316,8 @@ PREPARE_BARRIER = True
 def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, cals):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
-    z [Rg, c, C, 6] banks of the Rg maps; m [Rg·N, 6], s [Rg·N, 3], mask [Rg·N] per triplet
-    row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
+    z [Rg, c, 6, C] banks of the Rg maps (sample-major); m [Rg·N, 6], s [Rg·N, 3], mask
+    [Rg·N] per triplet row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
     the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
     ``lax.while_loop`` runs ⌈#seen / block⌉ pieces into a compact buffer, scattered into the
     map, so every seen row is updated and nothing else is computed (in Padgett's study about
@@ -332,7 +338,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
         idx = jax.lax.dynamic_slice(order, (p * blk,), (blk,))
         valid = idx < total
         safe = jnp.where(valid, idx, 0)
-        zc = jnp.transpose(z[safe // n], (1, 2, 3, 0))  # this block's banks (c, C, 6, blk)
+        zc = jnp.transpose(z[safe // n], (1, 2, 3, 0))  # this block's banks (c, 6, C, blk)
         counts = edc_block_counts(m[safe].T, s[safe].T, zc)[:, inv]
         probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
             lambda x: x[safe], rows)

@@ -173,8 +173,11 @@ def _variadic_sum(ops, axis):
 def edc_block_counts(mT, sT, zc):
     """Counts in key order for one block: mT [6, B], sT [3, B] → [B, 20] int32.
 
-    ``zc`` is the sample bank, [c, C, 6] shared by the B triplets, or [c, C, 6, B] with one bank
-    per triplet (``Mapper.update_batch``); the per-sample arithmetic is the same either way.
+    ``zc`` is the sample bank sample-major (``sample_bank(..., sample_major=True)``), [c, 6, C]
+    shared by the B triplets, or [c, 6, C, B] with one bank per triplet
+    (``Mapper.update_batch``); the per-sample arithmetic is the same either way. XLA
+    vectorises the kernel along the C samples of a chunk: read from [c, C, 6], the six values
+    of a sample took more shuffles than the arithmetic.
     """
     return _unpack_counts(_edc_packed(mT, sT, zc))
 
@@ -193,14 +196,8 @@ def _edc_packed(mT, sT, zc):
     def col(x):
         return x[None, None, :]
 
-    if zc.ndim == 3:
-        # the shared bank sample-major, [c, 6, C], written once: XLA vectorises the kernel
-        # along the samples, and reading the six values of a sample from [c, C, 6] took more
-        # shuffles than the arithmetic (the same values: counts identical)
-        zt = jax.lax.optimization_barrier(jnp.swapaxes(zc, 1, 2))
-
     def zz(j):
-        return zt[:, j, :, None] if zc.ndim == 3 else zc[:, :, j, :]
+        return zc[:, j, :, None] if zc.ndim == 3 else zc[:, j]
 
     # translate each triplet to A and rescale it (means and sigmas) by a power of two: exact,
     # so the per-sample arithmetic below is the unscaled one times 2^-k (no over/underflow)
@@ -222,22 +219,26 @@ def _edc_packed(mT, sT, zc):
     return jnp.stack(packed, axis=-1)  # (c, B, words)
 
 
-def sample_bank(key, num_samples: int, dtype):
+def sample_bank(key, num_samples: int, dtype, *, sample_major: bool = False):
     """Standard-normal bank [c, C, 6], padded with NaN (rejected) up to c·C ≥ num_samples.
 
-    The values of ``jax.random.normal(key, (num_samples, 6), dtype)``, drawn by
-    :func:`_bank_rows` (an unrolled threefry, bit-identical) for a partitionable threefry key.
+    The values of ``jax.random.normal(key, (num_samples, 6), dtype)`` in chunks of C ≤ 255
+    samples, drawn by an unrolled threefry (bit-identical) for a partitionable threefry key.
+    ``sample_major=True`` gives the same values as [c, 6, C], the layout of the kernel
+    (:func:`edc_block_counts`), generated in that order (a program whose innermost axis is 6
+    long is not vectorised by XLA:CPU).
     """
     nchunks = -(-num_samples // _CHUNK_SAMPLES)
     size = -(-num_samples // nchunks)
     if _is_threefry(key) and jnp.dtype(dtype).itemsize in (4, 8):
-        z = _bank_rows(key, 0, num_samples, dtype)
-    else:
-        z = jax.random.normal(key, (num_samples, 6), dtype)
+        z = _bank_chunks(key, 0, nchunks, size, num_samples, dtype)  # [c, 6, C]
+        return z if sample_major else jnp.swapaxes(z, 1, 2)
+    z = jax.random.normal(key, (num_samples, 6), dtype)
     pad = nchunks * size - num_samples
     if pad:
         z = jnp.concatenate([z, jnp.full((pad, 6), jnp.nan, dtype)])
-    return z.reshape(nchunks, size, 6)
+    z = z.reshape(nchunks, size, 6)
+    return jnp.swapaxes(z, 1, 2) if sample_major else z
 
 
 def _is_threefry(key) -> bool:
@@ -324,11 +325,28 @@ def threefry2x32(k1, k2, x1, x2):
 
 
 def _bank_rows(key, start, num_rows: int, dtype):
-    words = _threefry_key_data(key)
+    """Rows ``[start, start + num_rows)`` of the normal bank, [num_rows, 6]."""
     # one flat array of the 6·num_rows elements (row-major): vectorises along its only axis
     flat = np.arange(6 * num_rows)
     rows = jnp.asarray(start, jnp.int32) + jnp.asarray(flat // 6, jnp.int32)
-    hi, lo = _row_counters(rows, jnp.asarray(flat % 6, jnp.uint32))
+    return _normals(key, rows, jnp.asarray(flat % 6, jnp.uint32), dtype).reshape(num_rows, 6)
+
+
+def _bank_chunks(key, start, nchunks: int, size: int, num_valid, dtype):
+    """[nchunks, 6, size] sample-major chunks: element (i, j, s) is column j of row
+    ``start + i·size + s`` of the normal bank, NaN for rows ≥ ``num_valid``."""
+    shape = (nchunks, 6, size)
+    rows = (jnp.asarray(start, jnp.int32) + jax.lax.broadcasted_iota(jnp.int32, shape, 0) * size
+            + jax.lax.broadcasted_iota(jnp.int32, shape, 2))
+    z = _normals(key, rows, jax.lax.broadcasted_iota(jnp.uint32, shape, 1), dtype)
+    return jnp.where(rows < num_valid, z, jnp.nan)
+
+
+def _normals(key, rows, cols, dtype):
+    """Element (row, col) of ``jax.random.normal(key, (S, 6), dtype)`` for index arrays of one
+    shape (partitionable threefry: element (s, j) draws from counter 6·s + j)."""
+    words = _threefry_key_data(key)
+    hi, lo = _row_counters(rows, cols)
     b1, b2 = threefry2x32(words[0], words[1], hi, lo)
     dtype = jnp.dtype(dtype)
     finfo = jnp.finfo(dtype)
@@ -347,8 +365,7 @@ def _bank_rows(key, start, num_rows: int, dtype):
     fbits = fbits | jnp.asarray(np.array(1.0, dtype).view(utype), utype)
     floats = jax.lax.bitcast_convert_type(fbits, dtype) - jnp.asarray(1.0, dtype)
     u = jax.lax.max(jnp.asarray(lo_v, dtype), floats * (hi_v - lo_v) + lo_v)
-    z = jax.lax.mul(jnp.asarray(np.sqrt(2), dtype), jax.scipy.special.erfinv(u))
-    return z.reshape(num_rows, 6)
+    return jax.lax.mul(jnp.asarray(np.sqrt(2), dtype), jax.scipy.special.erfinv(u))
 
 
 def sample_block(chunk_triplets: int, num_triplets: int | None = None) -> int:
@@ -429,17 +446,23 @@ def _counts_all_blocks(mT, sT, z, nblk: int, blk: int):
     return _unpack_counts(packed).reshape(nblk * blk, EDC_NUM_STATES)
 
 
-def _streamed_bank(key, num_samples: int, block: int, dtype):
-    """A function b ↦ bank block b, (block/255, 255, 6), NaN past ``num_samples``."""
-    words = _threefry_key_data(key)
+def _streamed_bank(key, num_samples: int, block: int, dtype, *, sample_major: bool = False):
+    """A function b ↦ bank block b, [block, 6] rows (or [block/255, 6, 255] sample-major
+    chunks), NaN past ``num_samples``."""
+    threefry = _is_threefry(key)
 
     def bank(b):
-        if words is not None:
+        if threefry and sample_major:
+            return _bank_chunks(key, b * block, block // _CHUNK_SAMPLES, _CHUNK_SAMPLES,
+                                num_samples, dtype)
+        if threefry:
             z = _bank_rows(key, b * block, block, dtype)
         else:  # another PRNG: one folded key per block
             z = jax.random.normal(jax.random.fold_in(key, b), (block, 6), dtype)
         idx = b * block + jnp.arange(block)
         z = jnp.where((idx < num_samples)[:, None], z, jnp.nan)
+        if sample_major:
+            z = jnp.swapaxes(z.reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6), 1, 2)
         return z
 
     return bank
@@ -454,13 +477,13 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
     mT, sT, nblk = _pad_triplets(mT, sT, blk, dtype)
     block = sample_block(chunk_triplets, n)
     if num_samples <= block:
-        counts = _counts_all_blocks(mT, sT, sample_bank(key, num_samples, dtype), nblk, blk)
+        z = sample_bank(key, num_samples, dtype, sample_major=True)
+        counts = _counts_all_blocks(mT, sT, z, nblk, blk)
     else:
-        bank = _streamed_bank(key, num_samples, block, dtype)
+        bank = _streamed_bank(key, num_samples, block, dtype, sample_major=True)
 
         def step(acc, b):
-            z = bank(b).reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6)
-            return acc + _counts_all_blocks(mT, sT, z, nblk, blk), None
+            return acc + _counts_all_blocks(mT, sT, bank(b), nblk, blk), None
 
         zero = jnp.zeros((nblk * blk, EDC_NUM_STATES), jnp.int32)
         counts, _ = jax.lax.scan(step, zero, jnp.arange(-(-num_samples // block)))
@@ -472,8 +495,7 @@ def _fine_counts_edc(key, means, sigma, num_samples: int, chunk_triplets: int):
 
 @partial(jax.jit, static_argnames=("num_samples", "block", "dtype"))
 def _bank_block(key, b, *, num_samples: int, block: int, dtype):
-    z = _streamed_bank(key, num_samples, block, dtype)(b)
-    return z.reshape(block // _CHUNK_SAMPLES, _CHUNK_SAMPLES, 6)
+    return _streamed_bank(key, num_samples, block, dtype, sample_major=True)(b)
 
 
 @partial(jax.jit, static_argnames=("chunk_triplets",))
