@@ -317,8 +317,8 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
     z [Rg, c, 6, C] banks of the Rg maps (sample-major); m [Rg·N, 6], s [Rg·N, 3], mask
-    [Rg·N] per triplet row (map-major); rows = (probs, mapped, num_updates, num_conflicts, num_rejected) flattened
-    the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
+    [Rg·N] per triplet row (map-major); rows = (probs, mapped, num_updates, num_conflicts,
+    num_rejected) flattened the same way. The seen rows are compacted (``jnp.nonzero``, static size) and a
     ``lax.while_loop`` runs ⌈#seen / block⌉ pieces into a compact buffer, scattered into the
     map, so every seen row is updated and nothing else is computed (in Padgett's study about
     1 row in 8 is seen). Each row's arithmetic is
