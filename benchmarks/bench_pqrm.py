@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from _env import write_result  # benchmarks/_env.py
 from _timing import best_of  # benchmarks/_timing.py
@@ -54,6 +55,45 @@ def _study_step(runs: int) -> dict:
             "runs": runs, "dense_s_per_run": times["dense"],
             "sparse_s_per_run": times["sparse"],
             "speedup": times["dense"] / times["sparse"], "bit_identical": bool(same)}
+
+
+def _kernel_vs_previous(means, sigma, key, s: int) -> dict:
+    """The kernel alone on a given bank, this formulation against the previous one, in one
+    process, interleaved (best of 7 each): the same arithmetic and blocks; the previous read
+    the bank row-major, [c, C, 6] (six values of a sample 6 floats apart: XLA's loop along
+    the samples gathered them with shuffles), compiled with XLA's default options; this one
+    reads it sample-major, [c, 6, C], compiled with ``KERNEL_COMPILER_OPTIONS``."""
+    n = means.shape[0]
+    blk = measurement._balanced_block(n, 4096)  # noqa: SLF001  (the blocks fine_counts uses)
+    mT, sT = measurement._prepare_edc(jnp.asarray(means), jnp.asarray(sigma),  # noqa: SLF001
+                                      chunk_triplets=4096)
+    nblk = mT.shape[1] // blk
+    z_rows = measurement.sample_bank(key, s, jnp.float32)  # [c, C, 6]
+    z_major = measurement.sample_bank(key, s, jnp.float32, sample_major=True)  # [c, 6, C]
+
+    def blocks(zc):
+        mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
+        sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
+        out = jax.lax.map(lambda a: measurement.edc_block_counts(a[0], a[1], zc), (mB, sB))
+        return out.reshape(nblk * blk, -1)
+
+    previous = jax.jit(lambda z: blocks(jnp.swapaxes(z, 1, 2)))
+    current = jax.jit(blocks, compiler_options=measurement.KERNEL_COMPILER_OPTIONS)
+    same = bool(np.array_equal(np.asarray(previous(z_rows)), np.asarray(current(z_major))))
+    t = {"previous": [], "current": []}
+    for _ in range(7):
+        for name, f, z in (("previous", previous, z_rows), ("current", current, z_major)):
+            t0 = time.perf_counter()
+            jax.block_until_ready(f(z))
+            t[name].append(time.perf_counter() - t0)
+    best = {k: min(v) for k, v in t.items()}
+    return {"what": "EDC kernel on a given bank, previous (row-major bank, default XLA "
+                    "options) vs current (sample-major bank, KERNEL_COMPILER_OPTIONS)",
+            "previous_s": best["previous"], "current_s": best["current"],
+            "previous_triplet_samples_per_s": n * s / best["previous"],
+            "current_triplet_samples_per_s": n * s / best["current"],
+            "ratio": best["previous"] / best["current"], "counts_identical": same,
+            "all_s": t}
 
 
 def main(argv=None) -> int:
@@ -107,6 +147,7 @@ def main(argv=None) -> int:
         "load_average": os.getloadavg(), "machine": platform.processor() or platform.machine(),
         "jax": jax.__version__, "numpy": np.__version__,
     }
+    res["kernel_vs_previous"] = _kernel_vs_previous(means, sigma, key, s)
     if args.study_runs:
         res["study_step"] = _study_step(args.study_runs)
     print(json.dumps(res, indent=2))
