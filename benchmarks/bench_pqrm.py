@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from _env import write_result  # benchmarks/_env.py
-from _timing import best_of  # benchmarks/_timing.py
+from _timing import best_of, timed  # benchmarks/_timing.py
 
 from pqrm_jax import calculi, pqrm
 from pqrm_jax.pqrm import measurement
@@ -59,10 +59,12 @@ def _study_step(runs: int) -> dict:
 
 def _kernel_vs_previous(means, sigma, key, s: int) -> dict:
     """The kernel alone on a given bank, this formulation against the previous one, in one
-    process, interleaved (best of 7 each): the same arithmetic and blocks; the previous read
-    the bank row-major, [c, C, 6] (six values of a sample 6 floats apart: XLA's loop along
-    the samples gathered them with shuffles), compiled with XLA's default options; this one
-    reads it sample-major, [c, 6, C], compiled with ``KERNEL_COMPILER_OPTIONS``."""
+    process, interleaved (best of 7 each, CPU time beside wall): the same arithmetic and
+    blocks. Current: ``measurement._counts_all_blocks`` as ``fine_counts`` runs it (bank
+    sample-major, [c, 6, C], ``KERNEL_COMPILER_OPTIONS``). Previous: the block loop as it was
+    (each block's counts unpacked inside the loop) reading the bank row-major, [c, C, 6] —
+    six values of a sample 6 floats apart, gathered by XLA's loop along the samples with
+    shuffles — under XLA's default options."""
     n = means.shape[0]
     blk = measurement._balanced_block(n, 4096)  # noqa: SLF001  (the blocks fine_counts uses)
     mT, sT = measurement._prepare_edc(jnp.asarray(means), jnp.asarray(sigma),  # noqa: SLF001
@@ -71,29 +73,31 @@ def _kernel_vs_previous(means, sigma, key, s: int) -> dict:
     z_rows = measurement.sample_bank(key, s, jnp.float32)  # [c, C, 6]
     z_major = measurement.sample_bank(key, s, jnp.float32, sample_major=True)  # [c, 6, C]
 
-    def blocks(zc):
+    def previous_blocks(z):
         mB = mT.reshape(6, nblk, blk).transpose(1, 0, 2)
         sB = sT.reshape(3, nblk, blk).transpose(1, 0, 2)
+        zc = jnp.swapaxes(z, 1, 2)  # fused into the loop by XLA: strided reads, as before
         out = jax.lax.map(lambda a: measurement.edc_block_counts(a[0], a[1], zc), (mB, sB))
         return out.reshape(nblk * blk, -1)
 
-    previous = jax.jit(lambda z: blocks(jnp.swapaxes(z, 1, 2)))
-    current = jax.jit(blocks, compiler_options=measurement.KERNEL_COMPILER_OPTIONS)
+    previous = jax.jit(previous_blocks)
+    current = jax.jit(lambda z: measurement._counts_all_blocks(mT, sT, z, nblk, blk),  # noqa: SLF001
+                      compiler_options=measurement.KERNEL_COMPILER_OPTIONS)
     same = bool(np.array_equal(np.asarray(previous(z_rows)), np.asarray(current(z_major))))
-    t = {"previous": [], "current": []}
+    runs = {"previous": [], "current": []}
     for _ in range(7):
         for name, f, z in (("previous", previous, z_rows), ("current", current, z_major)):
-            t0 = time.perf_counter()
-            jax.block_until_ready(f(z))
-            t[name].append(time.perf_counter() - t0)
-    best = {k: min(v) for k, v in t.items()}
+            wall, cpu, _ = timed(lambda f=f, z=z: f(z))
+            runs[name].append((wall, cpu))
+    best = {k: min(v) for k, v in runs.items()}  # (wall, CPU of that run)
     return {"what": "EDC kernel on a given bank, previous (row-major bank, default XLA "
                     "options) vs current (sample-major bank, KERNEL_COMPILER_OPTIONS)",
-            "previous_s": best["previous"], "current_s": best["current"],
-            "previous_triplet_samples_per_s": n * s / best["previous"],
-            "current_triplet_samples_per_s": n * s / best["current"],
-            "ratio": best["previous"] / best["current"], "counts_identical": same,
-            "all_s": t}
+            "previous_s": best["previous"][0], "previous_cpu_s": best["previous"][1],
+            "current_s": best["current"][0], "current_cpu_s": best["current"][1],
+            "previous_triplet_samples_per_s": n * s / best["previous"][0],
+            "current_triplet_samples_per_s": n * s / best["current"][0],
+            "ratio": best["previous"][0] / best["current"][0], "counts_identical": same,
+            "all_wall_cpu_s": runs}
 
 
 def main(argv=None) -> int:

@@ -223,8 +223,8 @@ def _prepare(positions, visible, sigma, triplets):
     # a triplet is seen when its three landmarks are: counted by one product with the
     # landmark–triplet incidence (exact small integers) — as a per-triplet gather of three
     # flags XLA:CPU took longer than the rest of a padgett-mc step's bookkeeping
-    inc = np.zeros((m, len(triplets)), np.float32)
-    np.add.at(inc, (np.asarray(triplets), np.arange(len(triplets))[:, None]), 1.0)
+    inc = np.zeros((m, len(triplets)), np.float32)  # three distinct ids a triplet
+    inc[np.asarray(triplets), np.arange(len(triplets))[:, None]] = 1.0
     seen = (seen_lm.astype(jnp.float32) @ jnp.asarray(inc)) == 3.0
     return pos[tri], sig[tri], seen, dropped
 

@@ -42,8 +42,9 @@ _BLOCK_SAMPLES_MAX = 1 << 18  # samples per streamed block at most (bank rows 6 
 _GENERIC_BLOCK_PAIRS = 1 << 20  # the generic path materialises (B, S, Q) per block
 #: XLA options of the programs that run the sampling kernel (``jax.jit(...,
 #: compiler_options=KERNEL_COMPILER_OPTIONS)``): on a CPU with 512-bit vectors XLA otherwise
-#: emits the kernel's loop 8 floats wide; at 16 the 2-core benchmark ran 1.3–1.5x the samples
-#: a second, same counts (docs/benchmarks.md §bench_pqrm). Per program, not process-wide: other
+#: emits the kernel's loop 8 floats wide; at 16 the kernel on the sample-major bank ran
+#: 1.2–1.5x the samples a second on the 2-core machine (one process, four A/Bs), same counts
+#: (docs/benchmarks.md §bench_pqrm). Per program, not process-wide: other
 #: programs' float reductions keep their order. A CPU without 512-bit vectors, or another
 #: backend, ignores it.
 KERNEL_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
