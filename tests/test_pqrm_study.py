@@ -1,5 +1,6 @@
 """padgett-mc study: CLI end to end, resume after interruption, sharding over 1 vs 4 devices."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -162,3 +163,38 @@ def test_chunk_sized_from_memory_reused_on_resume_and_refused_when_too_large(tmp
     assert not (tmp_path / "big" / "levels.jsonl").exists()
     with pytest.raises(StudyError, match=r"--chunk\b"):
         padgett_mc.run_study(cfg, tmp_path / "tiny", quiet=True, memory_bytes=1000)
+
+
+def test_levels_side_by_side_compile_each_program_under_the_lock(tmp_path, monkeypatch):
+    """Two noise levels run in two threads (``level_workers``); JAX does not serialise two
+    threads dispatching the same new eager op, so each may compile it (measured: two threads
+    calling ``jnp.ones`` at once wrote 3 persistent-cache entries for 2 programs in 2 of 8
+    processes; CI's second padgett-mc process then found 11 programs where the first had
+    written 12). Every program a level thread compiles is therefore compiled holding
+    ``padgett_mc._LOCK``: the compile events of the worker threads are checked here with the
+    in-memory caches cleared, so the eager key derivation compiles anew."""
+    import threading
+
+    import jax
+    from jax import monitoring
+
+    monkeypatch.setattr(padgett_mc, "level_workers", lambda cluster=None: 2)
+    cfg = padgett_mc.Config(runs=3, levels=2, num_samples=8, num_landmarks=4, chunk_runs=2,
+                            representations=("edc",))
+    padgett_mc.run_study(cfg, tmp_path / "warm", quiet=True)  # the runner's program, compiled
+    events = []
+
+    def listen(name, *_, **__):
+        if name == "/jax/core/compile/backend_compile_duration":
+            events.append((threading.current_thread() is threading.main_thread(),
+                           padgett_mc._LOCK.locked()))
+
+    jax.clear_caches()
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        padgett_mc.run_study(dataclasses.replace(cfg, seed=1), tmp_path / "run", quiet=True)
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    worker = [locked for main, locked in events if not main]
+    assert worker, "the level threads compiled nothing after clear_caches: the check is empty"
+    assert all(worker), f"{worker.count(False)} of {len(worker)} compiles outside the lock"

@@ -376,17 +376,21 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
         cfg = dataclasses.replace(cfg, chunk_runs=auto_chunk(cfg, memory_bytes=memory_bytes))
     chunk = layout(cfg)["chunk"]
     batched, sharding = chunk_program(cfg, chunk, dense=dense, memory_bytes=memory_bytes)
-    base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
     starts = list(range(0, cfg.runs, chunk))
+    # Every eager op of a level runs here, holding the lock: two level threads dispatching
+    # the same new eager op at once each compile it (JAX does not serialise that), so the
+    # per-chunk keys and the noise scalar are derived up front, one level at a time.
+    with _LOCK:
+        base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
+        # the last chunk is padded by repeating a run
+        idx = np.minimum(np.arange(len(starts) * chunk), cfg.runs - 1).reshape(-1, chunk)
+        chunk_keys = [jax.device_put(jax.vmap(lambda i: jax.random.fold_in(base, i))(
+            jnp.asarray(row, jnp.uint32)), sharding) for row in idx]
+        sigma = jnp.float32(sigma_r)
 
     def compute(c: int):
-        start = starts[c]
-        idx = np.arange(start, start + chunk)
-        idx = np.minimum(idx, cfg.runs - 1)  # pad the last chunk by repeating a run
-        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(idx, jnp.uint32))
-        keys = jax.device_put(keys, sharding)
         try:
-            res = jax.device_get(batched(keys, jnp.float32(sigma_r)))
+            res = jax.device_get(batched(chunk_keys[c], sigma))
         except Exception as exc:  # noqa: BLE001  (XLA's runtime error type varies by version)
             oom = memory_error(exc, cfg, chunk)
             if oom is None:
