@@ -35,7 +35,11 @@ def default_queues() -> int:
 def side_by_side(fn: Callable, items: Sequence) -> list:
     """``[fn(x) for x in items]``, with the calls run side by side in threads.
 
-    Each thread keeps the caller's float64 setting, which JAX holds per thread.
+    Each thread keeps the caller's float64 setting, which JAX holds per thread. ``fn`` should
+    dispatch jitted programs only, its arguments as NumPy arrays of their final dtype: JAX
+    compiles a jitted function once however many threads call it first, but two threads
+    dispatching the same new eager op (``jnp.asarray(x, dtype)``, even ``jnp.asarray`` of an
+    array of its own dtype) at once each compile it (``tests/test_parallel.py``).
     """
     if len(items) <= 1:
         return [fn(x) for x in items]

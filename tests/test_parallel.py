@@ -43,3 +43,52 @@ def test_serge_result_does_not_depend_on_the_number_of_queues(monkeypatch):
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_array_equal(a.trial_log_psi, b.trial_log_psi)
     np.testing.assert_array_equal(a.cell_labels, b.cell_labels)
+
+
+def _worker_compiles(run) -> list[str]:
+    """Names of the programs compiled outside the main thread while ``run()`` runs, with the
+    in-memory caches cleared first (so everything it dispatches compiles anew)."""
+    from jax import monitoring
+
+    names = []
+
+    def listen(event, _duration, fun_name="", **__):
+        if event == "/jax/core/compile/backend_compile_duration" \
+                and threading.current_thread() is not threading.main_thread():
+            names.append(fun_name)
+
+    jax.clear_caches()
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        run()
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    return names
+
+
+def test_queues_compile_only_their_jitted_program(monkeypatch):
+    """The queues of ``side_by_side`` run in threads. JAX serialises the compile of a jitted
+    function, but not of an eager op: two threads converting an argument with ``jnp.asarray``
+    (even to its own dtype, a ``stage`` program) at once each compile it — measured: a cold
+    EDC table build wrote 15 cache entries for 14 programs in 1 of 3 processes. So a queue
+    compiles nothing but its solver's jitted program (the arguments go in as NumPy arrays of
+    the final dtype); this failed before for the feasibility queues (``convert_element_type``
+    and ``stage`` compiled in the threads)."""
+    from pqrm_jax import calculi
+    from pqrm_jax.tables import feasibility as F
+    from pqrm_jax.tables import problems as pb
+
+    batch = pb.to_batch(pb.random_compose_problems(calculi.get("edc"), 16), 8.0)
+    names = _worker_compiles(lambda: F.solve(batch, parts=2, frontier=64))
+    assert names and set(names) <= {"jit(_solve)"}, names
+
+    rng = np.random.default_rng(3)
+    prob = initial_cells(jax.random.PRNGKey(0),
+                         GaussianBeliefs(rng.uniform(0, 6, (6, 2)),
+                                         np.array([np.eye(2) * 0.5] * 6)),
+                         Grid((-2.0, -2.0), (8.0, 8.0), (20, 20)), unseparated="attach")
+    monkeypatch.setattr(S, "default_queues", lambda: 2)
+    names = _worker_compiles(lambda: serge(jax.random.PRNGKey(1), prob, 3, 2.0,
+                                           trials=2 * S.WIDTH))
+    assert names and len(names) == len(set(names)), names
+    assert not {"jit(convert_element_type)", "jit(stage)"} & set(names), names

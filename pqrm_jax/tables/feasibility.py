@@ -458,13 +458,15 @@ def solve(batch: ProblemBatch, *, pool: int = 32, max_iters: int = 120,
 
             def run(idx, sub=sub, s=s, bucket=bucket, static=static):
                 part = sub.take(np.concatenate([idx, np.repeat(idx[-1:], bucket - len(idx))]))
+                # NumPy arguments of the final dtypes: the queues run in threads, and an
+                # eager jnp conversion compiles a small program that two threads dispatching
+                # it at once would each compile (JAX serialises jit compiles only)
+                f64 = partial(np.asarray, dtype=np.float64)
                 out = _solve(
-                    jnp.asarray(part.A, jnp.float64), jnp.asarray(part.b, jnp.float64),
-                    jnp.asarray(part.c, jnp.float64), jnp.asarray(part.sign, jnp.int32),
-                    jnp.asarray(part.active), jnp.asarray(part.lo, jnp.float64),
-                    jnp.asarray(part.hi, jnp.float64),
-                    jnp.asarray(ids[s + idx].tolist() + [0] * (bucket - len(idx)), jnp.uint32),
-                    jnp.float64(min_width), jnp.uint32(seed), jnp.int32(len(idx)), **static)
+                    f64(part.A), f64(part.b), f64(part.c), np.asarray(part.sign, np.int32),
+                    np.asarray(part.active, bool), f64(part.lo), f64(part.hi),
+                    np.asarray(ids[s + idx].tolist() + [0] * (bucket - len(idx)), np.uint32),
+                    np.float64(min_width), np.uint32(seed), np.int32(len(idx)), **static)
                 return [np.asarray(x) for x in out]
 
             results = side_by_side(run, queues)
