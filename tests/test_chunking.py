@@ -88,3 +88,23 @@ def test_auto_is_the_one_sizer_whole_then_probe_then_fallback():
     assert chunking.auto(lambda: 0, **kw, fallback=7) == 7
     with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
         chunking.auto(lambda: 1 << 30, total=4, option="--chunk", memory_bytes=100 * mib)
+
+
+def test_program_bytes_is_remembered_per_program(monkeypatch):
+    """XLA's memory analysis of a large program takes tens of ms; each padgett-mc level checks
+    its chunk's program again, so the figure is computed once per compiled program."""
+    import jax
+    import jax.numpy as jnp
+
+    from pqrm_jax.studies import chunking
+
+    c = jax.jit(lambda x: x + 1).lower(jnp.ones(4)).compile()
+    d = jax.jit(lambda x: x * 2).lower(jnp.ones(8)).compile()
+    calls = []
+    orig = type(c).memory_analysis
+    monkeypatch.setattr(type(c), "memory_analysis",
+                        lambda self: calls.append(self) or orig(self))
+    first = [chunking.program_bytes(c), chunking.program_bytes(d)]
+    again = [chunking.program_bytes(c), chunking.program_bytes(d)]
+    assert first == again and all(b is not None and b > 0 for b in first)
+    assert first[0] != first[1] and len(calls) == 2

@@ -47,8 +47,10 @@ FRACTION = 0.5 of the 1024 MiB available is 512 MiB; lower --chunk-runs
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -114,16 +116,27 @@ def budget(memory_bytes: int | None = None) -> int | None:
 def program_bytes(compiled: Any) -> int | None:
     """Arguments + outputs + temporaries of a compiled program, per device (XLA's analysis).
 
-    None when the backend gives no analysis.
+    None when the backend gives no analysis. Remembered per program: XLA's analysis of the
+    padgett-mc runner takes ≈ 30 ms, and every noise level checks its chunk again.
     """
+    try:
+        return _PROGRAM_BYTES[compiled]
+    except (KeyError, TypeError):  # TypeError: not weakly referable, not remembered
+        pass
     try:
         m = compiled.memory_analysis()
     except Exception:  # noqa: BLE001  (not implemented on every backend)
         return None
     if m is None:
         return None
-    return int(m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
-               - m.alias_size_in_bytes)
+    out = int(m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+              - m.alias_size_in_bytes)
+    with contextlib.suppress(TypeError):
+        _PROGRAM_BYTES[compiled] = out
+    return out
+
+
+_PROGRAM_BYTES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def pick_chunk(per_lane_bytes: float, budget_bytes: int, *, total: int, devices: int,
