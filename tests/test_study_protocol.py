@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import pytest
 
@@ -106,6 +107,8 @@ def test_tiny_run_report_only_and_claims_through_the_protocol(name, tmp_path, ca
     assert main(["study", name, "--tiny", "--no-progress", "--out", str(out)]) == 0
     text = (out / "report.md").read_text()
     assert "| claim | published | measured | interval | verdict |" in text
+    # an undefined figure is written as such ("n/a"), never as a bare "nan"
+    assert not re.search(r"\bnan\b", text, re.IGNORECASE), name
     figs = [ln for ln in text.splitlines() if ln.startswith("![")]
     assert figs and all(not ln.startswith("![fig") for ln in figs)  # real captions
     cs = mod.claims(out)
