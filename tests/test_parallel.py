@@ -5,6 +5,7 @@ import threading
 import jax
 import jax.numpy as jnp
 import numpy as np
+from compile_count import compiles_by_thread
 
 from pqrm_jax import _parallel
 from pqrm_jax.serge import GaussianBeliefs, Grid, initial_cells, serge
@@ -48,22 +49,10 @@ def test_serge_result_does_not_depend_on_the_number_of_queues(monkeypatch):
 def _worker_compiles(run) -> list[str]:
     """Names of the programs compiled outside the main thread while ``run()`` runs, with the
     in-memory caches cleared first (so everything it dispatches compiles anew)."""
-    from jax import monitoring
-
-    names = []
-
-    def listen(event, _duration, fun_name="", **__):
-        if event == "/jax/core/compile/backend_compile_duration" \
-                and threading.current_thread() is not threading.main_thread():
-            names.append(fun_name)
-
     jax.clear_caches()
-    monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compiles_by_thread() as compiled:
         run()
-    finally:
-        monitoring.unregister_event_duration_listener(listen)
-    return names
+    return [name for name, main, _ in compiled if not main]
 
 
 def test_queues_compile_only_their_jitted_program(monkeypatch):

@@ -173,28 +173,16 @@ def test_levels_side_by_side_compile_each_program_under_the_lock(tmp_path, monke
     written 12). Every program a level thread compiles is therefore compiled holding
     ``padgett_mc._LOCK``: the compile events of the worker threads are checked here with the
     in-memory caches cleared, so the eager key derivation compiles anew."""
-    import threading
-
     import jax
-    from jax import monitoring
+    from compile_count import compiles_by_thread
 
     monkeypatch.setattr(padgett_mc, "level_workers", lambda cluster=None: 2)
     cfg = padgett_mc.Config(runs=3, levels=2, num_samples=8, num_landmarks=4, chunk_runs=2,
                             representations=("edc",))
     padgett_mc.run_study(cfg, tmp_path / "warm", quiet=True)  # the runner's program, compiled
-    events = []
-
-    def listen(name, *_, **__):
-        if name == "/jax/core/compile/backend_compile_duration":
-            events.append((threading.current_thread() is threading.main_thread(),
-                           padgett_mc._LOCK.locked()))
-
     jax.clear_caches()
-    monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compiles_by_thread(padgett_mc._LOCK.locked) as compiled:
         padgett_mc.run_study(dataclasses.replace(cfg, seed=1), tmp_path / "run", quiet=True)
-    finally:
-        monitoring.unregister_event_duration_listener(listen)
-    worker = [locked for main, locked in events if not main]
+    worker = [locked for _, main, locked in compiled if not main]
     assert worker, "the level threads compiled nothing after clear_caches: the check is empty"
     assert all(worker), f"{worker.count(False)} of {len(worker)} compiles outside the lock"
