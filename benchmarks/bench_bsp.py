@@ -233,10 +233,14 @@ def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 7) -> dict:
              bels[e].robot) for e in range(n)]
     xs = jax.tree.map(lambda *x: jnp.stack(x), *args)
     planners = {"reference": reference_plan, "new": P.plan}
+    # the reference reads AZ_by_z in the layout it was written for, [Q², Q, Q, nb]
+    mods = {"reference": models._replace(AZ_by_z=jnp.moveaxis(models.AZ, -1, 0)),
+            "new": models}
     fns = {}
     for name, f in planners.items():
-        one = jax.jit(lambda a, f=f: f(a[0], models, D1, *a[1:], pp))
-        vb = jax.jit(jax.vmap(lambda a, f=f: f(a[0], models, D1, *a[1:], pp)))
+        m = mods[name]
+        one = jax.jit(lambda a, f=f, m=m: f(a[0], m, D1, *a[1:], pp))
+        vb = jax.jit(jax.vmap(lambda a, f=f, m=m: f(a[0], m, D1, *a[1:], pp)))
         jax.block_until_ready(one(args[0]))  # compile
         jax.block_until_ready(vb(xs))
         fns[name] = (one, vb)
@@ -259,7 +263,7 @@ def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 7) -> dict:
     rel = np.abs(nv - rv) / np.maximum(np.abs(rv), 1e-9)
     # depth 1: no measurement is drawn, the plans are comparable one for one
     p1 = pp._replace(depth=1)
-    o1 = {name: [f(a[0], models, D1, *a[1:], p1) for a in args]
+    o1 = {name: [f(a[0], mods[name], D1, *a[1:], p1) for a in args]
           for name, f in planners.items()}
     same1 = float(np.mean([int(r.action) == int(m.action)
                            for r, m in zip(o1["reference"], o1["new"], strict=True)]))
@@ -267,7 +271,7 @@ def per_plan(models, D1, bels, fgs, goals, pp, reps: int = 7) -> dict:
                           for r, m in zip(o1["reference"], o1["new"], strict=True)]))
     ca = {}
     for name, f in planners.items():
-        c = f.lower(args[0][0], models, D1, *args[0][1:], pp).compile().cost_analysis()
+        c = f.lower(args[0][0], mods[name], D1, *args[0][1:], pp).compile().cost_analysis()
         c = c[0] if isinstance(c, list) else (c or {})
         ca[name] = {"flops": c.get("flops"), "bytes_accessed": c.get("bytes accessed")}
     return {"envs": n, "reps": reps,

@@ -224,6 +224,9 @@ def test_planner_tables_and_graph_parts(mod):
     got = jnp.where(G.available(b.trip_src, b.lm_mask)[i, j][None], got, 0.0)
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5)
     np.testing.assert_allclose(np.asarray(mod.AZ_cdf[..., -1]), np.asarray(mod.A), atol=1e-5)
+    # AZ_by_z[ẑ, b, s_x, s_τ] = AZ[s_x, s_τ, b, ẑ] (the planner's per-bin blocks)
+    assert np.array_equal(np.asarray(mod.AZ_by_z),
+                          np.transpose(np.asarray(mod.AZ), (3, 2, 0, 1)))
     for s in range(20):
         key, w = jax.random.key(s), mod.AZ[s % 20, (3 * s) % 20, s % 6]
         assert int(P.sample_cdf(key, jnp.cumsum(w))) == int(P.sample_index(key, w))
@@ -249,6 +252,65 @@ def test_top_k_equals_lax_top_k(n, rows, seed, scale, ties):
         vw, iw = jax.lax.top_k(x, k)
         assert np.array_equal(np.asarray(i), np.asarray(iw)), (x, k, i, iw)
         assert np.array_equal(np.asarray(v), np.asarray(vw))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(2, 16), st.data())
+def test_child_slots_place_every_child_in_its_frame(L, data):
+    """The sort-free slots of one node's children (``_child_slots``) put every child in the
+    slot of its own frame (:func:`_children`), distinct frames in distinct slots, equal
+    frames in one: what ``jnp.unique`` gives up to the order of the slots — over frame
+    orders (i < j and i > j), candidate sets with repeats, zero weights and 2…16 landmarks."""
+    i, j = data.draw(st.lists(st.integers(0, L - 1), min_size=2, max_size=2, unique=True))
+    others = [k for k in range(L) if k not in (i, j)]
+    na, nb = data.draw(st.integers(1, 4)), data.draw(st.integers(1, 3))
+    ks = np.array(data.draw(st.lists(st.sampled_from(others) if others else st.just(0),
+                                     min_size=na * nb, max_size=na * nb))).reshape(na, nb)
+    w = np.array(data.draw(st.lists(st.sampled_from([0.0, 0.3, 1.0]), min_size=na * nb,
+                                    max_size=na * nb)), np.float32).reshape(na, nb)
+    if not others:
+        w[:] = 0.0  # no third landmark: nothing is observable
+    frame = jnp.asarray([i, j], jnp.int32)
+    ks, w = jnp.asarray(ks, jnp.int32), jnp.asarray(w)
+    slot, sframes = P._child_slots(L, frame, ks, w)
+    children = np.asarray(P._children(frame, ks, w)).reshape(-1, 2)
+    slot, sframes = np.asarray(slot), np.asarray(sframes)
+    assert sframes.shape == (1 + 2 * (L - 2), 2)
+    assert np.array_equal(sframes[slot], children)
+    assert len({tuple(f) for f in sframes.tolist()}) == len(sframes)  # no frame twice
+
+
+def test_child_slots_and_sorted_slots_give_the_same_plans(mod):
+    """Depth 2 with the children's frame parts placed by ``_child_slots`` (L − 2 ≤
+    n_actions · n_beta) equals the same planner with the level's frames sorted into slots by
+    ``jnp.unique`` (the path for more landmarks): plans identical, on several environments
+    and both costs."""
+    orig = P._child_slots
+
+    def sorted_slots(L, frame, ks, w):  # the unique-sorted slots of the same children
+        codes = P._children(frame, ks, w).reshape(-1, 2) @ jnp.array([L, 1])
+        n = 1 + 2 * (L - 2)
+        uniq = jnp.unique(codes, size=n, fill_value=L * L)
+        slot = jnp.searchsorted(uniq, codes)
+        uniq = jnp.minimum(uniq, L * L - 1)
+        return slot, jnp.stack([uniq // L, uniq % L], -1)
+
+    cases = []
+    for e, env in enumerate(_small_envs(4, n=7, seed=3)):
+        b, fg = _graph(mod, env, True, key=e)
+        cases += [(jax.random.key(e), mod, D1, b.trip, b.scale, fg, jnp.asarray(env.goal),
+                   b.frame, b.robot, P.PlannerParams(depth=2), jnp.int32(c)) for c in (1, 2)]
+    fast = [P.plan(*c) for c in cases]
+    P._child_slots = sorted_slots
+    try:
+        P.plan.clear_cache()
+        slow = [P.plan(*c) for c in cases]
+    finally:
+        P._child_slots = orig
+        P.plan.clear_cache()
+    for n, (f, s) in enumerate(zip(fast, slow, strict=True)):
+        for a, c in zip(jax.tree.leaves(f), jax.tree.leaves(s), strict=True):
+            assert np.array_equal(np.asarray(a), np.asarray(c)), n
 
 
 @settings(max_examples=20, deadline=None)

@@ -160,16 +160,17 @@ class Models(NamedTuple):
         """These tables with the derived fields filled (done by every constructor here).
 
         ``A`` (Q, Q, nb) = ``AZ.sum(-1)``, the association model P(β visible | s_x, s_τ, b)
-        (Z eq. 4.12); ``AZ_by_z`` (Q², Q, Q, nb) = ``AZ`` with the measurement axis first, so
-        that the planner's ``AZ[..., ẑ]`` is one contiguous slice instead of a gather with
-        stride Q² (a strided gather per tree branch was the largest single cost of a plan);
+        (Z eq. 4.12); ``AZ_by_z`` (Q², nb, Q, Q) = ``AZ`` with the measurement axis first and
+        the scale bin second, so that the planner's ``AZ[..., ẑ]`` is one contiguous slice
+        instead of a gather with stride Q² (a strided gather per tree branch was the largest
+        single cost of a plan) and each bin's [Q, Q] block is contiguous for the sum over bins;
         ``AZ_cdf`` (Q, Q, nb, Q²) = ``cumsum(AZ, -1)``, so that a tree branch draws ẑ by one
         search instead of a 400-cell cumsum each; ``TA`` (nb, Q, Q) = ``Σ_{s_x} T[b, a, s_x]
         A[s_x, s_τ, b]``, the planner's candidate weights after action ``a``
         (:func:`~pqrm_jax.bsp.planner.transition_association`).
         """
         A = self.AZ.sum(-1)
-        return self._replace(A=A, AZ_by_z=jnp.moveaxis(self.AZ, -1, 0),
+        return self._replace(A=A, AZ_by_z=jnp.moveaxis(self.AZ, (-1, 2), (0, 1)),
                              AZ_cdf=jnp.cumsum(self.AZ, -1),
                              TA=jnp.einsum("bax,xtb->bat", self.T, A))
 

@@ -29,8 +29,9 @@ sequence is ill-defined (docs/bsp.md §Z-11). The planner is an expectimax tree 
 
 All levels are arrays of fixed width ``(n_actions · n_beta · 3)^ℓ`` evaluated level by level
 (no Python recursion over nodes), and the whole planner is ``vmap``-able over environments.
-What depends on a node's frame only (candidate weights, the proxy's expectation, the value
-of each candidate at a leaf) is computed once per distinct frame of a level; at the last
+What depends on a node's frame only (the proxy's expectation, the value of each candidate
+at a leaf) is computed once per distinct frame of a level (the candidate weights per node,
+for its chosen actions only); at the last
 level a branch's value is the frame's leaf value of its candidate, so no child frame is built
 there. Short contractions are written as fused sums and ``top_k`` as comparison counts
 (XLA:CPU runs a reduction over a 6-long axis or a sort-based TopK as slow library calls;
@@ -127,7 +128,6 @@ class _FramePart(NamedTuple):
     hk: jax.Array  # [L] leaf value of seeing candidate k: min over links, 0 at the goal
     link: jax.Array  # [L] the link option attaining it (0 stay, 1 (i, k), 2 (j, k))
     stuck: jax.Array  # [] h(F) + c̄
-    W: jax.Array  # [Q, L] candidate weights P(β_k | a) of every action (unnormalised)
 
 
 def transition_association(models: Models) -> jax.Array:
@@ -179,11 +179,8 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     ps = jnp.clip(wsum, 0.0, 1.0) if pp.nothing_seen else jnp.ones_like(wsum)
     E = jnp.where(wsum > 0, ps * ew[0] / jnp.where(wsum > 0, wsum, 1.0)
                   + (1.0 - ps) * (h_f + cb), h_f + cb)
-    # the candidate weights of every action, W[a, k] = Σ_s (Σ_b sf_b TA[b, a, s]) tobs[k, s]:
-    # the nodes of this frame pick their chosen actions' rows (no per-node gather of trip)
-    W = _sum_first([sf[b] * TA[b] for b in range(nb)]) @ tobs.T
     return _FramePart(E=E, seen=ps, hk=hk,
-                      link=h3.argmin(0), stuck=h_f + cb, W=W)
+                      link=h3.argmin(0), stuck=h_f + cb)
 
 
 def node_costs(models, D1, sfs, robots, cost) -> jax.Array:
@@ -206,18 +203,19 @@ def top_k(x, k: int) -> tuple[jax.Array, jax.Array]:
     """``jax.lax.top_k`` for short rows: values and indices of the ``k`` largest of ``x``
     [..., n], largest first, equal values in index order.
 
-    Each entry's rank is counted from n² comparisons, which XLA fuses into one loop; on CPU
-    the library's sort-based TopK call took 1.5 of 12.5 ms of 64 batched plans (docs/bsp.md
-    §benchmark). Values must not be NaN.
+    Each entry's rank is counted from n² comparisons, written as a sum of n elementwise
+    comparisons that XLA fuses (on CPU the library's sort-based TopK call took 1.5 of 12.5 ms
+    of 64 batched plans, and the same count as a reduction over a trailing n-long axis was
+    the largest single operation left: docs/bsp.md §benchmark). Values must not be NaN.
 
     >>> v, i = top_k(jnp.array([1.0, 3.0, 3.0, 2.0]), 2)
     >>> i.tolist(), v.tolist()
     ([1, 2], [3.0, 3.0])
     """
     n = x.shape[-1]
-    before = jnp.arange(n)[:, None] > jnp.arange(n)[None, :]  # [i, j]: j comes before i
-    xi, xj = x[..., :, None], x[..., None, :]
-    rank = ((xj > xi) | ((xj == xi) & before)).sum(-1)  # [..., n]
+    col = jnp.arange(n)
+    rank = _sum_first([((x[..., j, None] > x) | ((x[..., j, None] == x) & (j < col))
+                        ).astype(jnp.int32) for j in range(n)])  # [..., n]
     hit = rank[..., None, :] == jnp.arange(k)[:, None]  # [..., k, n]
     idx = (hit * jnp.arange(n)).sum(-1)
     return jnp.take_along_axis(x, idx, -1), idx
@@ -241,11 +239,13 @@ def _branch(models, KL, trip, fg: FrameGraph, base, frame, sf, a, k):
     t = _pick(u[2], jnp.cumsum(trip[i, j, k] * models.A[x, :, b]))
     z = _pick(u[3], models.AZ_cdf[x, t, b])
     # J[x, t] ∝ Σ_b P_F(b) T[b, a, x] P(ij:k = t) AZ[x, t, b, ẑ], as one fused multiply-reduce
-    az = models.AZ_by_z[z]  # [Q, Q, nb]
-    J = _sum_first([g[b][:, None] * az[..., b] for b in range(g.shape[0])]) * trip[i, j, k]
-    s = J.sum()
-    # [stay, (i, k), (j, k)] = J @ KL / Σ J: one [Q², 3Q] product (KL: :func:`link_operators`)
-    return (J.reshape(-1) @ KL).reshape(3, -1) / jnp.where(s > 0, s, 1.0)
+    az = models.AZ_by_z[z]  # [nb, Q, Q]: contiguous per bin (models.Models.with_derived)
+    J = _sum_first([g[b][:, None] * az[b] for b in range(g.shape[0])]) * trip[i, j, k]
+    # [stay, (i, k), (j, k)] = J @ KL / Σ J: one [Q², 3Q] product (KL: :func:`link_operators`);
+    # Σ J is the sum of the stay option's row (J's marginal over s_τ), so J is formed once
+    r = (J.reshape(-1) @ KL).reshape(3, -1)
+    s = r[0].sum()
+    return r / jnp.where(s > 0, s, 1.0)
 
 
 def link_operators(models: Models) -> jax.Array:
@@ -279,20 +279,28 @@ def _children(frame, ks, w):
 
 
 def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level, frames,
-                  robots, slots: int, last: bool, pp: PlannerParams, cost) -> _Level:
+                  robots, slots: int, last: bool, pp: PlannerParams, cost, parent=None
+                  ) -> _Level:
     """Expand the N nodes (``frames`` [N, 2], ``robots`` [N, Q]) of one level.
 
     What depends only on a node's frame (:class:`_FramePart`) is computed once per distinct
     frame: the level's frames are sorted into ``slots`` (static, at least the number of
-    distinct frames) by ``jnp.unique``. At the ``last`` level a branch's value depends on
+    distinct frames) by ``jnp.unique``, or, for the children of one node (``parent``: its
+    frame, kept candidates and weights), placed by :func:`_child_slots` without a sort. The
+    candidate weights of a node's chosen actions are computed per node (n_actions rows, not
+    all Q actions of every slot). At the ``last`` level a branch's value depends on
     the frame and the candidate only (``_FramePart.hk``), so no branch is sampled and no
     child frame is built.
     """
     L = trip.shape[0]
     n = frames.shape[0]
-    codes = frames[:, 0] * L + frames[:, 1]
+    i, j = frames[:, 0], frames[:, 1]
+    codes = i * L + j
     fpart = partial(_frame_part, models, D1, TA, scale, trip, fg, goal, pp=pp, cost=cost)
-    if slots < n:
+    if parent is not None:
+        slot, sframes = _child_slots(L, *parent)
+        fp = jax.vmap(fpart)(sframes)
+    elif slots < n:
         uniq = jnp.unique(codes, size=slots, fill_value=L * L)
         slot = jnp.searchsorted(uniq, codes)
         uniq = jnp.minimum(uniq, L * L - 1)
@@ -300,13 +308,18 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     else:
         slot = jnp.arange(n)
         fp = jax.vmap(fpart)(frames)
-    i, j = frames[:, 0], frames[:, 1]
     sfs = scale[i, j]  # [N, nb]
     cst = node_costs(models, D1, sfs, robots, cost)
     _, acts = top_k(-(cst + fp.E[slot]), pp.n_actions)  # [N, na]
-    wt = fp.W[slot[:, None], acts]  # [N, na, L] the candidate weights of the chosen actions
+    # [N, na, L] the candidate weights of the chosen actions (unnormalised P(β_k | a)):
+    # Σ_s (Σ_b sf_b TA[b, a, s]) P(ij:k = s) over the observable candidates k
+    nb, Q = TA.shape[0], TA.shape[1]
+    tob = jnp.where(fg.obs[i, j][..., None], trip[i, j], 0.0)  # [N, L, Q]
+    ta = TA[:, acts]  # [nb, N, na, Q]
+    mrow = _sum_first([sfs[:, b, None, None] * ta[b] for b in range(nb)])  # [N, na, Q]
+    wt = _sum_first([mrow[..., q, None] * tob[:, None, :, q] for q in range(Q)])
     wk, ks = top_k(wt, pp.n_beta)  # [N, na, nb]
-    tot = wk.sum(-1, keepdims=True)
+    tot = _sum_first([wk[..., c] for c in range(wk.shape[-1])])[..., None]
     w = wk / jnp.where(tot > 0, tot, 1.0)
     third = goal.sum() - i - j
     goal_n = fg.goal_obs[i, j][:, None, None] & (ks == third[:, None, None])
@@ -327,6 +340,24 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
         return jax.vmap(jax.vmap(br, (None, 0)), (0, 0))(acts_n, ks_n)
     return _Level(**common, frames=jax.vmap(_children)(frames, ks, w),
                   robots=jax.vmap(node)(frames, base, acts, ks), vb=None, links=None)
+
+
+def _child_slots(L: int, frame, ks, w):
+    """Slots of the children of one node (``frame`` [2], its kept candidates ``ks`` and
+    weights ``w`` [na, nb]) without sorting: slot 0 is ``frame`` (i, j), slot 1 + r is
+    (i, k_r) and slot 1 + (L − 2) + r is (j, k_r), k_r the r-th landmark other than i and j.
+    Returns the [na·nb·3] slot of each child (in :func:`_children`'s order) and the
+    [1 + 2 (L − 2), 2] slot frames."""
+    i, j = frame[0], frame[1]
+    lo, hi = jnp.minimum(i, j), jnp.maximum(i, j)
+    r = jnp.arange(L - 2)
+    kr = r + (r >= lo)
+    kr = kr + (kr >= hi)
+    sframes = jnp.concatenate([frame[None], jnp.stack([jnp.full_like(kr, i), kr], -1),
+                               jnp.stack([jnp.full_like(kr, j), kr], -1)])
+    rk = ks - (ks > lo) - (ks > hi)
+    sl = jnp.stack([jnp.zeros_like(rk), 1 + rk, 1 + (L - 2) + rk], -1)
+    return jnp.where((w > 0)[..., None], sl, 0).reshape(-1), sframes
 
 
 def _slots(level: int, n: int, L: int, pp: PlannerParams) -> int:
@@ -408,11 +439,14 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
     TA = transition_association(models)
     frames, robots = frame[None], robot[None]
     levels = []
+    parent = None
     for lv in range(pp.depth):
         last = lv == pp.depth - 1
         out = _expand_level(models, D1, TA, trip, scale, fg, goal, key, lv, frames, robots,
-                            _slots(lv, frames.shape[0], L, pp), last, pp, cost)
+                            _slots(lv, frames.shape[0], L, pp), last, pp, cost, parent)
         levels.append(out)
+        parent = ((frames[0], out.ks[0], out.w[0])
+                  if lv == 0 and L - 2 <= pp.n_actions * pp.n_beta else None)
         if not last:
             frames = out.frames.reshape(-1, 2)
             robots = out.robots.reshape(-1, robot.shape[-1])
@@ -426,7 +460,8 @@ def plan(key: jax.Array, models: Models, D1, trip, scale, fg: FrameGraph, goal, 
             vb, links = out.vb, out.links
         stuck = out.stuck[:, None]
         # seen = 1 unless the nothing-seen EXTENSION is on (docs/bsp.md §nothing-seen)
-        q = out.cost + jnp.where(out.anyobs, out.seen * (out.w * vb).sum(-1)
+        wv = _sum_first([out.w[..., c] * vb[..., c] for c in range(pp.n_beta)])
+        q = out.cost + jnp.where(out.anyobs, out.seen * wv
                                  + (1.0 - out.seen) * stuck, stuck)
         values = q.min(-1)
     root = levels[0]
