@@ -288,12 +288,7 @@ def test_child_slots_and_sorted_slots_give_the_same_plans(mod):
     orig = P._child_slots
 
     def sorted_slots(L, frame, ks, w):  # the unique-sorted slots of the same children
-        codes = P._children(frame, ks, w).reshape(-1, 2) @ jnp.array([L, 1])
-        n = 1 + 2 * (L - 2)
-        uniq = jnp.unique(codes, size=n, fill_value=L * L)
-        slot = jnp.searchsorted(uniq, codes)
-        uniq = jnp.minimum(uniq, L * L - 1)
-        return slot, jnp.stack([uniq // L, uniq % L], -1)
+        return P._sorted_slots(P._children(frame, ks, w).reshape(-1, 2), 1 + 2 * (L - 2), L)
 
     cases = []
     for e, env in enumerate(_small_envs(4, n=7, seed=3)):

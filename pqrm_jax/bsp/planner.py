@@ -155,7 +155,7 @@ def _frame_part(models, D1, TA, scale, trip, fg: FrameGraph, goal, frame, pp: Pl
     L = fg.obs.shape[0]
     i, j = frame[0], frame[1]
     sf = scale[i, j]
-    tobs = jnp.where(fg.obs[i, j][:, None], trip[i, j], 0.0)
+    tobs = _observable_rows(fg, trip, i, j)
     idx = jnp.arange(L)
     third = goal.sum() - i - j
     isg = fg.goal_obs[i, j] & (idx == third)
@@ -301,10 +301,8 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
         slot, sframes = _child_slots(L, *parent)
         fp = jax.vmap(fpart)(sframes)
     elif slots < n:
-        uniq = jnp.unique(codes, size=slots, fill_value=L * L)
-        slot = jnp.searchsorted(uniq, codes)
-        uniq = jnp.minimum(uniq, L * L - 1)
-        fp = jax.vmap(fpart)(jnp.stack([uniq // L, uniq % L], -1))
+        slot, sframes = _sorted_slots(frames, slots, L)
+        fp = jax.vmap(fpart)(sframes)
     else:
         slot = jnp.arange(n)
         fp = jax.vmap(fpart)(frames)
@@ -314,7 +312,7 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
     # [N, na, L] the candidate weights of the chosen actions (unnormalised P(β_k | a)):
     # Σ_s (Σ_b sf_b TA[b, a, s]) P(ij:k = s) over the observable candidates k
     nb, Q = TA.shape[0], TA.shape[1]
-    tob = jnp.where(fg.obs[i, j][..., None], trip[i, j], 0.0)  # [N, L, Q]
+    tob = _observable_rows(fg, trip, i, j)  # [N, L, Q]
     ta = TA[:, acts]  # [nb, N, na, Q]
     mrow = _sum_first([sfs[:, b, None, None] * ta[b] for b in range(nb)])  # [N, na, Q]
     wt = _sum_first([mrow[..., q, None] * tob[:, None, :, q] for q in range(Q)])
@@ -342,12 +340,31 @@ def _expand_level(models, D1, TA, trip, scale, fg: FrameGraph, goal, key, level,
                   robots=jax.vmap(node)(frames, base, acts, ks), vb=None, links=None)
 
 
+def _observable_rows(fg: FrameGraph, trip, i, j) -> jax.Array:
+    """[..., L, Q] the triplet rows ``P(ij:k)`` of frame(s) (i, j), zero for the candidates k
+    that are not observable from it (``fg.obs``)."""
+    return jnp.where(fg.obs[i, j][..., None], trip[i, j], 0.0)
+
+
+def _sorted_slots(frames, slots: int, L: int):
+    """Slots of N frames (``frames`` [N, 2]) by sorting their codes ``i·L + j`` with
+    ``jnp.unique`` into ``slots`` (static, at least the number of distinct frames). Returns
+    the [N] slot of each frame and the [slots, 2] slot frames (unused slots hold a fill
+    frame)."""
+    codes = frames[:, 0] * L + frames[:, 1]
+    uniq = jnp.unique(codes, size=slots, fill_value=L * L)
+    slot = jnp.searchsorted(uniq, codes)
+    uniq = jnp.minimum(uniq, L * L - 1)
+    return slot, jnp.stack([uniq // L, uniq % L], -1)
+
+
 def _child_slots(L: int, frame, ks, w):
     """Slots of the children of one node (``frame`` [2], its kept candidates ``ks`` and
     weights ``w`` [na, nb]) without sorting: slot 0 is ``frame`` (i, j), slot 1 + r is
     (i, k_r) and slot 1 + (L − 2) + r is (j, k_r), k_r the r-th landmark other than i and j.
     Returns the [na·nb·3] slot of each child (in :func:`_children`'s order) and the
-    [1 + 2 (L − 2), 2] slot frames."""
+    [1 + 2 (L − 2), 2] slot frames: the slots :func:`_sorted_slots` would give, in another
+    order, without the sort."""
     i, j = frame[0], frame[1]
     lo, hi = jnp.minimum(i, j), jnp.maximum(i, j)
     r = jnp.arange(L - 2)
