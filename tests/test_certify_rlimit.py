@@ -13,6 +13,7 @@ import pytest
 import z3
 
 from pqrm_jax import calculi
+from pqrm_jax.nlsat import first_tactic
 from pqrm_jax.qrm import camera_oracle
 from pqrm_jax.tables import certify
 from pqrm_jax.tables import problems as pb
@@ -24,7 +25,7 @@ def _problems(n=24, seed=5):
 
 def _cost(text: str) -> int:
     """z3's resource count of one decision (the counter is global: the difference)."""
-    s = z3.Tactic("qfnra-nlsat").solver()
+    s = first_tactic().solver()
     before = s.statistics().get_key_value("rlimit count") \
         if "rlimit count" in s.statistics().keys() else 0
     s.from_string(text)
