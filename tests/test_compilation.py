@@ -203,6 +203,8 @@ def test_prepass_classification_compiles_once():
     calc = calculi.get("edc")
     atoms, _ = pb.atoms(calc)
     exact.realised(calc, atoms, exact.sample_configs(jax.random.PRNGKey(0), 256))
+    exact.sampled_realised(calc, atoms, jax.random.PRNGKey(0), 256)
     with count_compiles() as again:
         exact.realised(calc, atoms, exact.sample_configs(jax.random.PRNGKey(1), 256))
+        exact.sampled_realised(calc, atoms, jax.random.PRNGKey(1), 256)
     assert again == []

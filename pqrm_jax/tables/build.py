@@ -217,9 +217,13 @@ def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
     """Verified witnesses from sampled (open) or integer-grid (boundary) configurations."""
     if calc.boundary_inclusive:
         cfg = exact.grid_configs(3)
+        rel = exact.realised(calc, atoms, cfg)
+        config = cfg.__getitem__
     else:
-        cfg = exact.sample_configs(jax.random.PRNGKey(seed), n_samples)
-    rel = exact.realised(calc, atoms, cfg)
+        rel, pts = exact.sampled_realised(calc, atoms, jax.random.PRNGKey(seed), n_samples)
+
+        def config(i):  # only the witnesses' configurations are written out in float64
+            return exact.configs_of(pts[i:i + 1])[0]
     unary: dict[tuple, list] = {}
     comp: dict[tuple, list] = {}
     for op in UNARY:
@@ -227,12 +231,12 @@ def _prepass(calc: Calculus, atoms: list, seed: int, n_samples: int):
         ok = (key >= 0).all(1)
         first = _first_rows(key[ok], len(atoms))
         for idx in np.flatnonzero(ok)[first]:
-            unary[(op, int(key[idx, 0]), int(key[idx, 1]))] = cfg[idx]
+            unary[(op, int(key[idx, 0]), int(key[idx, 1]))] = config(idx)
     key = np.stack([rel["abc"], rel["bcd"], rel["abd"]], 1)
     ok = (key >= 0).all(1)
     first = _first_rows(key[ok], len(atoms))
     for idx in np.flatnonzero(ok)[first]:
-        comp[tuple(int(v) for v in key[idx])] = cfg[idx]
+        comp[tuple(int(v) for v in key[idx])] = config(idx)
     return unary, comp
 
 
