@@ -42,7 +42,7 @@ def test_sample_configs_bitwise_equal_eager(seed):
 def test_sample_configs_round_each_operation_once():
     """At the pre-pass's own size class the jitted sampler equals float32 arithmetic with one
     rounding per operation (NumPy on the same draws): written as float32 operations in one
-    program, XLA fused ``centre + scale · u`` into a multiply-add and a quarter of the
+    program, XLA fused ``centre + scale · u`` into a multiply-add and 6 % of the
     coordinates moved by an ulp."""
     key, n = jax.random.PRNGKey(3), 1 << 16
     k1, k2, k3 = jax.random.split(key, 3)

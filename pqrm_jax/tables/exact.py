@@ -168,7 +168,7 @@ def _points(key, n: int):
     product of two float32 numbers has at most 48 significant bits; u is a multiple of 2⁻²³
     and the scales of 2⁻²⁴, so the sum is a multiple of 2⁻⁴⁷ below 8 in magnitude: at most
     50 bits). Written as float32 operations, XLA may fuse them into one multiply-add with a
-    single rounding (it did: a quarter of the coordinates moved by an ulp).
+    single rounding (it did: 6 % of the coordinates moved by an ulp).
     """
     scale_i, centre_i, u = _draws(key, n)
     f64 = jnp.float64
