@@ -94,3 +94,18 @@ def test_camera_oracle_treats_an_exhausted_limit_explicitly():
         camera_oracle.oracle_sets(bearings, "edc", rlimit=1)
     assert camera_oracle.oracle_sets(bearings, "edc").tolist() == \
         camera_oracle.oracle_sets(bearings, "edc", rlimit=certify.DEFAULT_RLIMIT).tolist()
+
+
+def test_the_first_tactic_decides_what_the_simplifier_writes_out_of_cnf():
+    """A DCC build problem: z3's simplifier turns ``x0² + x1² > 0`` into
+    ``¬(x0 = 0 ∧ x1 = 0)``, which nlsat refuses outside CNF (the build then fell back to the
+    slower QF_NRA strategy); the first tactic decides it itself (x1 > 1 and x0² = x1 − x1²)."""
+    text = "\n".join([*(f"(declare-fun x{i} () Real)" for i in range(4)),
+                      "(assert (> (* 1 x0) 0))", "(assert (> (* 1 x1) 0))",
+                      "(assert (> (+ (- 1) (* 1 x1)) 0))",
+                      "(assert (> (+ (* 1 x0 x0) (* 1 x1 x1)) 0))",
+                      "(assert (= (+ (* 1 x0 x0) (* 1 x1 x1) (* (- 1) x1)) 0))"])
+    s = first_tactic().solver()
+    s.from_string(text)
+    assert s.check() == z3.unsat
+    assert certify.decide_smtlib(text, 4) == (certify.UNSAT, None)
