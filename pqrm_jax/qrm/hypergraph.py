@@ -156,8 +156,14 @@ def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
-def _closure(spec: QRMSpec, rel, *, max_sweeps: int):
+def _closure(spec: QRMSpec, rel, *, max_sweeps: int, base=None, closed=False):
+    """The fixed point below ``rel``. ``base``: an array ``rel`` lies within; when ``closed``
+    (a traced bool) says ``base`` is itself a fixed point (a map after a converged update),
+    the first sweep is semi-naive against it as the later ones are against the sweep before
+    (:func:`_sweep`: only fourth landmarks with a relation that differs from ``base``)."""
     distinct = jnp.asarray(distinct_mask(rel.shape[0]))
+    closed = jnp.asarray(closed, bool)
+    prev0 = rel if base is None else jnp.where(closed, base, rel)
 
     def cond(st):
         it, _, _, changed, empty = st
@@ -165,12 +171,12 @@ def _closure(spec: QRMSpec, rel, *, max_sweeps: int):
 
     def body(st):
         it, r, prev_u, _, _ = st
-        new, ru = _sweep(spec, r, distinct, prev_u, it == 0)
+        new, ru = _sweep(spec, r, distinct, prev_u, (it == 0) & ~closed)
         return it + 1, new, ru, jnp.any(new != r), jnp.any(distinct & (new == 0))
 
     empty0 = jnp.any(distinct & (rel == 0))
     it, r, _, changed, empty = jax.lax.while_loop(
-        cond, body, (0, rel, rel, jnp.asarray(True), empty0))
+        cond, body, (0, rel, prev0, jnp.asarray(True), empty0))
     n_empty = jnp.sum(distinct & (r == 0))
     # stopped by the sweep cap while the last sweep still changed something
     return r, empty, n_empty, it, empty | ~changed
@@ -242,14 +248,18 @@ def closure(rel: jax.Array, calc: Calculus | str | QRMSpec = "edc",
                                    max_sweeps=check_max_sweeps(max_sweeps)))
 
 
-def _merge(spec, m: QRMMap, meas, nodes, max_sweeps):
-    r, empty, n_empty, sweeps, conv = _closure(spec, m.rel & meas, max_sweeps=max_sweeps)
+def _merge(spec, m: QRMMap, meas, nodes, max_sweeps, closed):
+    r, empty, n_empty, sweeps, conv = _closure(spec, m.rel & meas, max_sweeps=max_sweeps,
+                                               base=m.rel, closed=closed)
     new = QRMMap(jnp.where(empty, m.rel, r), jnp.where(empty, m.known, m.known | nodes))
     return new, UpdateReport(empty, n_empty, sweeps, conv)
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
-def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps):
+def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps, closed=False):
+    """:func:`apply_relations` without the checks; ``closed`` (a bool, may be traced): ``m`` is
+    a fixed point of the propagation (e.g. the result of a converged update), which lets the
+    first sweep skip the fourth landmarks the new relations do not touch (:func:`_closure`)."""
     n = m.rel.shape[0]
     q = spec.num_states
     tri = jnp.where(valid[:, None], triples, n)  # out of range → dropped
@@ -264,7 +274,7 @@ def apply_relations_kernel(spec, m: QRMMap, triples, sets, valid, *, max_sweeps)
         jnp.where(cleared.astype(bool), jnp.uint32(1) << shifts, jnp.uint32(0)),
         np.uint32(0), jax.lax.bitwise_or, (3,))
     nodes = jnp.zeros((n,), bool).at[tri.ravel()].set(True, mode="drop")
-    return _merge(spec, m, meas, nodes, max_sweeps)
+    return _merge(spec, m, meas, nodes, max_sweeps, closed)
 
 
 def _check_ids(triples, n):

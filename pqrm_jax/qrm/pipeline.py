@@ -91,6 +91,14 @@ def map_metrics(m: QRMMap, landmarks, calc: Calculus | str | QRMSpec = "edc") ->
 
 
 def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None, max_sweeps=64):
+    return _step(spec, m, False, pose, landmarks, truth, sensor, n, tol, max_sweeps)[:2]
+
+
+def _step(spec, m, closed, pose, landmarks, truth, sensor, n, tol, max_sweeps):
+    """One image → (map, metrics, whether the map is a fixed point of the propagation).
+
+    ``closed``: the input map is one (the first sweep then visits only the fourth landmarks
+    the image's relations touch; the fixed point is the same, docs/qrm.md §hypergraph)."""
     cam = sim.sensors.camera_kernel(pose, landmarks, sensor)
     meas = measure_image_kernel(spec, cam.bearings, cam.range_rank, cam.visible, m.rel, tol,
                                 n=n)
@@ -105,9 +113,11 @@ def map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol=None, max_sw
     hist_p = jnp.zeros(spec.num_states + 1, jnp.int32).at[cnt_p.ravel()].add(
         jnp.repeat(first, 3).astype(jnp.int32))
     m, rep = apply_relations_kernel(spec, m, meas.triples, meas.sets, meas.valid,
-                                    max_sweeps=max_sweeps)
+                                    max_sweeps=max_sweeps, closed=closed)
     vals = _metrics(spec, m, truth)
-    return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p)
+    # a rejected update keeps the map it was given
+    closed = jnp.where(rep.inconsistent, closed, rep.converged)
+    return m, Metrics(*vals, hist, rep.inconsistent, undecided, hist_p), closed
 
 
 @partial(jax.jit, static_argnames=("spec", "n", "max_sweeps"))
@@ -166,10 +176,14 @@ def map_step(m: QRMMap, pose, landmarks, n: int, calc: Calculus | str | QRMSpec 
 def _run(spec, poses, landmarks, truth, sensor, tol, *, n, max_sweeps):
     m0 = empty_map(landmarks.shape[0], spec)
 
-    def body(m, pose):
-        return map_step_kernel(spec, m, pose, landmarks, truth, sensor, n, tol, max_sweeps)
+    def body(carry, pose):
+        m, met, closed = _step(spec, *carry, pose, landmarks, truth, sensor, n, tol, max_sweeps)
+        return (m, closed), met
 
-    return jax.lax.scan(body, m0, poses)
+    # the empty map is not assumed closed under a calculus's tables: the first image's first
+    # sweep visits every fourth landmark
+    (m, _), met = jax.lax.scan(body, (m0, jnp.asarray(False)), poses)
+    return m, met
 
 
 def run_sequence(
