@@ -70,8 +70,8 @@ def first_tactic():
     conversion brings it back; without it nlsat gave up on 9 of the DCC build's 1 358
     problems). z3's ``qfnra-nlsat`` tactic adds equation solving, purification and factoring in
     front of the same procedure, which here only costs time: on the problems the EDC and DCC
-    builds send to z3, the same verdicts and the same values of the variables, in 2.5 instead
-    of 3.1 and 0.76 instead of 1.17 CPU-s (docs/tables.md §build).
+    builds send to z3, the same verdicts and the same values of the variables, in 2.47 instead
+    of 2.92 and 0.72 instead of 1.15 CPU-s (alone, load 1.2–1.5; docs/tables.md §build).
     """
     import z3
 
