@@ -214,10 +214,11 @@ def test_update_batch_equals_vmapped_update_bit_for_bit(block):
         pq.update_batch(b, keys, pos, vis, -1.0)
 
 
-@pytest.mark.parametrize("mode", ["cond", "full"])
+@pytest.mark.parametrize("mode", ["direct", "cond", "full"])
 def test_update_batch_buffer_modes_are_identical(monkeypatch, mode):
-    """The compact-buffer strategies of the sparse update (the former ``lax.cond`` small/full
-    choice, always full) give the dense update's maps bit for bit, also when more rows are
+    """The ways the sparse update writes its rows (each piece scattered into the map the loop
+    carries; the ``lax.cond`` small/full buffer choice; always the full buffer) give the dense
+    update's maps bit for bit, also when more rows are
     seen than the small buffer holds (every landmark visible, pieces of 3 rows) and when none
     is (docs/pqrm.md §map)."""
     from pqrm_jax.pqrm import map as pqrm_map
@@ -237,3 +238,21 @@ def test_update_batch_buffer_modes_are_identical(monkeypatch, mode):
         for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert int(b.num_updates.sum()) == int(a.num_updates.sum()) >= 2 * r * 60
+
+
+def test_merged_counts_equal_the_aggregation_product():
+    """``map._merge_counts`` (column sums) equals ``counts @ aggregation_matrix`` bit for bit
+    for every Padgett representation, at zero counts, at S = 2**16 and on random counts
+    (sums of integers ≤ S are exact in float32 in any order)."""
+    from pqrm_jax.pqrm import map as pqrm_map
+    from pqrm_jax.pqrm.measurement import aggregation_matrix
+
+    rng = np.random.default_rng(3)
+    fine = np.concatenate([np.zeros((1, 20)), np.full((1, 20), 2.0**16),
+                           rng.integers(0, 257, (64, 20))]).astype(np.float32)
+    for name in calculi.PADGETT_REPRESENTATIONS:
+        c = calculi.get(name)
+        got = np.asarray(jax.jit(lambda f, c=c: pqrm_map._merge_counts(f, c))(fine))
+        want = fine.astype(np.float64) @ aggregation_matrix(c).astype(np.float64)
+        assert got.shape == (len(fine), c.num_states)
+        np.testing.assert_array_equal(got, want.astype(np.float32))

@@ -229,6 +229,24 @@ def _prepare(positions, visible, sigma, triplets):
     return pos[tri], sig[tri], seen, dropped
 
 
+def _merge_counts(fine: jax.Array, calc: Calculus) -> jax.Array:
+    """``fine @ aggregation_matrix(calc)`` as column sums: [..., Q_root] → [..., Q].
+
+    Exact (sums of at most Q_root integers ≤ S in float32), so equal to the product bit for
+    bit; with the six small products a padgett-mc level took 1.45x as long (XLA:CPU emitted
+    them as naive dots in the sparse update's piece loop; docs/pqrm.md §map).
+    """
+    agg = aggregation_matrix(calc)
+    cols = []
+    for q in range(agg.shape[1]):
+        src = np.flatnonzero(agg[:, q])
+        col = fine[..., src[0]]
+        for j in src[1:]:
+            col = col + fine[..., j]
+        cols.append(col)
+    return jnp.stack(cols, axis=-1)
+
+
 def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
     """Eq. 2.10 for every seen triplet from its root-calculus sample counts [T, Q_root]."""
     defined = jnp.sum(counts, axis=-1) > 0
@@ -236,7 +254,7 @@ def _apply_counts(state: MapState, counts, seen, dropped, *, cals) -> MapState:
     fine = counts.astype(jnp.float32)
     probs, conflicts = {}, {}
     for c in cals:
-        meas = counts_to_probabilities(fine @ jnp.asarray(aggregation_matrix(c)))
+        meas = counts_to_probabilities(_merge_counts(fine, c))
         new, conflict = fuse_rows(state.probs[c.name], meas, state.mapped, use)
         probs[c.name] = new
         conflicts[c.name] = state.num_conflicts[c.name] + conflict.astype(jnp.int32)
@@ -292,9 +310,15 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
     # the most rows seen in a group (unbatched, so that the buffer choice below is a real
     # branch, not a select running both sides under vmap)
     most_seen = jnp.max(jnp.sum(grouped(seen), axis=1, dtype=jnp.int32))
-    group_fn = partial(_sparse_group_update, most_seen=most_seen, n=t, block=block, cals=cals)
-    rows = jax.vmap(group_fn)(z, grouped(means.reshape(r, t, 6)), grouped(sig),
-                              grouped(seen), rows)
+    args = (z, grouped(means.reshape(r, t, 6)), grouped(sig), grouped(seen), rows)
+    if g == 1:  # not under vmap: XLA:CPU copies the whole map for a batched scatter
+        rows = jax.tree_util.tree_map(lambda x: x[None], _sparse_group_update(
+            *jax.tree_util.tree_map(lambda x: x[0], args), most_seen=most_seen, n=t,
+            block=block, cals=cals, mode=BUFFER_MODE))
+    else:  # groups under vmap (one per device): the direct scatter would copy the map
+        mode = "full" if BUFFER_MODE == "direct" else BUFFER_MODE
+        rows = jax.vmap(partial(_sparse_group_update, most_seen=most_seen, n=t, block=block,
+                                cals=cals, mode=mode))(*args)
     probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
         lambda x: x.reshape(r, t, *x.shape[2:]), rows)
     new = MapState(probs=probs, mapped=mapped, num_updates=num_updates,
@@ -304,26 +328,31 @@ def _update_batch_impl(state: MapState, keys, positions, visible, sigma, *, trip
 
 
 SMALL_BUFFER_FRACTION = 4  # the small compact buffer holds 1/4 of a group's rows
-#: how the sparse update buffers its updated rows (all bit-identical; measured in
-#: docs/pqrm.md §map): "full" — one buffer of all rows (fastest to compile and to run);
-#: "cond" — the former ``lax.cond`` between a quarter-size and a full buffer (two copies of
-#: the piece loop; XLA copies the map state), kept as bench_padgett's in-process reference
-BUFFER_MODE = "full"
+#: how the sparse update writes its updated rows into the map (all bit-identical; measured in
+#: docs/pqrm.md §map): "direct" — each piece scattered into the map that the piece loop
+#: carries (in place: work in proportion to the rows seen; with ``groups`` > 1, under
+#: ``vmap``, "full" is used instead); "full" — a zeroed buffer of all
+#: rows, filled piece by piece and scattered into the map after the loop (work in
+#: proportion to all rows, every step); "cond" — the ``lax.cond`` between a quarter-size
+#: and a full buffer (two copies of the piece loop; XLA copies the map state), kept as
+#: bench_padgett's in-process reference
+BUFFER_MODE = "direct"
 #: compute the per-landmark inputs once before the per-triplet gathers (docs/pqrm.md §map)
 PREPARE_BARRIER = True
 
 
-def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, cals):
+def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, cals,
+                         mode: str):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
 
     z [Rg, c, 6, C] banks of the Rg maps (sample-major); m [Rg·N, 6], s [Rg·N, 3], mask
     [Rg·N] per triplet row (map-major); rows = (probs, mapped, num_updates, num_conflicts,
     num_rejected) flattened the same way. The seen rows are compacted (``jnp.nonzero``,
-    static size) and a ``lax.while_loop`` runs ⌈#seen / block⌉ pieces into a compact buffer,
-    scattered into the map, so every seen row is updated and nothing else is computed (in
+    static size) and a ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, each scattered into
+    the map the loop carries, so every seen row is updated and nothing else is computed (in
     Padgett's study about 1 row in 8 is seen). Each row's arithmetic is that of the dense
     ``update`` (same bank, same kernel, same eq. 2.10), so the results are
-    identical. How the buffer is used: :data:`BUFFER_MODE`.
+    identical. ``mode``: how the rows reach the map (:data:`BUFFER_MODE`).
     """
     total = mask.shape[0]
     blk = max(1, min(block, total))
@@ -333,20 +362,22 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
     num_seen = jnp.sum(mask, dtype=jnp.int32)
     inv = np.argsort(key_to_edc_state())
 
-    def piece(p, buf):
-        """Piece ``p`` (rows ``order[p·blk : (p+1)·blk]``) into ``buf`` at ``p·blk``."""
-        idx = jax.lax.dynamic_slice(order, (p * blk,), (blk,))
+    def piece_rows(idx, src):
+        """Rows ``idx`` [blk] of ``src`` updated (``total``: padding, a dummy row)."""
         valid = idx < total
         safe = jnp.where(valid, idx, 0)
         zc = jnp.transpose(z[safe // n], (1, 2, 3, 0))  # this block's banks (c, 6, C, blk)
         counts = edc_block_counts(m[safe].T, s[safe].T, zc)[:, inv]
         probs, mapped, num_updates, num_conflicts, num_rejected = jax.tree_util.tree_map(
-            lambda x: x[safe], rows)
+            lambda x: x[safe], src)
         sub = MapState(probs, mapped, num_updates, num_conflicts, num_rejected,
                        jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
         new = _apply_counts(sub, counts, valid, jnp.zeros((), jnp.int32), cals=cals)
-        new_rows = (new.probs, new.mapped, new.num_updates, new.num_conflicts,
-                    new.num_rejected)
+        return (new.probs, new.mapped, new.num_updates, new.num_conflicts, new.num_rejected)
+
+    def piece(p, buf):
+        """Piece ``p`` (rows ``order[p·blk : (p+1)·blk]``) into ``buf`` at ``p·blk``."""
+        new_rows = piece_rows(jax.lax.dynamic_slice(order, (p * blk,), (blk,)), rows)
         # new rows go to a compact buffer (in place); the map is scattered after the loop
         return jax.tree_util.tree_map(
             lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, p * blk, axis=0),
@@ -362,8 +393,21 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
         return jax.tree_util.tree_map(
             lambda x, y: x.at[order[:nblk * blk]].set(y, mode="drop"), rows, buf)
 
+    if mode == "direct":
+        def direct(p, rows):
+            """Piece ``p`` scattered straight into ``rows`` (padding dropped)."""
+            idx = jax.lax.dynamic_slice(order, (p * blk,), (blk,))
+            # read from the carried map: reading the map before the loop keeps it alive
+            # beside the carried one (a level 1.3x as long, docs/pqrm.md §map)
+            new_rows = piece_rows(idx, rows)
+            return jax.tree_util.tree_map(lambda x, y: x.at[idx].set(y, mode="drop"),
+                                          rows, new_rows)
+
+        return jax.lax.while_loop(lambda c: c[0] * blk < num_seen,
+                                  lambda c: (c[0] + 1, direct(c[0], c[1])),
+                                  (jnp.int32(0), rows))[1]
     small = -(-nblk_max // SMALL_BUFFER_FRACTION)
-    if BUFFER_MODE == "cond":
+    if mode == "cond":
         if small >= nblk_max:
             return pieces(nblk_max)
         return jax.lax.cond(most_seen <= small * blk, lambda: pieces(small),
