@@ -10,10 +10,12 @@ on the same keys:
 * **reference** — the runner as merged before this change (main ``45bfc0d``), patched in
   with :class:`legacy`: the bank of draws by ``jax.random.normal`` (on the CPU JAX lowers its
   threefry hash as a rolled loop), the compact buffer chosen by a ``lax.cond`` (small or
-  full), and the observation arithmetic fused into the per-triplet gathers;
+  full), and the observation arithmetic fused into the per-triplet gathers (since session 9
+  it shares the current code's row update, ``map._merge_counts`` included);
 * **current** — ``padgett_mc.run_level`` as shipped: the same draws by the unrolled
-  ``measurement.threefry2x32`` (bit-identical), one full compact buffer (no ``lax.cond``;
-  ``map.BUFFER_MODE``), the per-landmark inputs computed once (``map.PREPARE_BARRIER``).
+  ``measurement.threefry2x32`` (bit-identical), each piece of seen rows scattered into the
+  map the piece loop carries (``map.BUFFER_MODE = "direct"``), the per-landmark inputs
+  computed once (``map.PREPARE_BARRIER``).
 
 Every result leaf must be identical (``identical``: the changes move no bit;
 ``differing_leaves`` lists any that differ). Times: the first call (compilation included)
