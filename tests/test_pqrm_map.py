@@ -243,7 +243,7 @@ def test_update_batch_buffer_modes_are_identical(monkeypatch, mode):
 def test_merged_counts_equal_the_aggregation_product():
     """``map._merge_counts`` (column sums) equals ``counts @ aggregation_matrix`` bit for bit
     for every Padgett representation, at zero counts, at S = 2**16 and on random counts
-    (sums of integers ≤ S are exact in float32 in any order)."""
+    (sums of at most 20 integers ≤ S are exact in float32 in any order while 20·S ≤ 2**24)."""
     from pqrm_jax.pqrm import map as pqrm_map
     from pqrm_jax.pqrm.measurement import aggregation_matrix
 

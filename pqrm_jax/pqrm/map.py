@@ -232,9 +232,11 @@ def _prepare(positions, visible, sigma, triplets):
 def _merge_counts(fine: jax.Array, calc: Calculus) -> jax.Array:
     """``fine @ aggregation_matrix(calc)`` as column sums: [..., Q_root] → [..., Q].
 
-    Exact (sums of at most Q_root integers ≤ S in float32), so equal to the product bit for
-    bit; with the six small products a padgett-mc level took 1.45x as long (XLA:CPU emitted
-    them as naive dots in the sparse update's piece loop; docs/pqrm.md §map).
+    Sums of at most Q_root integers ≤ S, exact in float32 while S·Q_root ≤ 2**24 (S up to
+    838 860 samples for the EDC), so then equal to the product bit for bit (beyond, both
+    round; their last bits may differ); with the six small products a padgett-mc level took
+    1.45x as long (XLA:CPU emitted them as naive dots in the sparse update's piece loop;
+    docs/pqrm.md §map).
     """
     agg = aggregation_matrix(calc)
     cols = []
