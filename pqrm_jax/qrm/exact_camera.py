@@ -416,7 +416,7 @@ def _any(x, axes):
 
 
 #: arrays of at least this many elements are reduced by halving (:func:`_fold`)
-_FOLD_MIN = 1 << 15
+_FOLD_MIN = 1 << 10
 
 
 def _fold(x, axes, init, op):
@@ -427,8 +427,11 @@ def _fold(x, axes, init, op):
     the largest cost of the measurement (the screen's two reductions took more than the
     exact decision). From :data:`_FOLD_MIN` elements the reduced axes are moved to the front,
     flattened and halved elementwise (each step runs along whole contiguous rows, which a
-    CPU vectorises); smaller arrays (the tolerant decision's buffers) keep the one reduce,
-    which compiles to fewer operations. Same result either way (OR is exact).
+    CPU vectorises; the tolerant decision's buffers of 51 triples too, since 2026-12-05).
+    The flattened axis is first padded with ``init`` to a power of two: with an odd length a
+    step concatenated its leftover row to the halved rows, a second consumer of the step
+    before, and XLA fused the producers into both and computed them again. Smaller arrays
+    keep the one reduce. Same result either way (OR is exact; docs/qrm.md §camera).
     """
     axes = tuple(a % x.ndim for a in axes)
     if x.size < _FOLD_MIN:
@@ -436,10 +439,13 @@ def _fold(x, axes, init, op):
     keep = tuple(a for a in range(x.ndim) if a not in axes)
     x = jnp.transpose(x, axes + keep)
     x = x.reshape((-1,) + x.shape[len(axes):])
+    p2 = 1 << (x.shape[0] - 1).bit_length()
+    if p2 > x.shape[0]:  # padded with ``init`` to a power of two: every step a plain halving
+        x = jnp.concatenate([x, jnp.full((p2 - x.shape[0],) + x.shape[1:], init, x.dtype)])
     while x.shape[0] > 1:
         h = x.shape[0] // 2
         top = op(x[:h], x[h:2 * h])
-        x = jnp.concatenate([top, x[2 * h:]]) if x.shape[0] % 2 else top
+        x = top
     return x[0]
 
 
@@ -708,6 +714,11 @@ def _tolerant_edge_atoms(spec: QRMSpec, st: CameraStructure, g: _Edges, tol, loo
     return _edge_atoms(spec, st, g, loose, unsure, delta)
 
 
+def _abs_max3(v):
+    """``max(|v[0]|, |v[1]|, |v[2]|)`` elementwise ([3, ...] → [...]; exact)."""
+    return jnp.maximum(jnp.maximum(jnp.abs(v[0]), jnp.abs(v[1])), jnp.abs(v[2]))
+
+
 def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
     """Witness and possible atom masks [O, T] of the region points (lemma case 2: ``R_s``
     inside the image of the cone): a point's range preimage inside the cone is a witness,
@@ -726,14 +737,16 @@ def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
     ca, cb_ = jnp.hypot(reps[:, 0], reps[:, 1]), jnp.hypot(reps[:, 0] - 1, reps[:, 1])
     dd = jnp.stack([ca, cb_, ca * cb_])[:, None, :, None] * (2 * tol * (1 + 16 * eps))
     dd = jnp.take_along_axis(jnp.broadcast_to(dd, D.shape), take, 0)
-    rnd = 2 * _CONE_BAND * eps * jnp.max(jnp.abs(ds), 0)
+    # the max over the 3 components as two elementwise maxima: as a reduce over the leading
+    # axis XLA:CPU ran it through a library fusion at ≈ 0.5 ms an image (docs/qrm.md §camera)
+    rnd = 2 * _CONE_BAND * eps * _abs_max3(ds)
     gl = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
     gb = (dd[0], dd[1] + dd[0], dd[2] + dd[1])
     pairs = list(zip(gl, gb, strict=True))
     near_tol = loose & (jnp.all(jnp.stack([g > -(b + rnd) for g, b in pairs]), 0)
                         | jnp.all(jnp.stack([-g > -(b + rnd) for g, b in pairs]), 0))
     ds = ds * jnp.where(ds[2:3] < 0, -1.0, 1.0)
-    ds = ds / jnp.maximum(jnp.max(jnp.abs(ds), 0, keepdims=True), jnp.finfo(dtype).tiny)
+    ds = ds / jnp.maximum(_abs_max3(ds)[None], jnp.finfo(dtype).tiny)
     g = (ds[0], ds[1] - ds[0], ds[2] - ds[1])
     inside = (g[0] > 0) & (g[1] > 0) & (g[2] > 0)
     cb = -_CONE_BAND * eps
