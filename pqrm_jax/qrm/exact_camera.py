@@ -427,7 +427,7 @@ def _fold(x, axes, init, op):
     the largest cost of the measurement (the screen's two reductions took more than the
     exact decision). From :data:`_FOLD_MIN` elements the reduced axes are moved to the front,
     flattened and halved elementwise (each step runs along whole contiguous rows, which a
-    CPU vectorises; the tolerant decision's buffers of 51 triples too, since 2026-12-05).
+    CPU vectorises; the tolerant decision's buffers of 51 triples too).
     The flattened axis is first padded with ``init`` to a power of two: with an odd length a
     step concatenated its leftover row to the halved rows, a second consumer of the step
     before, and XLA fused the producers into both and computed them again. Smaller arrays
@@ -444,8 +444,7 @@ def _fold(x, axes, init, op):
         x = jnp.concatenate([x, jnp.full((p2 - x.shape[0],) + x.shape[1:], init, x.dtype)])
     while x.shape[0] > 1:
         h = x.shape[0] // 2
-        top = op(x[:h], x[h:2 * h])
-        x = top
+        x = op(x[:h], x[h:])
     return x[0]
 
 
