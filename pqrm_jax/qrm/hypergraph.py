@@ -109,13 +109,18 @@ def _compose_chunks(spec: QRMSpec) -> jax.Array:
     return jnp.asarray(out)
 
 
+_B_ROWS = 4  # middle landmarks b per composition block (:func:`_sweep`; docs/qrm.md §hypergraph)
+
+
 def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     """One unary + composition sweep → (new rel, rel after the unary step).
 
-    Semi-naive: the composition through a fourth landmark c is skipped when no relation
-    ``rel[:, :, c]`` / ``rel[:, c, :]`` changed since the previous sweep's composition inputs
-    ``prev_u`` (its constraint on every ``rel[a, b, d]`` already holds; the relations only
-    shrink), so the fixed point is exactly that of full sweeps. ``first``: no previous sweep.
+    Semi-naive: the composition through a fourth landmark c, middle landmark b (the
+    constraints ``rel[:, b, :] ∩= COMPOSE(rel[:, b, c], rel[b, c, :])``) is skipped when
+    neither ``rel[:, b, c]`` nor ``rel[b, c, :]`` changed since the previous sweep's
+    composition inputs ``prev_u`` (its constraints already hold; the relations only shrink),
+    so the fixed point is exactly that of full sweeps. ``first``: no previous sweep. The
+    middle landmarks still to visit through c are gathered in blocks of ``_B_ROWS``.
     """
     full = jnp.uint32(spec.full)
     q = spec.num_states
@@ -126,33 +131,48 @@ def _sweep(spec: QRMSpec, rel, distinct, prev_u, first):
     r = r & _lift(right, jnp.transpose(r, (2, 0, 1)))  # rel[a,b,c] ∩= RIGHT(rel[b,c,a])
     r = jnp.where(distinct, r, full)
     changed = r != prev_u
-    active = first | changed.any((0, 1)) | changed.any((0, 2))  # (N,) per fourth landmark c
+    # todo[b, c]: a composition input through (b, c) changed, rel[a,b,c] or rel[b,c,d]
+    todo = first | changed.any(0) | changed.any(2)
     n = r.shape[0]
     idx = jnp.arange(n)
+    nb = _B_ROWS
+    nblocks = -(-n // nb)
 
     chunks = _compose_chunks(spec)  # (C, Q, 32), :func:`_compose_chunks`
 
-    def through(c, acc):
+    def block(c, rows, acc):
+        # rows: [nb] middle landmarks, n for padding (read as landmark n - 1, never written);
+        # acc: [b, a, d], the constraint on rel[a, b, d] (b leading: a block is whole rows)
+        at = jnp.minimum(rows, n - 1)
+        s = r[at, c, :]  # (b, d)
         # H[k,b,d] = {i : k ∈ COMPOSE({i}, rel[b,c,d])}: an OR of table lookups, one per 5-bit
         # chunk of rel[b,c,d]
-        s = r[:, c, :]  # (b, d)
         H = jnp.zeros((q,) + s.shape, jnp.uint32)  # [k, b, d]
         for m in range(chunks.shape[0]):
             H = H | chunks[m][:, (s >> (5 * m)) & 31]
-        # g[a,b,d] = COMPOSE(rel[a,b,c], rel[b,c,d]): state k is in it exactly when some
+        # g[b,a,d] = COMPOSE(rel[a,b,c], rel[b,c,d]): state k is in it exactly when some
         # state of rel[a,b,c] is in H[k,b,d] (Q bitwise tests a relation, no gather)
-        ab = r[:, :, c][:, :, None]  # (a, b, 1)
-        g = jnp.zeros(r.shape, jnp.uint32)
+        ab = r[:, at, c].T[:, :, None]  # (b, a, 1)
+        g = jnp.zeros((nb, n, n), jnp.uint32)
         for k in range(q):
-            g = g | jnp.where((ab & H[k][None]) != 0, jnp.uint32(1 << k), jnp.uint32(0))
-        skip = (idx[:, None, None] == c) | (idx[None, :, None] == c) | (idx[None, None, :] == c)
-        return acc & jnp.where(skip, full, g)
+            g = g | jnp.where((ab & H[k][:, None, :]) != 0, jnp.uint32(1 << k), jnp.uint32(0))
+        skip = (rows[:, None, None] == c) | (idx[None, :, None] == c) | (idx[None, None, :] == c)
+        return acc.at[rows].set(acc[at] & jnp.where(skip, full, g), mode="drop")
+
+    def through(c, acc):
+        # the middle landmarks to visit first, in order, then n (padding) to a block multiple
+        want = todo[:, c]
+        pos = jnp.where(want, jnp.cumsum(want) - 1, nblocks * nb)
+        rows = jnp.full((nblocks * nb,), n, jnp.int32).at[pos].set(idx, mode="drop")
+        rows = rows.reshape(nblocks, nb)
+        count = -(-want.sum() // nb)
+        return jax.lax.fori_loop(0, count, lambda i, acc: block(c, rows[i], acc), acc)
 
     def over_c(c, acc):
-        return jax.lax.cond(active[c], through, lambda c, acc: acc, c, acc)
+        return jax.lax.cond(todo[:, c].any(), through, lambda c, acc: acc, c, acc)
 
-    comp = jax.lax.fori_loop(0, n, over_c, jnp.full_like(r, full))
-    return jnp.where(distinct, r & comp, full), r
+    comp = jax.lax.fori_loop(0, n, over_c, jnp.full_like(r, full))  # [b, a, d]
+    return jnp.where(distinct, r & jnp.transpose(comp, (1, 0, 2)), full), r
 
 
 @partial(jax.jit, static_argnames=("spec", "max_sweeps"))
