@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from pqrm_jax.qrm import hypergraph as H
 from pqrm_jax.qrm.reference import ReferenceMap
-from pqrm_jax.qrm.spec import qrm_spec
+from pqrm_jax.qrm.spec import _bits, qrm_spec
 
 
 def _reference_closure(spec, rel):
@@ -47,7 +47,7 @@ def test_closure_equals_the_one_at_a_time_reference(name, n, density, seed, sing
         one = rng.random((n, n, n)) < 0.3
         pick = rng.integers(0, q, (n, n, n))
         bits = np.where(one[..., None], np.arange(q) == pick[..., None], bits)
-    rel = (bits * (np.uint64(1) << np.arange(q, dtype=np.uint64))).sum(-1).astype(np.uint32)
+    rel = _bits(bits)
     idx = np.arange(n)
     same = ((idx[:, None, None] == idx[None, :, None]) | (idx[None, :, None] == idx[None, None, :])
             | (idx[:, None, None] == idx[None, None, :]))
@@ -94,8 +94,7 @@ def test_closure_from_a_closed_map_equals_the_full_closure(name, n, density, kee
 
     def around_truth(p):  # the true state and each other state with probability p
         bits = rng.random((n, n, n, q)) < p
-        extra = (bits * (np.uint64(1) << np.arange(q, dtype=np.uint64))).sum(-1)
-        return one | extra.astype(np.uint32)
+        return one | _bits(bits)
 
     base = H.closure(around_truth(density), spec, max_sweeps=10_000)
     assert not bool(base.inconsistent)
@@ -144,14 +143,9 @@ def test_closure_is_the_same_for_every_block_of_middle_landmarks(name, n, rows, 
     same = ~np.asarray(H.distinct_mask(n))
 
     def rand(p):
-        bits = rng.random((n, n, n, q)) < p
-        rel = (bits * (np.uint64(1) << np.arange(q, dtype=np.uint64))).sum(-1)
-        return np.where(same, np.uint32(spec.full), rel.astype(np.uint32))
+        return np.where(same, np.uint32(spec.full), _bits(rng.random((n, n, n, q)) < p))
 
-    truth = np.asarray(H.true_relations(jnp.asarray(rng.normal(0, 1, (n, 2)), jnp.float32),
-                                        spec))
-    one = np.where(same, np.uint32(spec.full),
-                   np.left_shift(np.uint32(1), np.maximum(truth, 0).astype(np.uint32)))
+    one = np.asarray(H.true_map(jnp.asarray(rng.normal(0, 1, (n, 2)), jnp.float32), spec).rel)
     start = rand(density)  # may be inconsistent
     base_in = one | rand(density)
     narrow = np.where(rng.random((n, n, n)) < 0.1, one | rand(density), np.uint32(spec.full))

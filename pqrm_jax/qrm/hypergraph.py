@@ -180,7 +180,8 @@ def _closure(spec: QRMSpec, rel, *, max_sweeps: int, base=None, closed=False):
     """The fixed point below ``rel``. ``base``: an array ``rel`` lies within; when ``closed``
     (a traced bool) says ``base`` is itself a fixed point (a map after a converged update),
     the first sweep is semi-naive against it as the later ones are against the sweep before
-    (:func:`_sweep`: only fourth landmarks with a relation that differs from ``base``)."""
+    (:func:`_sweep`: only the (middle, fourth) landmark pairs with an input that differs from
+    ``base``)."""
     distinct = jnp.asarray(distinct_mask(rel.shape[0]))
     closed = jnp.asarray(closed, bool)
     prev0 = rel if base is None else jnp.where(closed, base, rel)
