@@ -9,10 +9,29 @@ import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import atexit  # noqa: E402
 import gc  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
+
+# JAX's persistent compilation cache, one fresh directory per test process, removed when the
+# process exits. ``_release_compiled_programs`` drops every compiled program after a module,
+# so a program that several modules (or a module's notebook kernel or command subprocess)
+# use was compiled again in each; with the cache it is compiled once per process and loaded
+# from disk after that. Nothing is kept between test runs, and every test still compiles
+# what it is the first to need. Each process (each xdist worker) has its own directory:
+# JAX writes an entry in place, so two processes sharing one could read a half-written
+# entry. Set before any program is compiled (JAX decides once per process whether it uses
+# the cache); the environment carries it to the subprocesses the tests start.
+_XLA_CACHE = tempfile.mkdtemp(prefix="pqrm-jax-test-xla-")
+atexit.register(shutil.rmtree, _XLA_CACHE, True)
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _XLA_CACHE
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+jax.config.update("jax_compilation_cache_dir", _XLA_CACHE)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 @pytest.fixture(autouse=True, scope="module")
