@@ -30,6 +30,25 @@ def test_counter_sees_a_compile():
     assert len(first) >= 1 and second == []
 
 
+def test_the_suite_keeps_compiled_programs_on_disk_and_still_counts_their_compiles():
+    """conftest.py gives each test process a fresh persistent compilation cache: a program
+    compiled there is written to it, and after the in-memory caches are dropped the same
+    program loads from disk yet still shows in ``count_compiles`` (JAX logs the compile
+    before it looks in the cache), so the compile-count tests keep their meaning."""
+    from pathlib import Path
+
+    where = Path(jax.config.jax_compilation_cache_dir)
+    assert where.is_dir() and where.name.startswith("pqrm-jax-test-xla-")
+    f = jax.jit(lambda x: jnp.cos(x) * 5 - 2)  # a program no other test compiles
+    before = set(where.iterdir())
+    f(jnp.ones(11)).block_until_ready()
+    assert set(where.iterdir()) - before, "nothing written to the compilation cache"
+    jax.clear_caches()
+    with count_compiles() as again:
+        f(jnp.ones(11)).block_until_ready()
+    assert len(again) >= 1
+
+
 def test_pqrm_mapper_update_compiles_once():
     pq = pqrm.mapper(("edc", "lr"), num_landmarks=5, num_samples=32)
     st = pq.init()
