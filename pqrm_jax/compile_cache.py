@@ -2,8 +2,8 @@
 
 A study or table build compiles its programs once per process; with the cache on, a second
 process loads them from disk instead of compiling (docs/benchmarks.md §warm-starts). The
-``pqrm-jax`` command turns it on by default (:func:`enable`); library calls and the tests
-leave JAX's own setting alone.
+``pqrm-jax`` command turns it on by default (:func:`enable`); library calls leave JAX's own
+setting alone (the test suite gives each test process a fresh directory, tests/conftest.py).
 
 Location, in order:
 
