@@ -24,8 +24,10 @@ import pytest  # noqa: E402
 # from disk after that. Nothing is kept between test runs, and every test still compiles
 # what it is the first to need. Each process (each xdist worker) has its own directory:
 # JAX writes an entry in place, so two processes sharing one could read a half-written
-# entry. Set before any program is compiled (JAX decides once per process whether it uses
-# the cache); the environment carries it to the subprocesses the tests start.
+# entry. The environment carries the worker's directory to the subprocesses its tests start
+# (one at a time, except the multi-process studies: there a half-written read is a warning
+# and a compile, not an error, as jax_raise_persistent_cache_errors is off). Set before any
+# program is compiled (JAX decides once per process whether it uses the cache).
 _XLA_CACHE = tempfile.mkdtemp(prefix="pqrm-jax-test-xla-")
 atexit.register(shutil.rmtree, _XLA_CACHE, True)
 os.environ["JAX_COMPILATION_CACHE_DIR"] = _XLA_CACHE
