@@ -43,7 +43,8 @@ from .calculi.protocol import DEGENERATE
 
 __all__ = [
     "LAYOUTS", "num_triplets", "ordered_triplets", "distinct_mask", "cyclic_mask",
-    "rows_to_dense", "dense_to_rows", "states_to_masks", "masks_to_sets", "true_states",
+    "rows_to_dense", "dense_to_rows", "states_to_masks", "masks_to_sets", "sets_to_masks",
+    "true_states",
     "ORDERINGS", "INVERSE_OF", "LEFT_OF", "RIGHT_OF", "ORDERING_INDEX", "elements_to_dense",
     "shared_landmarks", "link_adjacency",
 ]
@@ -319,6 +320,25 @@ def masks_to_sets(masks, num_states: int) -> jax.Array:
     """
     m = jnp.asarray(masks, jnp.uint32)
     return ((m[..., None] >> jnp.arange(num_states, dtype=jnp.uint32)) & 1).astype(bool)
+
+
+def sets_to_masks(sets) -> np.ndarray:
+    """bool state sets → uint32 bitmasks, the inverse of :func:`masks_to_sets` (M §VI).
+
+    NumPy (a concrete array): the operator tables and test maps are built with it.
+
+    Args:
+        sets: ``[..., Q]`` bool (``Q`` ≤ 32).
+
+    Returns:
+        ``[...]`` uint32, bit ``q`` set where state ``q`` is in the set.
+
+    >>> sets_to_masks(np.array([[True, False, True], [False, False, False]])).tolist()
+    [5, 0]
+    """
+    sets = np.asarray(sets)
+    w = np.uint64(1) << np.arange(sets.shape[-1], dtype=np.uint64)
+    return (sets.astype(np.uint64) * w).sum(-1).astype(np.uint32)
 
 
 def true_states(calc, landmarks, layout: str = "rows", *, triplets=None,

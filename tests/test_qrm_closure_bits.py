@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 
 from pqrm_jax.qrm import hypergraph as H
 from pqrm_jax.qrm.reference import ReferenceMap
-from pqrm_jax.qrm.spec import _bits, qrm_spec
+from pqrm_jax.qrm.spec import qrm_spec
+from pqrm_jax.triplets import sets_to_masks
 
 
 def _reference_closure(spec, rel):
@@ -47,7 +48,7 @@ def test_closure_equals_the_one_at_a_time_reference(name, n, density, seed, sing
         one = rng.random((n, n, n)) < 0.3
         pick = rng.integers(0, q, (n, n, n))
         bits = np.where(one[..., None], np.arange(q) == pick[..., None], bits)
-    rel = _bits(bits)
+    rel = sets_to_masks(bits)
     idx = np.arange(n)
     same = ((idx[:, None, None] == idx[None, :, None]) | (idx[None, :, None] == idx[None, None, :])
             | (idx[:, None, None] == idx[None, None, :]))
@@ -94,7 +95,7 @@ def test_closure_from_a_closed_map_equals_the_full_closure(name, n, density, kee
 
     def around_truth(p):  # the true state and each other state with probability p
         bits = rng.random((n, n, n, q)) < p
-        return one | _bits(bits)
+        return one | sets_to_masks(bits)
 
     base = H.closure(around_truth(density), spec, max_sweeps=10_000)
     assert not bool(base.inconsistent)
@@ -143,7 +144,7 @@ def test_closure_is_the_same_for_every_block_of_middle_landmarks(name, n, rows, 
     same = ~np.asarray(H.distinct_mask(n))
 
     def rand(p):
-        return np.where(same, np.uint32(spec.full), _bits(rng.random((n, n, n, q)) < p))
+        return np.where(same, np.uint32(spec.full), sets_to_masks(rng.random((n, n, n, q)) < p))
 
     one = np.asarray(H.true_map(jnp.asarray(rng.normal(0, 1, (n, 2)), jnp.float32), spec).rel)
     start = rand(density)  # may be inconsistent

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..calculi import Calculus
 from ..calculi import get as get_calculus
+from ..triplets import sets_to_masks
 
 __all__ = ["QRMSpec", "qrm_spec", "mask_of", "states_of", "popcount", "CYCLIC"]
 
@@ -79,12 +80,6 @@ class QRMSpec:
     @property
     def atom_full(self) -> int:
         return (1 << self.num_atoms) - 1
-
-
-def _bits(rows: np.ndarray) -> np.ndarray:
-    """[..., Q] bool → [...] uint32 masks."""
-    w = (np.uint64(1) << np.arange(rows.shape[-1], dtype=np.uint64))
-    return (rows.astype(np.uint64) * w).sum(-1).astype(np.uint32)
 
 
 def mask_of(calc: Calculus | str, labels) -> int:
@@ -176,8 +171,8 @@ def _spec(calc: Calculus) -> QRMSpec:
         raise ValueError(f"calculus {calc.name!r} has {len(atoms)} sign-pattern atoms; the "
                          "camera measurement supports at most 32")
     atom_signs = np.asarray(atoms, np.int8).reshape(len(atoms), k)
-    pos = _bits((atom_signs == 1).T)
-    neg = _bits((atom_signs == -1).T)
+    pos = sets_to_masks((atom_signs == 1).T)
+    neg = sets_to_masks((atom_signs == -1).T)
     amb = np.full(k, (1 << len(atoms)) - 1, np.uint32)
     pattern_atom = np.full(3**k, -1, np.int32)
     for a, signs in enumerate(atoms):
@@ -191,9 +186,10 @@ def _spec(calc: Calculus) -> QRMSpec:
     return QRMSpec(
         calc=calc, lin=lin, atom_signs=atom_signs, atom_state=np.asarray(states, np.int32),
         pos=pos, neg=neg, amb=amb, pattern_atom=pattern_atom,
-        left=_bits(np.asarray(t.left, bool)), right=_bits(np.asarray(t.right, bool)),
-        inverse=_bits(np.asarray(t.inverse, bool)),
-        compose=_bits(np.asarray(t.compose, bool)),
+        left=sets_to_masks(np.asarray(t.left, bool)),
+        right=sets_to_masks(np.asarray(t.right, bool)),
+        inverse=sets_to_masks(np.asarray(t.inverse, bool)),
+        compose=sets_to_masks(np.asarray(t.compose, bool)),
         adjacency=np.asarray(t.adjacency, bool), lune=lune,
     )
 
