@@ -17,6 +17,8 @@ import tempfile  # noqa: E402
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
+from pqrm_jax import compile_cache  # noqa: E402
+
 # JAX's persistent compilation cache, one fresh directory per test process, removed when the
 # process exits. ``_release_compiled_programs`` drops every compiled program after a module,
 # so a program that several modules (or a module's notebook kernel or command subprocess)
@@ -30,10 +32,9 @@ import pytest  # noqa: E402
 # program is compiled (JAX decides once per process whether it uses the cache).
 _XLA_CACHE = tempfile.mkdtemp(prefix="pqrm-jax-test-xla-")
 atexit.register(shutil.rmtree, _XLA_CACHE, True)
-os.environ["JAX_COMPILATION_CACHE_DIR"] = _XLA_CACHE
+compile_cache.enable(_XLA_CACHE)  # every program cached, whatever its compile time
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _XLA_CACHE  # the same for subprocesses
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
-jax.config.update("jax_compilation_cache_dir", _XLA_CACHE)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 @pytest.fixture(autouse=True, scope="module")
