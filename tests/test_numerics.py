@@ -8,6 +8,7 @@ integers, D13 sentinel labels, D21 complex input, D25 validation gaps, D3 bounde
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -15,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
 from pqrm_jax import calculi, pqrm, qrm
 from pqrm_jax.calculi import INVALID
@@ -343,3 +346,58 @@ def test_dense_map_bound_and_sparse_validation():
         with pytest.raises(err):
             pqrm.mapper(("edc",), 300, 16, triplets=bad)
     assert json.dumps(pqrm.map.map_bytes_per_triplet(("edc",)))
+
+
+def _elementwise_check(means, sigma) -> str | None:
+    """The value checks of ``check_measurement_inputs`` as they were, element by element: the
+    error it raised first (None: accepted). The reference of the test below."""
+    m = np.asarray(means)
+    if not np.all(np.isfinite(m)):
+        return "NaN or infinite"
+    if m.size and np.issubdtype(m.dtype, np.floating):
+        dt = np.result_type(m.dtype, np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            diff = m.astype(dt)[:, 1:] - m.astype(dt)[:, :1]
+        if not np.all(np.isfinite(diff)):
+            return "overflow"
+    s = np.asarray(sigma, dtype=float)
+    if np.any(np.isnan(s)):
+        return "got NaN"
+    if np.any(s < 0):
+        return f"got {s.min()}"
+    if np.any(np.isinf(s)):
+        return "must be finite"
+    return None
+
+
+_FINITE = [0.0, -0.0, 1.0, -1.5, 1e-30, -1e-30, 1e30, -1e30, 3e38, -3e38, 1.7e38, -1.7e38,
+           6e4, -6e4, 1e300, -1e300, 1.7e308, -1.7e308]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 4), st.sampled_from([np.float16, np.float32, np.float64, np.int32]),
+       st.data())
+def test_value_checks_equal_the_elementwise_checks(n, dtype, data):
+    """check_measurement_inputs decides finiteness and overflowing differences by the extremes
+    (issue 31, the host time of an eager fine_counts): the same error as the element-wise
+    checks for every input — NaN, ±inf, differences that overflow float16/32/64 or sit at the
+    edge, scales 1e-30…1e300 — and the same error for sigma (NaN, negative, inf)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        # values finite in ``dtype`` (the others are the non-finite ones, drawn apart)
+        pool = [v for v in _FINITE if np.isfinite(np.array(v).astype(dtype))]
+        pool += [np.inf, -np.inf, np.nan] * data.draw(st.booleans())
+        vals = np.array(data.draw(st.lists(st.sampled_from(pool), min_size=6 * n,
+                                           max_size=6 * n)))
+        if np.issubdtype(dtype, np.integer):
+            vals = np.nan_to_num(np.clip(vals, -2e9, 2e9))
+        means = vals.astype(dtype).reshape(n, 3, 2)
+    sigma = np.array(data.draw(st.lists(st.sampled_from([0.0, 2.0, -1.0, np.inf, np.nan]),
+                                        min_size=3, max_size=3))).reshape(1, 3)
+    want = _elementwise_check(means, sigma)
+    event(str(want))
+    for m in (means, jnp.asarray(means) if dtype != np.float64 else means):
+        if want is None:
+            measurement.check_measurement_inputs(m, sigma, 4)
+        else:
+            with pytest.raises(ValueError, match=re.escape(want)):
+                measurement.check_measurement_inputs(m, sigma, 4)

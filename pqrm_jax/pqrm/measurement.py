@@ -584,7 +584,9 @@ def _root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_t
 def _staged() -> bool:
     """Whether this call is being traced into an outer ``jit`` (where JAX refuses a nested
     program with compiler options): there a fresh array operation yields a tracer."""
-    return isinstance(jnp.zeros(()), jax.core.Tracer)
+    # a constant through a primitive: a tracer inside a trace, a host value outside (no
+    # program is dispatched, unlike a fresh array, which cost an eager call ~0.1 ms)
+    return isinstance(jax.lax.stop_gradient(np.float32(0)), jax.core.Tracer)
 
 
 _STATIC = ("root", "num_samples", "chunk_triplets")
@@ -635,26 +637,41 @@ def check_measurement_inputs(means, sigma, num_samples: int | None = None) -> No
                          "counts are int32): draw several batches with different keys and "
                          "add their state_counts")
     if not isinstance(means, jax.core.Tracer):
-        m = np.asarray(means)
-        if not np.all(np.isfinite(m)):
-            raise ValueError("means contain NaN or infinite measurements")
-        if m.size and jnp.issubdtype(m.dtype, jnp.floating):
-            dt = np.result_type(m.dtype, np.float32)
-            mm = m.astype(dt)
-            with np.errstate(over="ignore", invalid="ignore"):
-                diff = mm[:, 1:] - mm[:, :1]
-            if not np.all(np.isfinite(diff)):
-                raise ValueError(f"coordinate differences within a triplet overflow {dt} "
-                                 f"(|means| up to {np.abs(m).max():.3g}); translate or "
-                                 "rescale the positions")
+        _check_means_values(np.asarray(means))
     if not isinstance(sigma, jax.core.Tracer):
         s = np.asarray(sigma, dtype=float)
-        if np.any(np.isnan(s)):
+        lo, hi = (s.min(), s.max()) if s.size else (0.0, 0.0)  # NaN propagates through both
+        if np.isnan(lo):
             raise ValueError("sigma must be a non-negative number, got NaN")
-        if np.any(s < 0):
-            raise ValueError(f"sigma must be non-negative, got {s.min()}")
-        if np.any(np.isinf(s)):
+        if lo < 0:
+            raise ValueError(f"sigma must be non-negative, got {lo}")
+        if np.isinf(hi):
             raise ValueError("sigma must be finite")
+
+
+def _check_means_values(m: np.ndarray) -> None:
+    """Finite means whose coordinate differences within a triplet do not overflow.
+
+    By the extremes first (two passes; NaN propagates through min and max): when ``max − min``
+    is finite in the working dtype, so is every difference (rounding is monotonic), and only
+    otherwise are the differences formed — an eager ``fine_counts`` call spent a tenth of its
+    time here with the element-wise checks.
+    """
+    if not m.size or not jnp.issubdtype(m.dtype, jnp.floating):
+        return  # integers are finite; their differences are formed in floating point later
+    dt = np.result_type(m.dtype, np.float32)
+    lo, hi = np.asarray(m.min(), dt), np.asarray(m.max(), dt)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise ValueError("means contain NaN or infinite measurements")
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(hi - lo):
+            return
+        mm = m.astype(dt)
+        diff = mm[:, 1:] - mm[:, :1]
+    if not np.all(np.isfinite(diff)):
+        raise ValueError(f"coordinate differences within a triplet overflow {dt} "
+                         f"(|means| up to {np.abs(m).max():.3g}); translate or "
+                         "rescale the positions")
 
 
 def _check_working_set(calc: Calculus, n: int, num_samples: int, chunk_triplets: int,
@@ -705,7 +722,9 @@ def fine_counts(
     sigma = _as_real_array(sigma, "sigma")
     _check_working_set(calc, int(np.shape(means)[0]), int(num_samples), chunk_triplets,
                        max_bytes)
-    means = jnp.asarray(means, jnp.result_type(means, jnp.float32))
+    dtype = jnp.result_type(means, jnp.float32)
+    if not (isinstance(means, jax.Array) and means.dtype == dtype):  # (a no-op dispatched)
+        means = jnp.asarray(means, dtype)
     root = root_of(calc)
     traced = any(isinstance(x, jax.core.Tracer) for x in (key, means, sigma))
     if (not traced and is_edc(root) and _is_threefry(key)
