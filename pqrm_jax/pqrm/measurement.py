@@ -654,8 +654,8 @@ def _check_means_values(m: np.ndarray) -> None:
 
     By the extremes first (two passes; NaN propagates through min and max): when ``max − min``
     is finite in the working dtype, so is every difference (rounding is monotonic), and only
-    otherwise are the differences formed — an eager ``fine_counts`` call spent a tenth of its
-    time here with the element-wise checks.
+    otherwise are the differences formed. The element-wise checks took 0.3–0.6 ms of an eager
+    ``fine_counts`` call of ≈ 7 ms (N = 7 200, S = 1 024; docs/benchmarks.md §bench_pqrm).
     """
     if not m.size or not jnp.issubdtype(m.dtype, jnp.floating):
         return  # integers are finite; their differences are formed in floating point later
