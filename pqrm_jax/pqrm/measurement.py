@@ -583,9 +583,8 @@ def _root_counts(key, means, sigma, *, root: Calculus, num_samples: int, chunk_t
 
 def _staged() -> bool:
     """Whether this call is being traced into an outer ``jit`` (where JAX refuses a nested
-    program with compiler options): there a fresh array operation yields a tracer."""
-    # a constant through a primitive: a tracer inside a trace, a host value outside (no
-    # program is dispatched, unlike a fresh array, which cost an eager call ~0.1 ms)
+    program with compiler options): there a constant through a primitive is a tracer, and
+    outside it stays a host value (no program dispatched; a fresh array was an eager call)."""
     return isinstance(jax.lax.stop_gradient(np.float32(0)), jax.core.Tracer)
 
 
