@@ -155,3 +155,52 @@ def test_a_calculus_is_frozen():
         sc.name = "x"
     with pytest.raises(ValueError, match="read-only"):
         sc.cell_labels[0] = 1
+
+
+_FAMILY = tuple(calculi.PADGETT_REPRESENTATIONS) + ("quadrant", "lr_full", "dcc")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sampled_from(_FAMILY), min_size=1, max_size=9),
+       st.integers(-30, 30), st.integers(-3, 3), st.sampled_from(["float32", "int", "mixed"]),
+       st.sampled_from([(), (11,), (3, 4)]), st.booleans(), st.integers(0, 2**31 - 1))
+def test_classify_all_equals_classify_per_calculus(names, exp, offset, kind, batch, bad, seed):
+    """``classify_all`` gives each calculus exactly its own ``classify`` (one sign pattern per
+    family of merges): on integer grids scaled by 10^±30 and shifted, where coincident,
+    collinear and on-circle (boundary) configurations occur, with NaN/inf, in a jit, for
+    any mix of families and repeats."""
+    rng = np.random.default_rng(seed)
+    calcs = [calculi.get(n) for n in names]
+    pts = rng.integers(-3, 4, (3, *batch, 2))
+    if kind == "int":  # the exact integer path, outside a trace
+        got = calculi.classify_all(calcs, *pts)
+        want = [c.classify(*pts) for c in calcs]
+    else:
+        x = (pts * 10.0**exp + offset * 10.0**exp * 0.5).astype(np.float32)
+        if bad and x.size:
+            x.reshape(-1)[rng.integers(0, x.size, 2)] = rng.choice([np.nan, np.inf, -np.inf], 2)
+        if kind == "mixed":  # float a, integer b and c
+            x = (x[0], pts[1], pts[2])
+        got = calculi.classify_all(calcs, *x)
+        want = [c.classify(*x) for c in calcs]
+        jitted = jax.jit(lambda a, b, c: calculi.classify_all(calcs, a, b, c))(*x)
+        for g, w in zip(jitted, want, strict=True):
+            np.testing.assert_array_equal(g, w)
+    assert len(got) == len(calcs)
+    for g, w in zip(got, want, strict=True):
+        assert g.dtype == np.int32 and g.shape == batch
+        np.testing.assert_array_equal(g, w)
+
+
+def test_classify_all_shares_the_pattern_and_checks_like_classify():
+    """One sign evaluation per family in the compiled program (a single gather of the
+    family's tables), and the argument errors of ``classify``."""
+    six = [calculi.get(n) for n in calculi.PADGETT_REPRESENTATIONS]
+    pts = np.random.default_rng(3).uniform(-3, 3, (3, 50, 2)).astype(np.float32)
+    hlo = jax.jit(lambda a, b, c: calculi.classify_all(six, a, b, c)).lower(*pts).as_text()
+    assert hlo.count("call @_jit_pattern(") == 1 and hlo.count('"stablehlo.gather"') == 1
+    assert sum(s.shape == (50,) for s in calculi.classify_all(six, *pts)) == 6
+    with pytest.raises(TypeError, match="classify: b is complex"):
+        calculi.classify_all(six, A0, np.array([1j, 0]), A0)
+    with pytest.raises(ValueError, match=r"classify: c must have shape \(\.\.\., 2\)"):
+        calculi.classify_all(six, A0, B0, np.zeros(3))

@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from . import library
-from .calculus import Calculus
+from .calculus import Calculus, classify_all
 from .poly import Poly, alpha, beta, circle, line, rho
 from .protocol import BOUNDARY, DEGENERATE, INVALID, TernaryCalculus, check_calculus
 
 __all__ = [
     "BOUNDARY", "DEGENERATE", "INVALID", "Calculus", "TernaryCalculus", "check_calculus", "Poly",
+    "classify_all",
     "alpha", "beta", "rho", "line", "circle", "get", "is_builtin", "names", "register",
 ]
 

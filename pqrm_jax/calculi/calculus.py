@@ -17,7 +17,7 @@ import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from fractions import Fraction
-from functools import cached_property
+from functools import cached_property, partial
 
 import jax
 import jax.numpy as jnp
@@ -425,6 +425,14 @@ class Calculus:
 
     def _classify(self, a, b, c):
         """Traced classification (see :meth:`classify`); floats or integers of one shape."""
+        return jnp.asarray(self._extended_table)[self._pattern(a, b, c)]
+
+    def _pattern(self, a, b, c):
+        """Index into :attr:`_extended_table` of ``AB:C`` (traced; see :meth:`classify`).
+
+        A function of the constraints alone (their sign pattern, the degenerate and invalid
+        cases), so a calculus and its merges give the same index (:func:`classify_all`).
+        """
         a, b, c = (jnp.asarray(x) for x in (a, b, c))
         int_input = all(jnp.issubdtype(x.dtype, jnp.integer) or jnp.issubdtype(x.dtype, jnp.bool_)
                         for x in (a, b, c))
@@ -446,8 +454,7 @@ class Calculus:
             big = jnp.maximum(jnp.max(jnp.abs(bf - af), -1), jnp.max(jnp.abs(cf - af), -1))
             huge = jnp.max(jnp.abs(jnp.stack([af, bf, cf])), axis=(0, -1))
             invalid = invalid | (big > bound) | (huge > lim)
-        idx = jnp.where(invalid, full, idx)
-        return jnp.asarray(self._extended_table)[idx]
+        return jnp.where(invalid, full, idx)
 
     def _classify_integers(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Exact classification of integer coordinates (NumPy int64, or Python ints)."""
@@ -504,28 +511,7 @@ class Calculus:
         >>> int(lr.classify([0, 0], [0, 3_000_000_000], [-3, 1_000_000_000]))  # exact int64
         0
         """
-        raw = []
-        for nm, x in (("a", a), ("b", b), ("c", c)):
-            if not isinstance(x, jax.Array | np.ndarray):
-                try:
-                    x = np.asarray(x)
-                except (TypeError, ValueError) as err:
-                    raise TypeError(f"classify: {nm} is not an array of coordinates") from err
-            dt = x.dtype
-            if jnp.issubdtype(dt, jnp.complexfloating):
-                raise TypeError(f"classify: {nm} is complex ({dt}); coordinates must be real")
-            if jnp.issubdtype(dt, jnp.bool_) or not (jnp.issubdtype(dt, jnp.integer)
-                                  or jnp.issubdtype(dt, jnp.floating)):
-                raise TypeError(f"classify: {nm} has dtype {dt}; coordinates must be real "
-                                "numbers (integer or float)")
-            if x.ndim < 1 or x.shape[-1] != 2:
-                raise ValueError(f"classify: {nm} must have shape (..., 2), got {x.shape}")
-            raw.append(x)
-        try:
-            shape = np.broadcast_shapes(*(x.shape for x in raw))
-        except ValueError as err:
-            raise ValueError(f"classify: shapes {[x.shape for x in raw]} do not "
-                             "broadcast") from err
+        raw, shape = _points(a, b, c)
         concrete = not any(isinstance(x, jax.core.Tracer) for x in raw)
         if concrete and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw):
             out = self._classify_integers(*(np.asarray(x) for x in raw))
@@ -560,6 +546,85 @@ class Calculus:
         Read from :attr:`tables`, so the first access may build them.
         """
         return self.tables.neighbor_distance
+
+
+
+def classify_all(calcs: Sequence[Calculus], a, b, c) -> tuple[jax.Array, ...]:
+    """``tuple(calc.classify(a, b, c) for calc in calcs)``, one sign evaluation per family.
+
+    Calculi with the same constraints (a calculus and its merges, e.g. Padgett's six
+    representations of the EDC, P §2.2.1) classify by the same sign pattern of those
+    constraints and differ only in the table that names its state
+    (:meth:`Calculus.merge`). The pattern is evaluated once per such family and looked up
+    in each calculus' own table, so every result equals ``calc.classify(a, b, c)`` bit for
+    bit (sentinels included: a boundary of the fine calculus can be a state of a merge) at
+    the cost of one classification and a table lookup per calculus. Integer coordinates
+    outside a trace are classified exactly by each calculus, as :meth:`Calculus.classify`
+    does.
+
+    Args:
+        calcs: calculi (:class:`Calculus`).
+        a, b, c: points ``[..., 2]`` (broadcast), as for :meth:`Calculus.classify`.
+
+    Returns:
+        One int32 array of the broadcast batch shape per calculus, in the order of ``calcs``.
+
+    >>> from pqrm_jax import calculi
+    >>> lr, edc = calculi.get("lr"), calculi.get("edc")
+    >>> states = classify_all([edc, lr], [0., 0.], [0., 1.], [2., 5.])
+    >>> [int(x) for x in states] == [int(edc.classify([0., 0.], [0., 1.], [2., 5.])), 1]
+    True
+    """
+    calcs = tuple(calcs)
+    raw, shape = _points(a, b, c)
+    concrete = not any(isinstance(x, jax.core.Tracer) for x in raw)
+    if concrete and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw):
+        return tuple(calc.classify(*raw) for calc in calcs)
+    pts = jnp.broadcast_arrays(*(jnp.asarray(x) for x in raw))
+    families: dict[tuple, list[int]] = {}
+    for i, calc in enumerate(calcs):
+        families.setdefault(calc.constraints, []).append(i)
+    out: list = [None] * len(calcs)
+    for members in families.values():
+        # the family's tables side by side, looked up by one gather of whole rows: one
+        # lookup per calculus would each re-evaluate the pattern (XLA fuses it into them)
+        table = np.stack([calcs[i]._extended_table for i in members], axis=-1)
+        states = jnp.asarray(table)[_jit_pattern(calcs[members[0]], *pts)]
+        for j, i in enumerate(members):
+            out[i] = states[..., j]
+    return tuple(out)
+
+
+@partial(jax.jit, static_argnums=0)
+def _jit_pattern(calc: Calculus, a, b, c) -> jax.Array:
+    return calc._pattern(a, b, c)
+
+
+def _points(a, b, c) -> tuple[list, tuple[int, ...]]:
+    """The checked coordinate arrays of ``classify(a, b, c)`` and their broadcast shape."""
+    raw = []
+    for nm, x in (("a", a), ("b", b), ("c", c)):
+        if not isinstance(x, jax.Array | np.ndarray):
+            try:
+                x = np.asarray(x)
+            except (TypeError, ValueError) as err:
+                raise TypeError(f"classify: {nm} is not an array of coordinates") from err
+        dt = x.dtype
+        if jnp.issubdtype(dt, jnp.complexfloating):
+            raise TypeError(f"classify: {nm} is complex ({dt}); coordinates must be real")
+        if jnp.issubdtype(dt, jnp.bool_) or not (jnp.issubdtype(dt, jnp.integer)
+                              or jnp.issubdtype(dt, jnp.floating)):
+            raise TypeError(f"classify: {nm} has dtype {dt}; coordinates must be real "
+                            "numbers (integer or float)")
+        if x.ndim < 1 or x.shape[-1] != 2:
+            raise ValueError(f"classify: {nm} must have shape (..., 2), got {x.shape}")
+        raw.append(x)
+    try:
+        shape = np.broadcast_shapes(*(x.shape for x in raw))
+    except ValueError as err:
+        raise ValueError(f"classify: shapes {[x.shape for x in raw]} do not "
+                         "broadcast") from err
+    return raw, shape
 
 
 def _sign(x: Fraction) -> int:

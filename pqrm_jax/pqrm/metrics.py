@@ -25,12 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import triplets as layouts
-from ..calculi import Calculus
+from ..calculi import Calculus, classify_all
 
 __all__ = [
     "entropy", "mean_map_entropy", "ml_states", "error_rate", "topn_error_rates",
     "ml_probability", "neighbor_distance", "confusion_matrix", "normalized_positions",
-    "true_states", "random_neighbor_distance", "masked_mean", "defined_mask", "truth_rank",
+    "true_states", "true_states_all", "random_neighbor_distance", "masked_mean", "defined_mask",
+    "truth_rank",
 ]
 
 
@@ -145,6 +146,18 @@ def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
     The rows layout of :func:`pqrm_jax.triplets.true_states`.
     """
     return layouts.true_states(calc, landmarks, "rows", triplets=triplets)
+
+
+def true_states_all(calcs, landmarks: jax.Array, triplets) -> tuple[jax.Array, ...]:
+    """[T] true states of each triplet in each of ``calcs``, as :func:`true_states` per calculus.
+
+    One sign evaluation serves a calculus and all its merges (:func:`pqrm_jax.calculi.
+    classify_all`): Padgett's six representations cost one classification, with results
+    equal to :func:`true_states` bit for bit.
+    """
+    tri = jnp.asarray(triplets)
+    p = jnp.asarray(landmarks)
+    return classify_all(calcs, p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]])
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:

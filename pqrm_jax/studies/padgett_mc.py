@@ -175,8 +175,11 @@ def _make_metrics_fn(cfg: Config, dists: dict, pq):
     def run_metrics(lm, state):
         out = {"n_mapped": jnp.sum(state.mapped), "n_updates": jnp.sum(state.num_updates),
                "n_rejected": jnp.sum(state.num_rejected)}
+        # one sign evaluation for the six merges of the EDC (equal to true_states per calculus)
+        truths = dict(zip((c.name for c in cals), metrics.true_states_all(cals, lm, tri),
+                          strict=True))
         for c in cals:
-            truth = metrics.true_states(c, lm, tri)
+            truth = truths[c.name]
             mask = state.mapped & (truth >= 0)
             p = state.probs[c.name]
             r = {
@@ -193,7 +196,7 @@ def _make_metrics_fn(cfg: Config, dists: dict, pq):
                              else jnp.float32(jnp.nan))
             out[c.name] = r
         # EDC error locations (P Fig. 2.8): normalised C, |AB|, truth, estimate, error mask
-        truth = metrics.true_states(edc, lm, tri)
+        truth = truths["edc"] if "edc" in truths else metrics.true_states(edc, lm, tri)
         p = state.probs["edc"]
         est = metrics.ml_states(p)
         xy, dab = metrics.normalized_positions(lm, tri)
