@@ -202,5 +202,13 @@ def test_classify_all_shares_the_pattern_and_checks_like_classify():
     assert sum(s.shape == (50,) for s in calculi.classify_all(six, *pts)) == 6
     with pytest.raises(TypeError, match="classify: b is complex"):
         calculi.classify_all(six, A0, np.array([1j, 0]), A0)
+    # a calculus of another kind is classified by its own classify, in its place
+    import pqrm_jax.serge as sg
+
+    g = sg.Grid((-4.0, -4.0), (4.0, 4.0), (4, 5))
+    serge = sg.SergeCalculus("halves_t", g, np.tile([0, 0, 1, 1], 5))
+    got = calculi.classify_all([six[0], serge, six[5]], *pts)
+    for g_, c in zip(got, [six[0], serge, six[5]], strict=True):
+        np.testing.assert_array_equal(g_, c.classify(*pts))
     with pytest.raises(ValueError, match=r"classify: c must have shape \(\.\.\., 2\)"):
         calculi.classify_all(six, A0, B0, np.zeros(3))

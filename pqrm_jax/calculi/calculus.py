@@ -548,8 +548,8 @@ class Calculus:
         return self.tables.neighbor_distance
 
 
-
-def classify_all(calcs: Sequence[Calculus], a, b, c) -> tuple[jax.Array, ...]:
+def classify_all(calcs: Sequence, a: jax.typing.ArrayLike, b: jax.typing.ArrayLike,
+                 c: jax.typing.ArrayLike) -> tuple[jax.Array, ...]:
     """``tuple(calc.classify(a, b, c) for calc in calcs)``, one sign evaluation per family.
 
     Calculi with the same constraints (a calculus and its merges, e.g. Padgett's six
@@ -560,10 +560,11 @@ def classify_all(calcs: Sequence[Calculus], a, b, c) -> tuple[jax.Array, ...]:
     bit (sentinels included: a boundary of the fine calculus can be a state of a merge) at
     the cost of one classification and a table lookup per calculus. Integer coordinates
     outside a trace are classified exactly by each calculus, as :meth:`Calculus.classify`
-    does.
+    does; a calculus of another kind (a :class:`~pqrm_jax.calculi.TernaryCalculus` such as a
+    SERGE calculus) is classified by its own ``classify``.
 
     Args:
-        calcs: calculi (:class:`Calculus`).
+        calcs: calculi (:class:`Calculus` or any ``TernaryCalculus``).
         a, b, c: points ``[..., 2]`` (broadcast), as for :meth:`Calculus.classify`.
 
     Returns:
@@ -582,9 +583,12 @@ def classify_all(calcs: Sequence[Calculus], a, b, c) -> tuple[jax.Array, ...]:
         return tuple(calc.classify(*raw) for calc in calcs)
     pts = jnp.broadcast_arrays(*(jnp.asarray(x) for x in raw))
     families: dict[tuple, list[int]] = {}
-    for i, calc in enumerate(calcs):
-        families.setdefault(calc.constraints, []).append(i)
     out: list = [None] * len(calcs)
+    for i, calc in enumerate(calcs):
+        if isinstance(calc, Calculus):
+            families.setdefault(calc.constraints, []).append(i)
+        else:
+            out[i] = calc.classify(*pts)
     for members in families.values():
         # the family's tables side by side, looked up by one gather of whole rows: one
         # lookup per calculus would each re-evaluate the pattern (XLA fuses it into them)
@@ -613,7 +617,7 @@ def _points(a, b, c) -> tuple[list, tuple[int, ...]]:
         if jnp.issubdtype(dt, jnp.complexfloating):
             raise TypeError(f"classify: {nm} is complex ({dt}); coordinates must be real")
         if jnp.issubdtype(dt, jnp.bool_) or not (jnp.issubdtype(dt, jnp.integer)
-                              or jnp.issubdtype(dt, jnp.floating)):
+                                                  or jnp.issubdtype(dt, jnp.floating)):
             raise TypeError(f"classify: {nm} has dtype {dt}; coordinates must be real "
                             "numbers (integer or float)")
         if x.ndim < 1 or x.shape[-1] != 2:

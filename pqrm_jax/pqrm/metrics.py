@@ -151,9 +151,17 @@ def true_states(calc: Calculus, landmarks: jax.Array, triplets) -> jax.Array:
 def true_states_all(calcs, landmarks: jax.Array, triplets) -> tuple[jax.Array, ...]:
     """[T] true states of each triplet in each of ``calcs``, as :func:`true_states` per calculus.
 
-    One sign evaluation serves a calculus and all its merges (:func:`pqrm_jax.calculi.
-    classify_all`): Padgett's six representations cost one classification, with results
-    equal to :func:`true_states` bit for bit.
+    One sign evaluation serves a calculus and all its merges
+    (:func:`pqrm_jax.calculi.classify_all`): Padgett's six representations cost one
+    classification, with results equal to :func:`true_states` bit for bit.
+
+    Args:
+        calcs: the calculi (any ``TernaryCalculus``).
+        landmarks: [M, 2] world positions.
+        triplets: [T, 3] landmark ids of the rows.
+
+    Returns:
+        One int32 [T] array per calculus, in the order of ``calcs``.
     """
     tri = jnp.asarray(triplets)
     p = jnp.asarray(landmarks)
