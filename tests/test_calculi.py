@@ -160,7 +160,7 @@ def test_a_calculus_is_frozen():
 _FAMILY = tuple(calculi.PADGETT_REPRESENTATIONS) + ("quadrant", "lr_full", "dcc")
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(st.lists(st.sampled_from(_FAMILY), min_size=1, max_size=9),
        st.integers(-30, 30), st.integers(-3, 3), st.sampled_from(["float32", "int", "mixed"]),
        st.sampled_from([(), (11,), (3, 4)]), st.booleans(), st.integers(0, 2**31 - 1))
@@ -183,9 +183,10 @@ def test_classify_all_equals_classify_per_calculus(names, exp, offset, kind, bat
             x = (x[0], pts[1], pts[2])
         got = calculi.classify_all(calcs, *x)
         want = [c.classify(*x) for c in calcs]
-        jitted = jax.jit(lambda a, b, c: calculi.classify_all(calcs, a, b, c))(*x)
-        for g, w in zip(jitted, want, strict=True):
-            np.testing.assert_array_equal(g, w)
+        if seed % 4 == 0:  # traced (a compile per example: in a quarter of them)
+            jitted = jax.jit(lambda a, b, c: calculi.classify_all(calcs, a, b, c))(*x)
+            for g, w in zip(jitted, want, strict=True):
+                np.testing.assert_array_equal(g, w)
     assert len(got) == len(calcs)
     for g, w in zip(got, want, strict=True):
         assert g.dtype == np.int32 and g.shape == batch
