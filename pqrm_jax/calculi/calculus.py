@@ -558,7 +558,10 @@ def classify_all(calcs: Sequence, a: jax.typing.ArrayLike, b: jax.typing.ArrayLi
     (:meth:`Calculus.merge`). The pattern is evaluated once per such family and looked up
     in each calculus' own table, so every result equals ``calc.classify(a, b, c)`` bit for
     bit (sentinels included: a boundary of the fine calculus can be a state of a merge) at
-    the cost of one classification and a table lookup per calculus. Integer coordinates
+    the cost of one classification and a table lookup per calculus. As in ``classify``, the
+    pattern is compiled together with its lookup: compiled apart, LLVM may contract its
+    products and sums into FMAs differently, and a float point at a boundary can then change
+    state (the property test in tests/test_calculi.py found such a point). Integer coordinates
     outside a trace are classified exactly by each calculus, as :meth:`Calculus.classify`
     does; a calculus of another kind (a :class:`~pqrm_jax.calculi.TernaryCalculus` such as a
     SERGE calculus) is classified by its own ``classify``.
@@ -590,18 +593,25 @@ def classify_all(calcs: Sequence, a: jax.typing.ArrayLike, b: jax.typing.ArrayLi
         else:
             out[i] = calc.classify(*pts)
     for members in families.values():
-        # the family's tables side by side, looked up by one gather of whole rows: one
-        # lookup per calculus would each re-evaluate the pattern (XLA fuses it into them)
-        table = np.stack([calcs[i]._extended_table for i in members], axis=-1)
-        states = jnp.asarray(table)[_jit_pattern(calcs[members[0]], *pts)]
-        for j, i in enumerate(members):
-            out[i] = states[..., j]
+        for i, state in zip(members, _jit_family(tuple(calcs[i] for i in members), *pts),
+                            strict=True):
+            out[i] = state
     return tuple(out)
 
 
 @partial(jax.jit, static_argnums=0)
-def _jit_pattern(calc: Calculus, a, b, c) -> jax.Array:
-    return calc._pattern(a, b, c)
+def _jit_family(family: tuple[Calculus, ...], a, b, c) -> tuple[jax.Array, ...]:
+    """The states in each calculus of ``family`` (same constraints), in one program: the
+    pattern and its lookup compiled together, as in :meth:`Calculus.classify` (compiled
+    apart, LLVM may contract the pattern's products and sums into FMAs differently, which
+    can move a sign at a boundary)."""
+    if len(family) == 1:
+        return (family[0]._classify(a, b, c),)
+    # the tables side by side, looked up by one gather of whole rows: one lookup per
+    # calculus would each re-evaluate the pattern (XLA fuses it into every lookup)
+    table = np.stack([calc._extended_table for calc in family], axis=-1)
+    states = jnp.asarray(table)[family[0]._pattern(a, b, c)]
+    return tuple(states[..., j] for j in range(len(family)))
 
 
 def _points(a, b, c) -> tuple[list, tuple[int, ...]]:
