@@ -44,7 +44,7 @@ from .calculi.protocol import DEGENERATE
 __all__ = [
     "LAYOUTS", "num_triplets", "ordered_triplets", "distinct_mask", "cyclic_mask",
     "rows_to_dense", "dense_to_rows", "states_to_masks", "masks_to_sets", "sets_to_masks",
-    "true_states",
+    "true_states", "row_points",
     "ORDERINGS", "INVERSE_OF", "LEFT_OF", "RIGHT_OF", "ORDERING_INDEX", "elements_to_dense",
     "shared_landmarks", "link_adjacency",
 ]
@@ -341,6 +341,27 @@ def sets_to_masks(sets) -> np.ndarray:
     return (sets.astype(np.uint64) * w).sum(-1).astype(np.uint32)
 
 
+def row_points(landmarks, triplets=None) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The points (A, B, C) of the rows of ``triplets`` in a world of landmarks.
+
+    The one gather behind :func:`true_states` (rows layout) and the per-row PQRM metrics.
+
+    Args:
+        landmarks: ``[M, 2]`` world positions.
+        triplets: ``[T, 3]`` landmark ids (default: all :func:`ordered_triplets`).
+
+    Returns:
+        ``(a, b, c)``, each ``[T, 2]``.
+
+    >>> a, b, c = row_points(jnp.array([[0., 0.], [0., 1.], [1., 0.5]]))
+    >>> c.tolist()[:2]                                   # rows 012, 021
+    [[1.0, 0.5], [0.0, 1.0]]
+    """
+    p = jnp.asarray(landmarks)
+    tri = jnp.asarray(ordered_triplets(p.shape[0]) if triplets is None else triplets)
+    return p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+
+
 def true_states(calc, landmarks, layout: str = "rows", *, triplets=None,
                 mask_repeated: bool = True) -> jax.Array:
     """True state of ``ij:k`` for a world of landmarks ``[M, 2]``, in the chosen layout.
@@ -369,8 +390,7 @@ def true_states(calc, landmarks, layout: str = "rows", *, triplets=None,
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     p = jnp.asarray(landmarks)
     if layout == "rows":
-        tri = jnp.asarray(ordered_triplets(p.shape[0]) if triplets is None else triplets)
-        return calc.classify(p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]])
+        return calc.classify(*row_points(p, triplets))
     n = p.shape[0]
     a = jnp.broadcast_to(p[:, None, None], (n, n, n, 2))
     b = jnp.broadcast_to(p[None, :, None], (n, n, n, 2))

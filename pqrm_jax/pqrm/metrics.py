@@ -163,9 +163,7 @@ def true_states_all(calcs, landmarks: jax.Array, triplets) -> tuple[jax.Array, .
     Returns:
         One int32 [T] array per calculus, in the order of ``calcs``.
     """
-    tri = jnp.asarray(triplets)
-    p = jnp.asarray(landmarks)
-    return classify_all(calcs, p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]])
+    return classify_all(calcs, *layouts.row_points(landmarks, triplets))
 
 
 def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax.Array]:
@@ -173,8 +171,7 @@ def normalized_positions(landmarks: jax.Array, triplets) -> tuple[jax.Array, jax
 
     Right of AB is α > 0 (docs/decisions.md §2); A = B gives NaN coordinates.
     """
-    tri = jnp.asarray(triplets)
-    a, b, c = landmarks[tri[:, 0]], landmarks[tri[:, 1]], landmarks[tri[:, 2]]
+    a, b, c = layouts.row_points(landmarks, triplets)
     d, e = b - a, c - a
     n = jnp.sum(d * d, axis=-1)
     u = e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0]
