@@ -92,12 +92,17 @@ def test_plans_are_simple_optimal_and_sized_by_hops(seed, beta, kind, scale):
     inc = qel.incidence(el)
     lms = np.flatnonzero(inc.any(1))
     pairs = np.array([(s, t) for s in lms for t in lms if s != t])
-    plan = lg.plan_pairs(g, el, pairs[:, 0], pairs[:, 1])
-    table = lg.goal_distances(g, el, lms)
+    # padded to fixed lengths by repeating the first pair and landmark (independent rows,
+    # checked only up to the real ones): one program for every example, as N_LM and N_EL
+    # intend, instead of one for every number of landmarks an example's elements touch
+    padded = np.concatenate([pairs, np.repeat(pairs[:1], N_LM * (N_LM - 1) - len(pairs), 0)])
+    goals = np.concatenate([lms, np.repeat(lms[:1], N_LM - len(lms))])
+    plan = lg.plan_pairs(g, el, padded[:, 0], padded[:, 1])
+    table = lg.goal_distances(g, el, goals)
     row = {int(x): i for i, x in enumerate(lms)}
-    rows = np.array([row[int(t)] for t in pairs[:, 1]])
-    cands = np.full((len(pairs), N_EL), -1)
-    for k, s in enumerate(pairs[:, 0]):
+    rows = np.array([row[int(t)] for t in padded[:, 1]])
+    cands = np.full((len(padded), N_EL), -1)
+    for k, s in enumerate(padded[:, 0]):
         cs = np.flatnonzero(inc[s])
         cands[k, :len(cs)] = cs
     fwd = lg.plan_from(g, table, rows, cands)
