@@ -512,8 +512,7 @@ class Calculus:
         0
         """
         raw, shape = _points(a, b, c)
-        concrete = not any(isinstance(x, jax.core.Tracer) for x in raw)
-        if concrete and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw):
+        if _exact_integers(raw):
             out = self._classify_integers(*(np.asarray(x) for x in raw))
             return jnp.asarray(out.reshape(shape[:-1]), jnp.int32)
         a, b, c = jnp.broadcast_arrays(*(jnp.asarray(x) for x in raw))
@@ -580,9 +579,8 @@ def classify_all(calcs: Sequence, a: jax.typing.ArrayLike, b: jax.typing.ArrayLi
     True
     """
     calcs = tuple(calcs)
-    raw, shape = _points(a, b, c)
-    concrete = not any(isinstance(x, jax.core.Tracer) for x in raw)
-    if concrete and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw):
+    raw, _ = _points(a, b, c)
+    if _exact_integers(raw):
         return tuple(calc.classify(*raw) for calc in calcs)
     pts = jnp.broadcast_arrays(*(jnp.asarray(x) for x in raw))
     families: dict[tuple, list[int]] = {}
@@ -639,6 +637,12 @@ def _points(a, b, c) -> tuple[list, tuple[int, ...]]:
         raise ValueError(f"classify: shapes {[x.shape for x in raw]} do not "
                          "broadcast") from err
     return raw, shape
+
+
+def _exact_integers(raw) -> bool:
+    """Integer coordinates outside a trace: classified exactly, in NumPy int64."""
+    return (not any(isinstance(x, jax.core.Tracer) for x in raw)
+            and all(jnp.issubdtype(x.dtype, jnp.integer) for x in raw))
 
 
 def _sign(x: Fraction) -> int:
