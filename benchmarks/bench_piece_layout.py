@@ -14,10 +14,11 @@ every field (each probability halved, each counter incremented, ``mapped`` set) 
 it back — the gathers and scatters of ``_sparse_group_update`` without the sampling kernel
 and eq. 2.10:
 
-* **fields** — the 15 arrays of :class:`pqrm_jax.pqrm.MapState` (six probability tables, six
-  conflict counters, ``mapped``, ``num_updates``, ``num_rejected``), as the map is stored;
-* **packed** — one [rows, ΣQ + 9] float32 array holding the same fields (counters bitcast),
-  one gather and one scatter a piece.
+* **fields** — the per-triplet arrays of :class:`pqrm_jax.pqrm.MapState` as the map stores
+  them (15 for six representations: the probability tables, the conflict counters,
+  ``mapped``, ``num_updates``, ``num_rejected``; taken from the state, counted in the JSON);
+* **packed** — one [rows, ΣQ + counters] float32 array holding the same fields (counters
+  and flags bitcast), one gather and one scatter a piece.
 
 Both loops compute the same values (checked). Wall and CPU seconds of each, best of
 ``--repeat``, alternating in one process, and the ratio.
@@ -55,14 +56,15 @@ def seen_pieces(pq, runs: int, seed: int = 0) -> np.ndarray:
     return np.concatenate(out).reshape(-1, BLOCK).astype(np.int32)
 
 
-def fields(state):
-    """The 15 row arrays of a map state, flattened to rows."""
-    return (tuple(state.probs.values()), state.mapped, state.num_updates,
-            tuple(state.num_conflicts.values()), state.num_rejected)
+def row_arrays(state) -> list:
+    """The per-triplet arrays of a map state (every leaf with a triplet axis), in leaf order."""
+    return [x for x in jax.tree_util.tree_leaves(state) if x.ndim >= 1]
 
 
 def bump(x):
-    return x | True if x.dtype == bool else x + 1 if x.dtype == jnp.int32 else x * 0.5
+    """The change a piece makes to a field: probabilities halved, counters +1, flags set."""
+    return x | True if x.dtype == bool else x * 0.5 if jnp.issubdtype(x.dtype, jnp.floating) \
+        else x + 1
 
 
 @jax.jit
@@ -76,23 +78,31 @@ def loop_fields(rows, pieces):
     return jax.lax.while_loop(lambda c: c[0] < pieces.shape[0], body, (0, rows))[1]
 
 
-def pack(rows):
-    probs, mapped, num_updates, conflicts, rejected = rows
-    ints = jnp.stack([*conflicts, num_updates, rejected, mapped.astype(jnp.int32)], axis=-1)
-    return jnp.concatenate([*probs, jax.lax.bitcast_convert_type(ints, jnp.float32)], axis=-1)
+def pack(rows) -> jax.Array:
+    """The row arrays side by side in one [rows, W] float32 array (integers and flags bitcast),
+    probability columns first."""
+    floats = [x for x in rows if x.ndim == 2]
+    ints = [x.astype(jnp.int32) for x in rows if x.ndim == 1]
+    return jnp.concatenate([*floats, jax.lax.bitcast_convert_type(jnp.stack(ints, -1),
+                                                                  jnp.float32)], axis=-1)
 
 
-def loop_packed(packed, pieces, nq: int):
-    cols = jnp.arange(packed.shape[1])
+def column_kinds(rows) -> np.ndarray:
+    """[W] what :func:`bump` does to each packed column: 0 halve, 1 add one, 2 set to one."""
+    floats = [np.zeros(x.shape[1], np.int32) for x in rows if x.ndim == 2]
+    ints = [np.int32(2 if x.dtype == bool else 1) for x in rows if x.ndim == 1]
+    return np.concatenate([*floats, np.array(ints, np.int32)])
 
+
+@jax.jit
+def loop_packed(packed, pieces, kinds):
     def body(c):
         p, x = c
         idx = pieces[p]
         g = x[idx]
         ints = jax.lax.bitcast_convert_type(g, jnp.int32)
-        new = jnp.where(cols < nq, g * 0.5, jax.lax.bitcast_convert_type(
-            jnp.where(cols == packed.shape[1] - 1, 1, ints + 1), jnp.float32))
-        return p + 1, x.at[idx].set(new, mode="drop")
+        ints = jax.lax.bitcast_convert_type(jnp.where(kinds == 2, 1, ints + 1), jnp.float32)
+        return p + 1, x.at[idx].set(jnp.where(kinds == 0, g * 0.5, ints), mode="drop")
 
     return jax.lax.while_loop(lambda c: c[0] < pieces.shape[0], body, (0, packed))[1]
 
@@ -111,14 +121,13 @@ def main(argv=None) -> int:
     r = a.runs
 
     def fresh():
-        return jax.block_until_ready(jax.tree_util.tree_map(
-            lambda x: jnp.broadcast_to(x, (r, *x.shape)).reshape(r * x.shape[0], *x.shape[1:]),
-            fields(pq.init())))
+        return jax.block_until_ready([
+            jnp.broadcast_to(x, (r, *x.shape)).reshape(r * x.shape[0], *x.shape[1:])
+            for x in row_arrays(pq.init())])
 
-    nq = sum(x.shape[1] for x in fresh()[0])
-    lp = jax.jit(loop_packed, static_argnums=2)
+    kinds = jnp.asarray(column_kinds(fresh()))
     want = pack(loop_fields(fresh(), pieces))  # also compiles
-    got = lp(pack(fresh()), pieces, nq)
+    got = loop_packed(pack(fresh()), pieces, kinds)
     same = bool(jnp.array_equal(jax.lax.bitcast_convert_type(want, jnp.int32),
                                 jax.lax.bitcast_convert_type(got, jnp.int32)))
     if not same:
@@ -128,11 +137,13 @@ def main(argv=None) -> int:
         rows = fresh()
         res["fields"].append(best_of_cpu(lambda rows=rows: loop_fields(rows, pieces), 1)[:2])
         packed = jax.block_until_ready(pack(fresh()))
-        res["packed"].append(best_of_cpu(lambda packed=packed: lp(packed, pieces, nq), 1)[:2])
+        res["packed"].append(
+            best_of_cpu(lambda packed=packed: loop_packed(packed, pieces, kinds), 1)[:2])
     best = {k: min(v) for k, v in res.items()}
     out = {
-        "runs": r, "pieces": int(pieces.shape[0]), "block": BLOCK, "row_columns_packed":
-        int(got.shape[1]), "identical": same,
+        "runs": r, "pieces": int(pieces.shape[0]), "block": BLOCK,
+        "row_arrays": len(row_arrays(pq.init())), "row_columns_packed": int(got.shape[1]),
+        "identical": same,
         "fields_wall_s": best["fields"][0], "fields_cpu_s": best["fields"][1],
         "packed_wall_s": best["packed"][0], "packed_cpu_s": best["packed"][1],
         "cpu_ratio_fields_over_packed": best["fields"][1] / best["packed"][1],
