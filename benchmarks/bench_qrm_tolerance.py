@@ -235,12 +235,11 @@ def traverse_speed(rounds: int = 3) -> dict:
     c0, w0 = time.process_time(), time.perf_counter()
     jax.block_until_ready(P.run_sequence(lm, poses, 18)[0].rel)
     run = {"cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0}
-    sizes = X.screen_buffers(int(tri.shape[0]))  # smallest first; the last is screen_buffer
+    size = X.screen_buffer(int(tri.shape[0]))
     res = dict(images=len(imgs), triples=int(tri.shape[0]), identical_sets=bool(same),
                flagged_mean=float(np.mean(nflag)), flagged_max=int(max(nflag)),
-               buffer=sizes[-1], buffers=list(sizes),
-               small_buffer_images=int(sum(n <= sizes[0] for n in nflag)),
-               overflow_images=int(sum(n > sizes[-1] for n in nflag)),
+               buffer=size, one_chunk_images=int(sum(n <= size for n in nflag)),
+               overflow_images=int(sum(n > size for n in nflag)),
                per_image=times, best_cpu_s=best,
                cpu_ratio_screened_vs_all=best["screened"] / best["all_triples"],
                cpu_ratio_screened_vs_tol0=best["screened"] / best["tol0"],

@@ -58,8 +58,8 @@ from scipy import ndimage
 from .spec import CYCLIC, QRMSpec
 
 __all__ = ["CameraStructure", "camera_structure", "form_values", "exact_sets", "CYCLIC",
-           "VERTICES", "EDGES", "BAND", "SCREEN_SHARE", "SCREEN_MIN", "SCREEN_SMALL",
-           "screen_buffer", "screen_buffers", "tolerant_flags"]
+           "VERTICES", "EDGES", "BAND", "SCREEN_SHARE", "SCREEN_MIN", "screen_buffer",
+           "tolerant_flags"]
 
 #: vertices of the range-order cone on d_far = 1: (0,0,1) both nearer landmarks at the camera,
 #: (0,1,1) near at the camera and mid = far, (1,1,1) all ranges equal
@@ -427,7 +427,7 @@ def _fold(x, axes, init, op):
     the largest cost of the measurement (the screen's two reductions took more than the
     exact decision). From :data:`_FOLD_MIN` elements the reduced axes are moved to the front,
     flattened and halved elementwise (each step runs along whole contiguous rows, which a
-    CPU vectorises; the tolerant decision's buffers of 51 triples too).
+    CPU vectorises; the tolerant decision's buffers of 17 triples too).
     The flattened axis is first padded with ``init`` to a power of two: with an odd length a
     step concatenated its leftover row to the halved rows, a second consumer of the step
     before, and XLA fused the producers into both and computed them again. Smaller arrays
@@ -761,26 +761,20 @@ def _region_atoms(spec: QRMSpec, st: CameraStructure, w, tol, loose, inv):
 
 #: triples of a batch that get the full tolerant decision in a buffer (the rest keep the
 #: exact sets, :func:`_screen`): ``max(SCREEN_MIN, ⌈T · SCREEN_SHARE⌉)``; more flagged
-#: triples than that go through it in chunks, as many as they fill (same sets).
-#: Sized on the Mars-Yard traverse (float32, 816 triples an image): benchmarks/bench_qrm.py
-SCREEN_SHARE = 1 / 16
-SCREEN_MIN = 16
-#: a second, smaller buffer (``⌈buffer / SCREEN_SMALL⌉`` triples) for the images with few
-#: flagged triples: the tolerant decision's cost is linear in the buffer (traverse, 816
-#: triples: 3.3 CPU-ms for 51, 0.9 for 16; flagged mean 16, max 37 an image)
-SCREEN_SMALL = 3
+#: triples than that go through it in chunks, as many as they fill (same sets). The
+#: decision's cost is linear in the buffer (traverse, 816 triples: 3.3 CPU-ms for 51, 0.9 for
+#: 16), so a small buffer costs the images with many flagged triples little: 17 triples on
+#: the traverse's 816 (flagged mean 16–30, max 37–66 an image). One size, so the decision is
+#: compiled once (docs/qrm.md §camera): until 2026-12-06 a second, 3× larger buffer took
+#: the images that overflowed this one, which made every program holding the measurement
+#: compile the decision twice
+SCREEN_SHARE = 1 / 48
+SCREEN_MIN = 6
 
 
 def screen_buffer(n_triples: int) -> int:
     """Static size of the buffer of flagged triples for a batch of ``n_triples``."""
     return min(n_triples, max(SCREEN_MIN, math.ceil(n_triples * SCREEN_SHARE)))
-
-
-def screen_buffers(n_triples: int) -> tuple[int, ...]:
-    """Static sizes of the buffers of flagged triples, smallest first (one or two)."""
-    big = screen_buffer(n_triples)
-    small = math.ceil(big / SCREEN_SMALL)
-    return (small, big) if small < big else (big,)
 
 
 def tolerant_flags(spec: QRMSpec, bearings: jax.Array, tol) -> jax.Array:
@@ -834,33 +828,27 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0, *,
         wit0, poss0 = _edge_atoms(spec, st, g, loose, None, None)
         flag = _screen(spec, st, g, tol, loose)
         n = jnp.sum(flag)
-        sizes = screen_buffers(T)
+        size = screen_buffer(T)
 
-        def in_chunks(size):
+        def in_chunks():
             # the flagged triples through the full decision, ``size`` at a time, as many
             # chunks as they fill: the cost grows with their count, and the program's
             # temporary memory stays one chunk's (a branch on all T triples, even never
             # taken, made every call allocate — and the OS page in — its ~T-sized
             # temporaries; docs/qrm.md §camera)
-            def run():
-                idx_all = jnp.nonzero(flag, size=-(-T // size) * size,
-                                      fill_value=T)[0].reshape(-1, size)
+            idx_all = jnp.nonzero(flag, size=-(-T // size) * size,
+                                  fill_value=T)[0].reshape(-1, size)
 
-                def body(c, ws):
-                    idx = idx_all[c]  # fill T: dropped when scattered back
-                    sub = bearings[jnp.minimum(idx, T - 1)]
-                    w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
-                    return (ws[0].at[:, idx].set(w_, mode="drop"),
-                            ws[1].at[:, idx].set(p_, mode="drop"))
+            def body(c, ws):
+                idx = idx_all[c]  # fill T: dropped when scattered back
+                sub = bearings[jnp.minimum(idx, T - 1)]
+                w_, p_ = _tolerant_edge_atoms(spec, st, _edges(spec, st, sub), tol, loose)
+                return (ws[0].at[:, idx].set(w_, mode="drop"),
+                        ws[1].at[:, idx].set(p_, mode="drop"))
 
-                return jax.lax.fori_loop(0, (n + size - 1) // size, body, (wit0, poss0))
-            return run
+            return jax.lax.fori_loop(0, (n + size - 1) // size, body, (wit0, poss0))
 
-        # branch 0: none flagged; 1 + i: chunks of sizes[i], the smallest that holds them
-        # (the largest when none does)
-        branch = jnp.where(n == 0, 0, 1 + sum((n > m).astype(jnp.int32) for m in sizes[:-1]))
-        wit, poss = jax.lax.switch(
-            branch, [lambda: (wit0, poss0), *(in_chunks(m) for m in sizes)])
+        wit, poss = jax.lax.cond(n == 0, lambda: (wit0, poss0), in_chunks)
     # region points: R_s inside the image of the cone
     rwit, rposs = _region_atoms(spec, st, g.w, tol, loose, inv)
     wit = wit | rwit
