@@ -7,7 +7,7 @@ sets, which the screen proves equal to the tolerant ones; the flagged ones run t
 tolerant decision in chunks of one static buffer size (as many as they fill).
 The sets must equal the all-triples path (``screen=False``, the decision before the screen)
 bit for bit, on generic, near-degenerate (narrow spreads, two or three nearly equal
-bearings) and mixed batches, through the buffers and through several chunks.
+bearings) and mixed batches, in one chunk and in several.
 """
 
 from __future__ import annotations
@@ -169,9 +169,8 @@ def test_the_tolerant_decision_is_traced_once(monkeypatch):
 
 @pytest.mark.parametrize("n", [3, 20, 816, 4060])
 def test_screen_buffer_size(n):
-    """One static size: at most the batch, ⌈T/48⌉ and at least 6 (17 on the traverse's 816
-    triples: the smaller of the two buffers before 2026-12-06, which every image used that it
-    held)."""
+    """One static size, ``min(T, max(6, ⌈T/48⌉))``: 17 on the traverse's 816 triples, the
+    smaller of the two buffers before 2026-12-06."""
     assert 1 <= X.screen_buffer(n) <= n
     assert X.screen_buffer(n) == min(n, max(6, -(-n // 48)))
     assert X.screen_buffer(816) == 17
