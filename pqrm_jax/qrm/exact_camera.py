@@ -848,6 +848,7 @@ def exact_sets(spec: QRMSpec, bearings: jax.Array, tol=0.0, *,
 
             return jax.lax.fori_loop(0, (n + size - 1) // size, body, (wit0, poss0))
 
+        # none flagged (always at tol = 0): the exact sets, without gathering any indices
         wit, poss = jax.lax.cond(n == 0, lambda: (wit0, poss0), in_chunks)
     # region points: R_s inside the image of the cone
     rwit, rposs = _region_atoms(spec, st, g.w, tol, loose, inv)
