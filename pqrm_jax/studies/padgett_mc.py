@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import calculi
+from ..pqrm.measurement import KERNEL_COMPILER_OPTIONS
 from . import protocol
 from .padgett_common import (
     BD_BINS,
@@ -54,6 +55,11 @@ PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
 #: rows per piece of the sparse batched update (results do not depend on it, docs/pqrm.md §map)
 SPARSE_BLOCK = 1024
+#: XLA options of the compiled chunk program: the sampling kernel's 512-bit vectors
+#: (:data:`pqrm_jax.pqrm.measurement.KERNEL_COMPILER_OPTIONS`, which JAX cannot set on the
+#: kernel's own jit once it is traced into this program); results unchanged, measured in
+#: docs/benchmarks.md §bench_padgett. A CPU without 512-bit vectors ignores it.
+CHUNK_COMPILER_OPTIONS = dict(KERNEL_COMPILER_OPTIONS)
 NUMERICS_VERSION = 3  # bump when the map's floating-point results change (see Config notes)
 
 
@@ -305,7 +311,8 @@ def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
             if len(_AOT) > 4:
                 _AOT.clear()
             keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
-            _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile())
+            _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile(
+                compiler_options=CHUNK_COMPILER_OPTIONS or None))
         return _AOT[key][1], sharding
 
 
