@@ -91,17 +91,22 @@ def test_sharded_runs_identical_on_1_and_4_devices():
     assert np.asarray(one["edc/entropy"]).std() > 0  # the runs differ from each other
 
 
-def _dense_equals_sparse(cfg, sigmas):
+def _assert_same_leaves(want, got, label: str = "") -> None:
+    """Every leaf of the result pytrees ``want`` and ``got`` equal, bit for bit."""
     import jax
 
+    flat_w = jax.tree_util.tree_leaves_with_path(want)
+    flat_g = jax.tree_util.tree_leaves(got)
+    assert len(flat_w) == len(flat_g)
+    for (path, a), b in zip(flat_w, flat_g, strict=True):
+        np.testing.assert_array_equal(a, b, err_msg=f"{label}{jax.tree_util.keystr(path)}")
+
+
+def _dense_equals_sparse(cfg, sigmas):
     for sigma in sigmas:
         dense = padgett_mc.run_level(cfg, 0, sigma, dense=True)
         sparse = padgett_mc.run_level(cfg, 0, sigma)
-        flat_d = jax.tree_util.tree_leaves_with_path(dense)
-        flat_s = jax.tree_util.tree_leaves(sparse)
-        assert len(flat_d) == len(flat_s)
-        for (path, a), b in zip(flat_d, flat_s, strict=True):
-            np.testing.assert_array_equal(a, b, err_msg=f"σ_R={sigma} {jax.tree_util.keystr(path)}")
+        _assert_same_leaves(dense, sparse, f"σ_R={sigma} ")
         assert np.asarray(sparse["n_updates"]).sum() > 0
         assert sigma == 0 or np.asarray(sparse["double_cross"]["entropy"]).std() > 0
 
@@ -123,19 +128,13 @@ def test_chunk_compiler_options_move_no_result(monkeypatch):
     """Issue 31: the chunk program is compiled with the kernel's 512-bit vectors
     (``CHUNK_COMPILER_OPTIONS``, 3 % less CPU for the full study on an AVX-512 host); every
     result leaf equals that of the program compiled without them, at the study's map."""
-    import jax
-
     cfg = padgett_mc.Config(runs=12, levels=1, chunk_runs=12)
     assert padgett_mc.CHUNK_COMPILER_OPTIONS == {"xla_cpu_prefer_vector_width": 512}
     with_opts = padgett_mc.run_level(cfg, 0, 50.0)
     monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", {})
     monkeypatch.setattr(padgett_mc, "_AOT", {})  # compile again, without the options
     plain = padgett_mc.run_level(cfg, 0, 50.0)
-    flat_p = jax.tree_util.tree_leaves_with_path(plain)
-    flat_o = jax.tree_util.tree_leaves(with_opts)
-    assert len(flat_p) == len(flat_o)
-    for (path, a), b in zip(flat_p, flat_o, strict=True):
-        np.testing.assert_array_equal(a, b, err_msg=jax.tree_util.keystr(path))
+    _assert_same_leaves(plain, with_opts)
     assert np.asarray(plain["edc"]["entropy"]).std() > 0
 
 
