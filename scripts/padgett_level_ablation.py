@@ -47,11 +47,7 @@ def ablated_update(variant: str):
     """A stand-in for the per-group sparse update with the parts of ``variant`` taken out."""
     def update(z, m, s, mask, rows, *, most_seen, n, block, cals, mode):
         total = mask.shape[0]
-        blk = max(1, min(block, total))
-        nblk = -(-total // blk)
-        order = jnp.nonzero(mask, size=total, fill_value=total)[0].astype(jnp.int32)
-        order = jnp.concatenate([order, jnp.full(nblk * blk - total, total, jnp.int32)])
-        num_seen = jnp.sum(mask, dtype=jnp.int32)
+        order, num_seen, blk, _ = pqrm_map._seen_order(mask, block)  # as the study compacts
         bank = z
         if variant != "no_row_update":  # a constant table of normals instead of the draws
             bank = jnp.asarray(np.random.default_rng(0).standard_normal(z.shape), z.dtype)
@@ -86,15 +82,15 @@ def ablate(runs: int, sigma: float, repeat: int) -> dict:
     cfg, _ = P.configure(["--runs", str(runs), "--fresh", "--out", "/dev/null"])
     cfg = dataclasses.replace(cfg, chunk_runs=runs)
     study_update = pqrm_map._sparse_group_update
+    base = jax.random.fold_in(jax.random.key(cfg.seed), 0)  # level 0's run keys
+    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(runs, dtype=jnp.uint32))
     progs = {}
     try:
         for v in VARIANTS:
             pqrm_map._sparse_group_update = study_update if v == "study" else ablated_update(v)
             P._COMPILED.clear()
             _, batched, sharding = P.compiled_runner(cfg)
-            base = jax.random.fold_in(jax.random.key(cfg.seed), 0)
-            keys = jax.device_put(jax.vmap(lambda i, base=base: jax.random.fold_in(base, i))(
-                jnp.arange(runs, dtype=jnp.uint32)), sharding)
+            keys = jax.device_put(keys, sharding)
             progs[v] = batched.lower(keys, jnp.float32(sigma)).compile(
                 compiler_options=P.CHUNK_COMPILER_OPTIONS or None)
     finally:

@@ -343,6 +343,20 @@ BUFFER_MODE = "direct"
 PREPARE_BARRIER = True
 
 
+def _seen_order(mask: jax.Array, block: int) -> tuple[jax.Array, jax.Array, int, int]:
+    """The rows of ``mask`` [N] that are seen, in order, padded with N to whole pieces.
+
+    Returns ``(order [P·blk] int32, number seen () int32, blk, P)``: pieces of
+    ``blk = min(block, N)`` rows (at least 1), ``P = ⌈N / blk⌉`` of them at most.
+    """
+    total = mask.shape[0]
+    blk = max(1, min(block, total))
+    nblk_max = -(-total // blk)
+    order = jnp.nonzero(mask, size=total, fill_value=total)[0].astype(jnp.int32)
+    order = jnp.concatenate([order, jnp.full(nblk_max * blk - total, total, jnp.int32)])
+    return order, jnp.sum(mask, dtype=jnp.int32), blk, nblk_max
+
+
 def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, cals,
                          mode: str):
     """Eq. 2.9 + 2.10 for the seen rows of one group of maps, ``block`` rows at a time.
@@ -357,11 +371,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
     identical. ``mode``: how the rows reach the map (:data:`BUFFER_MODE`).
     """
     total = mask.shape[0]
-    blk = max(1, min(block, total))
-    nblk_max = -(-total // blk)
-    order = jnp.nonzero(mask, size=total, fill_value=total)[0].astype(jnp.int32)
-    order = jnp.concatenate([order, jnp.full(nblk_max * blk - total, total, jnp.int32)])
-    num_seen = jnp.sum(mask, dtype=jnp.int32)
+    order, num_seen, blk, nblk_max = _seen_order(mask, block)
     inv = np.argsort(key_to_edc_state())
 
     def piece_rows(idx, src):
