@@ -128,11 +128,18 @@ def test_chunk_compiler_options_move_no_result(monkeypatch):
     """Issue 31: the chunk program is compiled with the kernel's 512-bit vectors
     (``CHUNK_COMPILER_OPTIONS``, 3 % less CPU for the full study on an AVX-512 host); every
     result leaf equals that of the program compiled without them, at the study's map."""
+    from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
+
     cfg = padgett_mc.Config(runs=12, levels=1, chunk_runs=12)
-    assert padgett_mc.CHUNK_COMPILER_OPTIONS == {"xla_cpu_prefer_vector_width": 512}
+    assert padgett_mc.CHUNK_COMPILER_OPTIONS == KERNEL_COMPILER_OPTIONS
+    assert KERNEL_COMPILER_OPTIONS  # there is something to pass
     with_opts = padgett_mc.run_level(cfg, 0, 50.0)
-    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", {})
-    monkeypatch.setattr(padgett_mc, "_AOT", {})  # compile again, without the options
+    monkeypatch.setattr(padgett_mc, "_AOT", {})  # compile again
+    # the options reach XLA: an option it does not know is refused, by name
+    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", {"xla_no_such_option": 1})
+    with pytest.raises(Exception, match="xla_no_such_option"):
+        padgett_mc.run_level(cfg, 0, 50.0)
+    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", {})  # without the options
     plain = padgett_mc.run_level(cfg, 0, 50.0)
     _assert_same_leaves(plain, with_opts)
     assert np.asarray(plain["edc"]["entropy"]).std() > 0
