@@ -76,8 +76,7 @@ def _forget():
 
 def _program(cfg):
     """(compiled chunk program, keys, first-call wall, first-call CPU) of ``cfg``'s runner."""
-    base = jax.random.fold_in(jax.random.key(cfg.seed), 0)
-    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(cfg.runs, dtype=jnp.uint32))
+    keys = padgett_mc.run_keys(cfg, 0, np.arange(cfg.runs))  # level 0's runs
     wall, cpu, (prog, _) = timed(lambda: padgett_mc.chunk_program(cfg, cfg.runs))
     return prog, keys, wall, cpu
 

@@ -4,7 +4,7 @@
                                                        [--repeat 5] [--out F.json]
 
 One noise level of the study's configuration (``--runs`` runs in one chunk), compiled as
-the study compiles it (``padgett_mc.CHUNK_COMPILER_OPTIONS``), against the same program with
+the study compiles it (``padgett_mc.chunk_program``), against the same program with
 parts of the sparse update's piece loop (``pqrm.map``'s per-group update) taken out, one
 more each variant:
 
@@ -82,20 +82,16 @@ def ablate(runs: int, sigma: float, repeat: int) -> dict:
     cfg, _ = P.configure(["--runs", str(runs), "--fresh", "--out", "/dev/null"])
     cfg = dataclasses.replace(cfg, chunk_runs=runs)
     study_update = pqrm_map._sparse_group_update
-    base = jax.random.fold_in(jax.random.key(cfg.seed), 0)  # level 0's run keys
-    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(runs, dtype=jnp.uint32))
     progs = {}
     try:
         for v in VARIANTS:
             pqrm_map._sparse_group_update = study_update if v == "study" else ablated_update(v)
             P._COMPILED.clear()
-            _, batched, sharding = P.compiled_runner(cfg)
-            keys = jax.device_put(keys, sharding)
-            progs[v] = batched.lower(keys, jnp.float32(sigma)).compile(
-                compiler_options=P.CHUNK_COMPILER_OPTIONS or None)
+            progs[v], sharding = P.chunk_program(cfg, runs)  # as the study compiles it
     finally:
         pqrm_map._sparse_group_update = study_update
         P._COMPILED.clear()
+    keys = jax.device_put(P.run_keys(cfg, 0, np.arange(runs)), sharding)  # level 0's runs
     times = {v: [] for v in VARIANTS}
     for _ in range(repeat):
         for v, prog in progs.items():

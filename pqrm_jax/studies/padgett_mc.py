@@ -365,6 +365,24 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
                          memory_bytes=memory_bytes, whole=full, option="--chunk")
 
 
+def run_keys(cfg: Config, level_index: int, runs) -> jax.Array:
+    """The PRNG keys of some runs of one noise level: the study's key scheme.
+
+    One key per (level, run) whatever the chunking: the root key of ``cfg.seed`` folded with
+    the level index, then with the run index (:func:`run_level` derives its chunks' keys so).
+
+    Args:
+        cfg: the study's configuration (its ``seed``).
+        level_index: the level's index in ``cfg.sigma_levels()``.
+        runs: [K] run indices.
+
+    Returns:
+        [K] PRNG keys.
+    """
+    base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
+    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(runs, jnp.uint32))
+
+
 def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
               dense: bool = False, cluster=None, memory_bytes: int | None = None) -> dict:
     """All runs of one noise level, sharded over devices, in chunks; returns numpy results.
@@ -389,11 +407,10 @@ def run_level(cfg: Config, level_index: int, sigma_r: float, progress=None, *,
     # the same new eager op at once each compile it (JAX does not serialise that), so the
     # per-chunk keys and the noise scalar are derived up front, one level at a time.
     with _LOCK:
-        base = jax.random.fold_in(jax.random.key(cfg.seed), level_index)
         # the last chunk is padded by repeating a run
         idx = np.minimum(np.arange(len(starts) * chunk), cfg.runs - 1).reshape(-1, chunk)
-        chunk_keys = [jax.device_put(jax.vmap(lambda i: jax.random.fold_in(base, i))(
-            jnp.asarray(row, jnp.uint32)), sharding) for row in idx]
+        chunk_keys = [jax.device_put(run_keys(cfg, level_index, row), sharding)
+                      for row in idx]
         sigma = jnp.float32(sigma_r)
 
     def compute(c: int):
@@ -734,6 +751,6 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 __all__ = ["Config", "PRESETS", "claims", "configure", "report", "sweep_summary", "run_study",
-           "run_level", "auto_chunk",
+           "run_level", "run_keys", "auto_chunk",
            "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
            "load_results", "main", "boundary_distance"]
