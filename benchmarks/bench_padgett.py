@@ -18,15 +18,25 @@ on the same keys:
   computed once (``map.PREPARE_BARRIER``).
 
 Every result leaf must be identical (``identical``: the changes move no bit;
-``differing_leaves`` lists any that differ). Times: the first call (compilation included)
-and the best of ``--repeat`` warm calls (interleaved reference/current, so that a change of
-load hits both), wall and CPU seconds of the process, per run and the ratio. The full
-study's time is measured with ``/usr/bin/time -v`` (docs/benchmarks.md §bench_padgett).
+``differing_leaves`` lists any that differ).
+
+``layout`` (issue 31, numerics version 4): the same runs as the study now computes them on a
+CPU — in chunks of ``padgett_mc.CPU_CHUNK_RUNS`` runs (evened out), compiled with
+``padgett_mc.chunk_compiler_options()`` (no YNNPACK fusions) — against the layout before
+that change: all runs in one call, compiled with the kernel's options only (YNNPACK's
+reductions); warm times interleaved, the leaves that differ (only the declared float
+metrics may) and the largest relative difference of each.
+
+Times: the first call (compilation included) and the best of ``--repeat`` warm calls
+(interleaved reference/current, so that a change of load hits both), wall and CPU seconds of
+the process, per run and the ratio. The full study's time is measured with
+``/usr/bin/time -v`` (docs/benchmarks.md §bench_padgett).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -79,6 +89,49 @@ def _program(cfg):
     keys = padgett_mc.run_keys(cfg, 0, np.arange(cfg.runs))  # level 0's runs
     wall, cpu, (prog, _) = timed(lambda: padgett_mc.chunk_program(cfg, cfg.runs))
     return prog, keys, wall, cpu
+
+
+def _layout(cfg, keys, sigma, repeat: int) -> dict:
+    """The study's CPU layout (chunks of ``CPU_CHUNK_RUNS``, ``chunk_compiler_options()``)
+    against one call of every run compiled with the kernel's options only (YNNPACK on)."""
+    from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
+    from pqrm_jax.studies import chunking
+
+    chunk = chunking.balance(min(cfg.runs, padgett_mc.CPU_CHUNK_RUNS), cfg.runs)
+    _, batched, _ = padgett_mc.compiled_runner(cfg)
+    before = batched.lower(keys, sigma).compile(compiler_options=KERNEL_COMPILER_OPTIONS)
+    now, _ = padgett_mc.chunk_program(dataclasses.replace(cfg, chunk_runs=chunk), chunk)
+    idx = np.minimum(np.arange(-(-cfg.runs // chunk) * chunk), cfg.runs - 1).reshape(-1, chunk)
+
+    def chunked():
+        parts = [jax.device_get(now(keys[row], sigma)) for row in idx]
+        out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
+        return jax.tree_util.tree_map(lambda x: x[:cfg.runs], out)
+
+    calls = {"one_call_ynn": lambda: jax.device_get(before(keys, sigma)), "chunked": chunked}
+    times = {k: [] for k in calls}
+    res = {}
+    for _ in range(repeat + 1):  # the first pass warms up, interleaved
+        for name, f in calls.items():
+            wall, cpu, res[name] = timed(f)
+            times[name].append((wall, cpu))
+    out = {"chunk": chunk, "options": padgett_mc.chunk_compiler_options()}
+    for name in calls:
+        out[name] = {"warm_s": min(w for w, _ in times[name][1:]),
+                     "warm_cpu_s": min(c for _, c in times[name][1:]),
+                     "all_warm_s": [w for w, _ in times[name][1:]],
+                     "all_warm_cpu_s": [c for _, c in times[name][1:]]}
+    out["warm_ratio"] = out["one_call_ynn"]["warm_s"] / out["chunked"]["warm_s"]
+    out["warm_cpu_ratio"] = out["one_call_ynn"]["warm_cpu_s"] / out["chunked"]["warm_cpu_s"]
+    differ = {}
+    for (p, a), b in zip(jax.tree_util.tree_leaves_with_path(res["one_call_ynn"]),
+                         jax.tree_util.tree_leaves(res["chunked"]), strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        if not np.array_equal(a, b, equal_nan=True):
+            rel = np.abs(a.astype(float) - b) / np.maximum(np.abs(a.astype(float)), 1e-30)
+            differ[jax.tree_util.keystr(p)] = float(np.nanmax(rel))
+    out["differing_leaves_max_rel"] = differ
+    return out
 
 
 def main(argv=None) -> int:
@@ -146,6 +199,7 @@ def main(argv=None) -> int:
             "num_leaves": len(leaves_c),
         }
     )
+    out["layout"] = lay = _layout(cfg, keys, sigma, args.repeat)
     path = write_result(out, args.out)
     print(
         f"reference {ref['per_run_ms']:.2f} ms/run ({ref['per_run_cpu_ms']:.2f} CPU), "
@@ -153,6 +207,12 @@ def main(argv=None) -> int:
         f"{out['warm_ratio']:.2f}x wall, {out['warm_cpu_ratio']:.2f}x CPU; compile "
         f"{ref['compile_cpu_s']:.1f} -> {cur['compile_cpu_s']:.1f} CPU-s; identical: "
         f"{out['identical']} ({len(leaves_c)} leaves) -> {path}"
+    )
+    print(
+        f"layout: one call (YNNPACK) {lay['one_call_ynn']['warm_cpu_s']:.2f} CPU-s, chunks of "
+        f"{lay['chunk']} without {lay['chunked']['warm_cpu_s']:.2f} CPU-s "
+        f"({lay['warm_cpu_ratio']:.2f}x CPU, {lay['warm_ratio']:.2f}x wall); differing leaves: "
+        f"{sorted(lay['differing_leaves_max_rel'])}"
     )
     return 0
 

@@ -5,6 +5,7 @@ import json
 import os
 import subprocess
 import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -124,15 +125,17 @@ def test_sparse_batched_runner_equals_dense_per_run_runner():
     _dense_equals_sparse(small, (30.0,))
 
 
-def test_chunk_compiler_options_move_no_result(monkeypatch):
-    """Issue 31: the chunk program is compiled with the kernel's 512-bit vectors
-    (``CHUNK_COMPILER_OPTIONS``, 3 % less CPU for the full study on an AVX-512 host); every
-    result leaf equals that of the program compiled without them, at the study's map."""
+def test_chunk_vector_width_moves_no_result(monkeypatch):
+    """Issue 31: the chunk program is compiled with the kernel's 512-bit vectors (3 % less
+    CPU for the full study on an AVX-512 host); every result leaf equals that of the program
+    compiled without them, at the study's map."""
     from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
 
     cfg = padgett_mc.Config(runs=12, levels=1, chunk_runs=12)
-    assert padgett_mc.CHUNK_COMPILER_OPTIONS == KERNEL_COMPILER_OPTIONS
     assert KERNEL_COMPILER_OPTIONS  # there is something to pass
+    assert KERNEL_COMPILER_OPTIONS.items() <= padgett_mc.CHUNK_COMPILER_OPTIONS.items()
+    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", dict(KERNEL_COMPILER_OPTIONS))
+    monkeypatch.setattr(padgett_mc, "_AOT", {})
     with_opts = padgett_mc.run_level(cfg, 0, 50.0)
     monkeypatch.setattr(padgett_mc, "_AOT", {})  # compile again
     # the options reach XLA: an option it does not know is refused, by name
@@ -143,6 +146,108 @@ def test_chunk_compiler_options_move_no_result(monkeypatch):
     plain = padgett_mc.run_level(cfg, 0, 50.0)
     _assert_same_leaves(plain, with_opts)
     assert np.asarray(plain["edc"]["entropy"]).std() > 0
+
+
+#: the result leaves whose float sums may move in the last bits with the program's compiler
+#: options (numerics version 4) or its chunk (docs/studies.md §padgett-mc: the layout)
+FLOAT_METRIC_LEAVES = ("entropy", "p_ml", "xy", "dab")
+
+
+def _assert_same_but_float_metrics(want, got) -> None:
+    """Every leaf equal bit for bit except :data:`FLOAT_METRIC_LEAVES`, which agree within a
+    few ulps (and are not all equal to zero: the comparison has something to compare)."""
+    import jax
+
+    flat_w = jax.tree_util.tree_leaves_with_path(want)
+    for (path, a), b in zip(flat_w, jax.tree_util.tree_leaves(got), strict=True):
+        name = jax.tree_util.keystr(path)
+        if path[-1].key in FLOAT_METRIC_LEAVES:
+            np.testing.assert_allclose(b, a, rtol=4e-6, atol=1e-6, err_msg=name)
+            assert np.any(np.asarray(a) != 0), name
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def test_no_ynn_fusions_keep_the_maps_and_move_only_float_metrics(monkeypatch):
+    """Issue 31, numerics version 4: the chunk program is compiled without YNNPACK fusions
+    (a 1 000-run level 15 % less CPU). The maps are the same bit for bit, so is every
+    discrete result (counts, error, top-n and neighbour rates, confusion, the error
+    locations' states); only the float sums of the metrics (entropy, P(ML), the error
+    locations' normalised positions) may move, by a few ulps."""
+    import jax
+    import jax.numpy as jnp
+
+    from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
+
+    opts = padgett_mc.chunk_compiler_options()
+    if not padgett_mc.NO_YNN_FUSIONS.items() <= opts.items():
+        pytest.skip("this jaxlib's XLA has no YNNPACK fusions to turn off")
+    assert opts == padgett_mc.CHUNK_COMPILER_OPTIONS
+    assert padgett_mc.Config().to_json()["numerics"] == 4
+    # the maps: the study's loop of Mapper.update_batch, compiled both ways
+    cfg = padgett_mc.Config(runs=24, levels=1, chunk_runs=24)
+    pq, poses = padgett_mc._setup(cfg)
+
+    def maps(run_keys, sigma_r):
+        lm, params, keys = jax.vmap(partial(padgett_mc._run_inputs, cfg, poses),
+                                    in_axes=(0, None))(run_keys, sigma_r)
+        st = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (cfg.runs, *x.shape)),
+                                    pq.init())
+
+        def step(states, inp):
+            rel, vis, k_map = jax.vmap(padgett_mc._observe_step, in_axes=(0, None, 0, 0))(
+                inp[1], inp[0], lm, params)
+            return pq.update_batch(states, k_map, rel, vis, sigma_r)[0], None
+
+        return jax.lax.scan(step, st, (poses, jnp.swapaxes(keys, 0, 1)))[0]
+
+    keys = padgett_mc.run_keys(cfg, 0, np.arange(cfg.runs))
+    lowered = jax.jit(maps).lower(keys, jnp.float32(20.0))
+    got = [jax.device_get(lowered.compile(compiler_options=o)(keys, jnp.float32(20.0)))
+           for o in (KERNEL_COMPILER_OPTIONS, opts)]
+    _assert_same_leaves(*got, "map ")
+    assert np.asarray(got[0].mapped).sum() > 0
+    # the metrics: every leaf equal except the float sums, and those within a few ulps
+    results = []
+    for o in (KERNEL_COMPILER_OPTIONS, opts):
+        monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", dict(o))
+        monkeypatch.setattr(padgett_mc, "_AOT", {})
+        results.append(padgett_mc.run_level(cfg, 0, 20.0))
+    _assert_same_but_float_metrics(*results)
+
+
+def test_chunk_compiler_options_without_an_option_xla_does_not_know(monkeypatch):
+    """A jaxlib whose XLA has no YNNPACK fusion option compiles the chunk program without
+    it (nothing to turn off); every other option still reaches XLA unchanged."""
+    from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
+
+    unknown = {"xla_cpu_no_such_ynn_option": ""}
+    monkeypatch.setattr(padgett_mc, "NO_YNN_FUSIONS", unknown)
+    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS",
+                        dict(KERNEL_COMPILER_OPTIONS, **unknown))
+    assert padgett_mc.chunk_compiler_options() == KERNEL_COMPILER_OPTIONS
+    monkeypatch.setattr(padgett_mc, "CHUNK_COMPILER_OPTIONS", {"xla_no_such_option": 1})
+    assert padgett_mc.chunk_compiler_options() == {"xla_no_such_option": 1}
+
+
+def test_auto_chunk_on_cpu_caps_the_chunk_and_evens_it_out(monkeypatch):
+    """On a CPU the automatic chunk is at most ``CPU_CHUNK_RUNS`` runs, evened out over the
+    runs (9 runs, cap 4: three calls of 3); the results equal those of one call of every
+    run, bit for bit except the float sums of the metrics (the chunk is part of the stored
+    layout for that reason)."""
+    import jax
+
+    if jax.local_devices()[0].platform != "cpu":
+        pytest.skip("the cap applies on a CPU backend")
+    cfg = padgett_mc.Config(runs=9, levels=1, num_samples=16, num_landmarks=5,
+                            representations=("edc", "lr"))
+    monkeypatch.setattr(padgett_mc, "CPU_CHUNK_RUNS", 4)
+    assert padgett_mc.auto_chunk(cfg, memory_bytes=10**12) == 3
+    monkeypatch.setattr(padgett_mc, "CPU_CHUNK_RUNS", 100)
+    assert padgett_mc.auto_chunk(cfg, memory_bytes=10**12) == 9  # fewer runs than the cap
+    chunked = padgett_mc.run_level(dataclasses.replace(cfg, chunk_runs=3), 0, 30.0)
+    whole = padgett_mc.run_level(dataclasses.replace(cfg, chunk_runs=9), 0, 30.0)
+    _assert_same_but_float_metrics(whole, chunked)
 
 
 @pytest.mark.slow

@@ -55,12 +55,27 @@ PAPER_FIG28_SIGMA_R = (1.0, 50.0)  # Fig. 2.8/2.9: σ_N = 0.04 and 1.73
 TOPN_SIGMA_N = (0.05, 0.7, 1.5)  # Fig. 2.16 regimes (P §2.3.2)
 #: rows per piece of the sparse batched update (results do not depend on it, docs/pqrm.md §map)
 SPARSE_BLOCK = 1024
-#: XLA options of the compiled chunk program: the sampling kernel's 512-bit vectors
-#: (:data:`pqrm_jax.pqrm.measurement.KERNEL_COMPILER_OPTIONS`, which JAX cannot set on the
-#: kernel's own jit once it is traced into this program); results unchanged, measured in
-#: docs/benchmarks.md §bench_padgett. A CPU without 512-bit vectors ignores it.
-CHUNK_COMPILER_OPTIONS = dict(KERNEL_COMPILER_OPTIONS)
-NUMERICS_VERSION = 3  # bump when the map's floating-point results change (see Config notes)
+#: the XLA option that keeps XLA:CPU from handing reductions to YNNPACK (its own emitters
+#: compute them instead); see :data:`CHUNK_COMPILER_OPTIONS`
+NO_YNN_FUSIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+#: XLA options of the compiled chunk program (measured in docs/benchmarks.md §bench_padgett):
+#:
+#: * the sampling kernel's 512-bit vectors
+#:   (:data:`pqrm_jax.pqrm.measurement.KERNEL_COMPILER_OPTIONS`, which JAX cannot set on the
+#:   kernel's own jit once it is traced into this program); results unchanged; a CPU without
+#:   512-bit vectors ignores it;
+#: * no YNNPACK fusions (:data:`NO_YNN_FUSIONS`): with XLA's own reduction emitters a
+#:   1 000-run level took 2.10 instead of 2.49 CPU-s on the 2-core host; the float sums of
+#:   the metrics (per-run entropy, P(ML), the error locations' normalised positions) change
+#:   in the last bits, hence numerics version 4. A jaxlib whose XLA has no such option (no
+#:   YNNPACK fusions to turn off) compiles without it (:func:`chunk_compiler_options`).
+CHUNK_COMPILER_OPTIONS = dict(KERNEL_COMPILER_OPTIONS, **NO_YNN_FUSIONS)
+NUMERICS_VERSION = 4  # bump when the map's floating-point results change (see Config notes)
+#: runs per compiled call on a CPU backend when ``--chunk`` is not given (at most; fewer when
+#: the memory is short): a chunk's map (≈ 0.2 MB a run) then stays near the core's caches, and
+#: a 1 000-run level took 2.10 CPU-s in chunks of 100 against 2.45 in one call of 1 000 (50:
+#: 2.15, 250: 2.29; docs/benchmarks.md §bench_padgett); the results do not depend on it
+CPU_CHUNK_RUNS = 100
 
 
 @dataclasses.dataclass
@@ -111,6 +126,13 @@ class Config:
                         "their ML state can flip where two states are within an ulp: on the "
                         "full study rates moved by at most 3.3e-6, about one triplet in "
                         "300 000; counts and every EDC and edc_lune result unchanged); "
+                        "4 = the chunk program compiled without YNNPACK fusions (XLA's own "
+                        "reduction emitters in the metrics; the maps are unchanged bit for "
+                        "bit): per-run entropy and P(ML) differ from version 3 in the last "
+                        "bits (level means within 1.2e-7), the error locations' normalised "
+                        "positions by at most 1.5e-5 |AB| (one triplet moved to the next "
+                        "boundary-distance bin in 2 of 25 levels); counts, error, top-n and "
+                        "neighbour rates and confusion matrices unchanged; "
                         "a directory written by another version is refused, not mixed",
         }
         return d
@@ -274,6 +296,33 @@ def _mesh_sharding():
 
 
 _COMPILED: dict = {}
+_XLA_KNOWS: dict = {}  # option name -> whether this jaxlib's XLA takes it
+
+
+def chunk_compiler_options() -> dict:
+    """:data:`CHUNK_COMPILER_OPTIONS` as this jaxlib takes them: without
+    :data:`NO_YNN_FUSIONS` when its XLA does not know that option (a jaxlib without YNNPACK
+    fusions computes its reductions with XLA's own emitters anyway). Checked once, by
+    compiling a one-op program with it; any other option XLA does not know is refused by
+    name when the chunk program compiles.
+    """
+    opts = dict(CHUNK_COMPILER_OPTIONS)
+    if any(k not in opts for k in NO_YNN_FUSIONS):
+        return opts
+    name = next(iter(NO_YNN_FUSIONS))
+    if name not in _XLA_KNOWS:
+        try:
+            jax.jit(lambda x: x + 1).lower(jnp.float32(0)).compile(
+                compiler_options=NO_YNN_FUSIONS)
+            _XLA_KNOWS[name] = True
+        except Exception as exc:  # noqa: BLE001  (XLA's error type varies by version)
+            if name not in str(exc):
+                raise
+            _XLA_KNOWS[name] = False
+    if not _XLA_KNOWS[name]:
+        for k in NO_YNN_FUSIONS:
+            opts.pop(k)
+    return opts
 
 
 def compiled_runner(cfg: Config, *, dense: bool = False):
@@ -312,7 +361,7 @@ def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
                 _AOT.clear()
             keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
             _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile(
-                compiler_options=CHUNK_COMPILER_OPTIONS or None))
+                compiler_options=chunk_compiler_options() or None))
         return _AOT[key][1], sharding
 
 
@@ -339,17 +388,23 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
     """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
 
     :func:`~pqrm_jax.studies.chunking.auto` with this study's programs: first the program of
-    every run in one call (``cfg.runs`` rounded up to the devices) — the program the study
-    then runs, so in the usual case nothing else is compiled — is taken when it fits;
-    otherwise one run's bytes are bounded by the compiled program of :data:`PROBE_LANES` run
-    per device and the largest power of two of runs per device that fits is taken. Without
-    memory figures: :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK`.
+    the preferred chunk — every run in one call (``cfg.runs`` rounded up to the devices), on
+    a CPU backend at most :data:`CPU_CHUNK_RUNS` runs (evened out over the runs, so 1 000
+    runs are 10 calls of 100) — the program the study then runs, so in the usual case
+    nothing else is compiled, is taken when it fits; otherwise one run's bytes are bounded
+    by the compiled program of :data:`PROBE_LANES` run per device and the largest power of
+    two of runs per device that fits (at most the preferred chunk) is taken. Without memory
+    figures: the preferred chunk, at most
+    :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK`.
     """
     from . import chunking
 
     ndev = len(jax.local_devices())
-    whole = -(-cfg.runs // ndev) * ndev
-    per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
+    preferred = cfg.runs
+    if jax.local_devices()[0].platform == "cpu":
+        preferred = chunking.balance(min(cfg.runs, CPU_CHUNK_RUNS), cfg.runs, ndev)
+    whole = -(-preferred // ndev) * ndev
+    per_device = min(PROBE_LANES, -(-preferred // ndev))
 
     def full() -> int | None:
         return chunking.program_bytes(
@@ -361,8 +416,9 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
                                     memory_bytes=memory_bytes)
         return chunking.program_bytes(compiled)
 
-    return chunking.auto(probe, total=cfg.runs, devices=ndev, per_probe=per_device,
-                         memory_bytes=memory_bytes, whole=full, option="--chunk")
+    return chunking.auto(probe, total=preferred, devices=ndev, per_probe=per_device,
+                         memory_bytes=memory_bytes, whole=full, option="--chunk",
+                         fallback=min(preferred, chunking.FALLBACK_CHUNK))
 
 
 def run_keys(cfg: Config, level_index: int, runs) -> jax.Array:
@@ -752,5 +808,6 @@ if __name__ == "__main__":  # pragma: no cover
 
 __all__ = ["Config", "PRESETS", "claims", "configure", "report", "sweep_summary", "run_study",
            "run_level", "run_keys", "auto_chunk",
+           "chunk_compiler_options", "CHUNK_COMPILER_OPTIONS", "CPU_CHUNK_RUNS",
            "resolve_chunk", "chunk_program", "level_workers", "summarise_level", "memory_error",
            "load_results", "main", "boundary_distance"]
