@@ -6,6 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pqrm_jax import calculi, pqrm
 from pqrm_jax.pqrm import metrics
@@ -256,3 +258,23 @@ def test_merged_counts_equal_the_aggregation_product():
         want = fine.astype(np.float64) @ aggregation_matrix(c).astype(np.float64)
         assert got.shape == (len(fine), c.num_states)
         np.testing.assert_array_equal(got, want.astype(np.float32))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 300), st.integers(1, 70), st.sampled_from([0.0, 0.1, 0.5, 0.9, 1.0]),
+       st.integers(0, 2**31 - 1))
+def test_seen_order_is_nonzero_padded_to_whole_pieces(n, block, p_seen, seed):
+    """``map._seen_order`` (one running count and a scatter) gives exactly the seen rows
+    of ``jnp.nonzero(mask, size=N, fill_value=N)`` in order, padded with N to whole pieces,
+    for every mask: none seen, all seen, pieces larger than N, a last piece cut short."""
+    from pqrm_jax.pqrm.map import _seen_order
+
+    mask = np.random.default_rng(seed).random(n) < p_seen
+    order, num_seen, blk, pieces = _seen_order(jnp.asarray(mask), block)
+    assert blk == max(1, min(block, n)) and pieces == -(-n // blk)
+    want = np.full(pieces * blk, n, np.int32)
+    want[:mask.sum()] = np.flatnonzero(mask)
+    np.testing.assert_array_equal(np.asarray(order), want)
+    assert order.dtype == jnp.int32 and int(num_seen) == mask.sum()
+    ref = jnp.nonzero(jnp.asarray(mask), size=n, fill_value=n)[0]
+    np.testing.assert_array_equal(np.asarray(order)[:n], np.asarray(ref))

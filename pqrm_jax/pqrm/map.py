@@ -347,13 +347,20 @@ def _seen_order(mask: jax.Array, block: int) -> tuple[jax.Array, jax.Array, int,
     """The rows of ``mask`` [N] that are seen, in order, padded with N to whole pieces.
 
     Returns ``(order [P·blk] int32, number seen () int32, blk, P)``: pieces of
-    ``blk = min(block, N)`` rows (at least 1), ``P = ⌈N / blk⌉`` of them at most.
+    ``blk = min(block, N)`` rows (at least 1), ``P = ⌈N / blk⌉`` of them at most. The
+    values of ``jnp.nonzero(mask, size=N, fill_value=N)`` padded with N, from one running
+    count and one scatter (each seen row to its rank; ``jnp.nonzero`` takes two running
+    counts, a scatter-add and a concatenation: a padgett-mc level took 6 % more CPU,
+    docs/benchmarks.md §bench_padgett).
     """
     total = mask.shape[0]
     blk = max(1, min(block, total))
     nblk_max = -(-total // blk)
-    order = jnp.nonzero(mask, size=total, fill_value=total)[0].astype(jnp.int32)
-    order = jnp.concatenate([order, jnp.full(nblk_max * blk - total, total, jnp.int32)])
+    mask = jnp.asarray(mask, bool)
+    rows = jnp.arange(total, dtype=jnp.int32)
+    rank = jnp.cumsum(mask, dtype=jnp.int32) - 1  # of each seen row among the seen rows
+    slot = jnp.where(mask, rank, nblk_max * blk)  # the rows not seen: out of range, dropped
+    order = jnp.full(nblk_max * blk, total, jnp.int32).at[slot].set(rows, mode="drop")
     return order, jnp.sum(mask, dtype=jnp.int32), blk, nblk_max
 
 
