@@ -370,7 +370,7 @@ def _sparse_group_update(z, m, s, mask, rows, *, most_seen, n: int, block: int, 
 
     z [Rg, c, 6, C] banks of the Rg maps (sample-major); m [Rg·N, 6], s [Rg·N, 3], mask
     [Rg·N] per triplet row (map-major); rows = (probs, mapped, num_updates, num_conflicts,
-    num_rejected) flattened the same way. The seen rows are compacted (``jnp.nonzero``,
+    num_rejected) flattened the same way. The seen rows are compacted (:func:`_seen_order`,
     static size) and a ``lax.while_loop`` runs ⌈#seen / block⌉ pieces, each scattered into
     the map the loop carries, so every seen row is updated and nothing else is computed (in
     Padgett's study about 1 row in 8 is seen). Each row's arithmetic is that of the dense
