@@ -77,17 +77,39 @@ def test_auto_is_the_one_sizer_whole_then_probe_then_fallback():
         return 2 * mib  # a probe of 2 lanes per device: 1 MiB per lane
 
     kw = dict(total=1000, option="--chunk", per_probe=2, memory_bytes=100 * mib)
-    assert chunking.auto(probe, whole=lambda: 50 * mib, **kw) == 1000 and not calls
-    assert chunking.auto(probe, whole=lambda: 50 * mib + 1, **kw) == 32 and calls
-    assert chunking.auto(probe, whole=lambda: None, **kw) == 32
+    assert chunking.auto(probe, whole=lambda n: 50 * mib, **kw) == 1000 and not calls
+    assert chunking.auto(probe, whole=lambda n: 50 * mib + 1, **kw) == 32 and calls
+    assert chunking.auto(probe, whole=lambda n: None, **kw) == 32
     assert chunking.auto(probe, **kw, devices=4) == 4 * 32
-    assert chunking.auto(probe, **dict(kw, total=10), devices=4, whole=lambda: 1) == 12
+    assert chunking.auto(probe, **dict(kw, total=10), devices=4, whole=lambda n: 1) == 12
     assert chunking.auto(probe, **kw, even=True) == 32  # 1000 / 32: 32 calls of 32 (31.25)
     assert chunking.auto(probe, **dict(kw, total=40), even=True) == 20  # 2 calls of 20
     assert chunking.auto(lambda: None, **kw) == chunking.FALLBACK_CHUNK
     assert chunking.auto(lambda: 0, **kw, fallback=7) == 7
     with pytest.raises(StudyError, match="--chunk cannot go below one lane"):
         chunking.auto(lambda: 1 << 30, total=4, option="--chunk", memory_bytes=100 * mib)
+
+
+def test_auto_caps_the_first_program_and_the_fallback_on_a_cpu():
+    """``cpu_cap`` bounds the first program ``auto`` tries on a CPU backend, evened out over
+    the lanes (1 000 lanes: 100; 150: two calls of 75), and the fallback without memory
+    figures; on another backend it changes neither."""
+    import jax
+
+    mib = 1 << 20
+    cpu = jax.local_devices()[0].platform == "cpu"
+    asked = []
+
+    def whole(lanes):
+        asked.append(lanes)
+        return 1
+
+    kw = dict(option="--chunk", memory_bytes=100 * mib, whole=whole, cpu_cap=100)
+    assert chunking.auto(lambda: None, total=1000, **kw) == (100 if cpu else 1000)
+    assert chunking.auto(lambda: None, total=150, **kw) == (75 if cpu else 150)
+    assert asked == ([100, 75] if cpu else [1000, 150])
+    assert chunking.auto(lambda: None, total=1000, option="--chunk", cpu_cap=100) == \
+        (100 if cpu else chunking.FALLBACK_CHUNK)
 
 
 def test_program_bytes_is_remembered_per_program(monkeypatch):

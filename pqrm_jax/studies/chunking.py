@@ -201,30 +201,35 @@ def fit(per_lane_bytes: float | None, budget_bytes: int | None, *, total: int,
         return None
     chunk = pick_chunk(per_lane_bytes, budget_bytes, total=total, devices=devices,
                        option=option)
-    if cpu_cap is not None:
-        import jax
-
-        if jax.local_devices()[0].platform == "cpu":
-            chunk = min(chunk, cpu_cap)
+    if cpu_cap is not None and _on_cpu():
+        chunk = min(chunk, cpu_cap)
     return balance(chunk, total, devices) if even else chunk
+
+
+def _on_cpu() -> bool:
+    import jax
+
+    return jax.local_devices()[0].platform == "cpu"
 
 
 def auto(probe: Callable[[], int | None], *, total: int, option: str, devices: int = 1,
          per_probe: float = 1, memory_bytes: int | None = None, cpu_cap: int | None = None,
          even: bool = False, fallback: int = FALLBACK_CHUNK,
-         whole: Callable[[], int | None] | None = None, say: str | None = None,
+         whole: Callable[[int], int | None] | None = None, say: str | None = None,
          unit: str = "lanes") -> int:
     """The chunk (lanes per compiled call) sized from the device memory: the one chunk sizer.
 
-    1. ``whole`` (optional): the bytes of the program of all ``total`` lanes in one call
-       (rounded up to ``devices``) — the program the study then runs, so in the usual case
-       nothing else is compiled; taken when it needs at most :data:`FRACTION` of the budget;
+    1. ``whole(lanes)`` (optional): the bytes of the program of the first choice of lanes
+       per call — all ``total`` lanes (rounded up to ``devices``), on a CPU backend at most
+       ``cpu_cap`` evened out over ``total`` (:func:`balance`) — the program the study then
+       runs, so in the usual case nothing else is compiled; taken when it needs at most
+       :data:`FRACTION` of the budget;
     2. else ``probe()``: the bytes of a probe program of ``per_probe`` lanes per device (its
        fixed part then counted for every lane: ``n`` lanes need at most ``n / per_probe``
        times it); :func:`fit` takes the largest power of two per device that fits (at most
        ``cpu_cap`` on a CPU backend, evened out over ``total`` if ``even``);
     3. without memory figures (the backend gives no analysis, or neither the device nor the
-       OS reports its memory): ``fallback``.
+       OS reports its memory): ``fallback`` (at most ``cpu_cap`` on a CPU backend).
 
     Args:
         probe: bytes of the probe program on one device (None: no analysis), called at most
@@ -236,7 +241,8 @@ def auto(probe: Callable[[], int | None], *, total: int, option: str, devices: i
         memory_bytes: the budget per device (None: what the device reports, :func:`budget`).
         cpu_cap, even: as for :func:`fit`.
         fallback: the chunk without memory figures.
-        whole: bytes of the program of every lane in one call (None: not tried).
+        whole: lanes ↦ bytes of the program of that many lanes in one call, called with
+            the first choice above (None: not tried).
         say: a prefix (the study's name) to print the sized chunk with; None prints nothing.
         unit: what one lane is, for that line (``"environments"``).
 
@@ -249,7 +255,7 @@ def auto(probe: Callable[[], int | None], *, total: int, option: str, devices: i
     >>> auto(lambda: 1 << 20, total=1000, option="--chunk", memory_bytes=100 << 20)
     32
     >>> auto(lambda: 1 << 20, total=1000, option="--chunk", memory_bytes=100 << 20,
-    ...      whole=lambda: 40 << 20)  # all 1000 in one call fit in half of 100 MiB
+    ...      whole=lambda n: 40 << 20)  # all 1000 in one call fit in half of 100 MiB
     1000
     >>> auto(lambda: None, total=1000, option="--chunk", fallback=128)
     128
@@ -260,10 +266,14 @@ def auto(probe: Callable[[], int | None], *, total: int, option: str, devices: i
     32
     """
     budget_bytes = budget(memory_bytes)
+    first = -(-total // devices) * devices
+    if cpu_cap is not None and _on_cpu():  # the caches, not the memory, bound a CPU's chunk
+        first = balance(min(first, cpu_cap), total, devices)
+        fallback = min(fallback, cpu_cap)
     if whole is not None and budget_bytes is not None:
-        nbytes = whole()
+        nbytes = whole(first)
         if nbytes is not None and nbytes <= FRACTION * budget_bytes:
-            return -(-total // devices) * devices
+            return first
     nbytes = probe()
     per_lane = nbytes / per_probe if nbytes else None
     chunk = fit(per_lane, budget_bytes, total=total, devices=devices, option=option,

@@ -388,27 +388,22 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
     """Runs per compiled call sized from the device memory (docs/studies.md §padgett-mc).
 
     :func:`~pqrm_jax.studies.chunking.auto` with this study's programs: first the program of
-    the preferred chunk — every run in one call (``cfg.runs`` rounded up to the devices), on
-    a CPU backend at most :data:`CPU_CHUNK_RUNS` runs (evened out over the runs, so 1 000
-    runs are 10 calls of 100) — the program the study then runs, so in the usual case
-    nothing else is compiled, is taken when it fits; otherwise one run's bytes are bounded
-    by the compiled program of :data:`PROBE_LANES` run per device and the largest power of
-    two of runs per device that fits (at most the preferred chunk) is taken. Without memory
-    figures: the preferred chunk, at most
-    :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK`.
+    every run in one call (``cfg.runs`` rounded up to the devices; on a CPU backend at most
+    :data:`CPU_CHUNK_RUNS` runs, evened out: 1 000 runs are 10 calls of 100) — the program
+    the study then runs, so in the usual case nothing else is compiled — is taken when it
+    fits; otherwise one run's bytes are bounded by the compiled program of
+    :data:`PROBE_LANES` run per device and the largest power of two of runs per device that
+    fits is taken (at most the CPU cap). Without memory figures:
+    :data:`~pqrm_jax.studies.chunking.FALLBACK_CHUNK` (at most the CPU cap).
     """
     from . import chunking
 
     ndev = len(jax.local_devices())
-    preferred = cfg.runs
-    if jax.local_devices()[0].platform == "cpu":
-        preferred = chunking.balance(min(cfg.runs, CPU_CHUNK_RUNS), cfg.runs, ndev)
-    whole = -(-preferred // ndev) * ndev
-    per_device = min(PROBE_LANES, -(-preferred // ndev))
+    per_device = min(PROBE_LANES, -(-cfg.runs // ndev))
 
-    def full() -> int | None:
+    def full(lanes: int) -> int | None:
         return chunking.program_bytes(
-            _compiled_chunk(dataclasses.replace(cfg, chunk_runs=whole), whole)[0])
+            _compiled_chunk(dataclasses.replace(cfg, chunk_runs=lanes), lanes)[0])
 
     def probe() -> int | None:
         lanes = per_device * ndev
@@ -416,9 +411,9 @@ def auto_chunk(cfg: Config, *, memory_bytes: int | None = None) -> int:
                                     memory_bytes=memory_bytes)
         return chunking.program_bytes(compiled)
 
-    return chunking.auto(probe, total=preferred, devices=ndev, per_probe=per_device,
+    return chunking.auto(probe, total=cfg.runs, devices=ndev, per_probe=per_device,
                          memory_bytes=memory_bytes, whole=full, option="--chunk",
-                         fallback=min(preferred, chunking.FALLBACK_CHUNK))
+                         cpu_cap=CPU_CHUNK_RUNS)
 
 
 def run_keys(cfg: Config, level_index: int, runs) -> jax.Array:
