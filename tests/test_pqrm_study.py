@@ -5,7 +5,6 @@ import json
 import os
 import subprocess
 import sys
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -184,25 +183,11 @@ def test_no_ynn_fusions_keep_the_maps_and_move_only_float_metrics(monkeypatch):
         pytest.skip("this jaxlib's XLA has no YNNPACK fusions to turn off")
     assert opts == padgett_mc.CHUNK_COMPILER_OPTIONS
     assert padgett_mc.Config().to_json()["numerics"] == 4
-    # the maps: the study's loop of Mapper.update_batch, compiled both ways
+    # the maps: the study's mapping (the loop of Mapper.update_batch), compiled both ways
     cfg = padgett_mc.Config(runs=24, levels=1, chunk_runs=24)
-    pq, poses = padgett_mc._setup(cfg)
-
-    def maps(run_keys, sigma_r):
-        lm, params, keys = jax.vmap(partial(padgett_mc._run_inputs, cfg, poses),
-                                    in_axes=(0, None))(run_keys, sigma_r)
-        st = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (cfg.runs, *x.shape)),
-                                    pq.init())
-
-        def step(states, inp):
-            rel, vis, k_map = jax.vmap(padgett_mc._observe_step, in_axes=(0, None, 0, 0))(
-                inp[1], inp[0], lm, params)
-            return pq.update_batch(states, k_map, rel, vis, sigma_r)[0], None
-
-        return jax.lax.scan(step, st, (poses, jnp.swapaxes(keys, 0, 1)))[0]
-
+    maps, _ = padgett_mc._make_maps_fn(cfg)
     keys = padgett_mc.run_keys(cfg, 0, np.arange(cfg.runs))
-    lowered = jax.jit(maps).lower(keys, jnp.float32(20.0))
+    lowered = jax.jit(lambda k, s: maps(k, s)[1]).lower(keys, jnp.float32(20.0))
     got = [jax.device_get(lowered.compile(compiler_options=o)(keys, jnp.float32(20.0)))
            for o in (KERNEL_COMPILER_OPTIONS, opts)]
     _assert_same_leaves(*got, "map ")

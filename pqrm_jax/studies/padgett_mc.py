@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -257,18 +258,18 @@ def _make_dense_run_fn(cfg: Config, dists: dict):
     return run
 
 
-def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
-    """``run_batch(keys [R], sigma_r) -> dict`` of per-run results (leading axis R).
+def _make_maps_fn(cfg: Config, groups: int = 1):
+    """``(maps, mapper)``: ``maps(run_keys [R], sigma_r) -> (landmarks [R, M, 2], MapState)``,
+    the R runs' worlds and their maps after the loop — the study's mapping, which
+    :func:`_make_batch_fn` scores.
 
-    Same results as ``jax.vmap(_make_dense_run_fn(...))`` bit for bit (same keys, same draws):
-    the R maps are stepped together with ``Mapper.update_batch``, which samples eq. 2.9 only
+    The R maps are stepped together with ``Mapper.update_batch``, which samples eq. 2.9 only
     for the triplets seen at each step (compacted across the R runs; ``groups`` independent
     compactions, one per device).
     """
     pq, poses = _setup(cfg)
-    run_metrics = _make_metrics_fn(cfg, dists, pq)
 
-    def run_batch(run_keys, sigma_r):
+    def maps(run_keys, sigma_r):
         lm, params, keys = jax.vmap(partial(_run_inputs, cfg, poses),
                                     in_axes=(0, None))(run_keys, sigma_r)
         r = run_keys.shape[0]
@@ -282,7 +283,22 @@ def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
             return pq.update_batch(states, k_map, rel, vis, sigma_r, groups=groups)[0], None
 
         states, _ = jax.lax.scan(step, state0, (poses, jnp.swapaxes(keys, 0, 1)))
-        return jax.vmap(run_metrics)(lm, states)
+        return lm, states
+
+    return maps, pq
+
+
+def _make_batch_fn(cfg: Config, dists: dict, groups: int = 1):
+    """``run_batch(keys [R], sigma_r) -> dict`` of per-run results (leading axis R).
+
+    Same results as ``jax.vmap(_make_dense_run_fn(...))`` bit for bit (same keys, same draws):
+    the maps of :func:`_make_maps_fn`, scored run by run.
+    """
+    maps, pq = _make_maps_fn(cfg, groups)
+    run_metrics = _make_metrics_fn(cfg, dists, pq)
+
+    def run_batch(run_keys, sigma_r):
+        return jax.vmap(run_metrics)(*maps(run_keys, sigma_r))
 
     return run_batch
 
@@ -296,33 +312,29 @@ def _mesh_sharding():
 
 
 _COMPILED: dict = {}
-_XLA_KNOWS: dict = {}  # option name -> whether this jaxlib's XLA takes it
+
+
+@functools.cache
+def _xla_takes(name: str, value) -> bool:
+    """Whether this jaxlib's XLA accepts the compile option ``name`` (a one-op program)."""
+    try:
+        jax.jit(lambda x: x + 1).lower(jnp.float32(0)).compile(compiler_options={name: value})
+    except Exception as exc:  # noqa: BLE001  (XLA's error type varies by version)
+        if name not in str(exc):
+            raise
+        return False
+    return True
 
 
 def chunk_compiler_options() -> dict:
     """:data:`CHUNK_COMPILER_OPTIONS` as this jaxlib takes them: without
     :data:`NO_YNN_FUSIONS` when its XLA does not know that option (a jaxlib without YNNPACK
-    fusions computes its reductions with XLA's own emitters anyway). Checked once, by
-    compiling a one-op program with it; any other option XLA does not know is refused by
-    name when the chunk program compiles.
+    fusions computes its reductions with XLA's own emitters anyway). Checked once per
+    option; any other option XLA does not know is refused by name when the chunk program
+    compiles.
     """
-    opts = dict(CHUNK_COMPILER_OPTIONS)
-    if any(k not in opts for k in NO_YNN_FUSIONS):
-        return opts
-    name = next(iter(NO_YNN_FUSIONS))
-    if name not in _XLA_KNOWS:
-        try:
-            jax.jit(lambda x: x + 1).lower(jnp.float32(0)).compile(
-                compiler_options=NO_YNN_FUSIONS)
-            _XLA_KNOWS[name] = True
-        except Exception as exc:  # noqa: BLE001  (XLA's error type varies by version)
-            if name not in str(exc):
-                raise
-            _XLA_KNOWS[name] = False
-    if not _XLA_KNOWS[name]:
-        for k in NO_YNN_FUSIONS:
-            opts.pop(k)
-    return opts
+    return {k: v for k, v in CHUNK_COMPILER_OPTIONS.items()
+            if k not in NO_YNN_FUSIONS or _xla_takes(k, v)}
 
 
 def compiled_runner(cfg: Config, *, dense: bool = False):
@@ -355,13 +367,14 @@ def _compiled_chunk(cfg: Config, chunk: int, *, dense: bool = False):
     """(compiled call, sharding) of the runner for chunks of ``chunk`` runs, cached."""
     with _LOCK:
         _, batched, sharding = compiled_runner(cfg, dense=dense)
-        key = (id(batched), chunk)
+        options = chunk_compiler_options()
+        key = (id(batched), chunk, json.dumps(options, sort_keys=True))
         if key not in _AOT:
             if len(_AOT) > 4:
                 _AOT.clear()
             keys = jax.device_put(jax.random.split(jax.random.key(0), chunk), sharding)
             _AOT[key] = (batched, batched.lower(keys, jnp.float32(0.0)).compile(
-                compiler_options=chunk_compiler_options() or None))
+                compiler_options=options or None))
         return _AOT[key][1], sharding
 
 
