@@ -91,24 +91,24 @@ def _program(cfg):
     return prog, keys, wall, cpu
 
 
-def _layout(cfg, keys, sigma, repeat: int) -> dict:
-    """The study's CPU layout (chunks of ``CPU_CHUNK_RUNS``, ``chunk_compiler_options()``)
-    against one call of every run compiled with the kernel's options only (YNNPACK on)."""
+def _layout(cfg, sigma: float, repeat: int) -> dict:
+    """The study's layout on this device (``padgett_mc.auto_chunk``: chunks of
+    ``CPU_CHUNK_RUNS`` on a CPU; ``chunk_compiler_options()``) against one call of every run
+    compiled with the kernel's options only (YNNPACK on); both through ``run_level``."""
     from pqrm_jax.pqrm.measurement import KERNEL_COMPILER_OPTIONS
-    from pqrm_jax.studies import chunking
 
-    chunk = chunking.balance(min(cfg.runs, padgett_mc.CPU_CHUNK_RUNS), cfg.runs)
-    _, batched, _ = padgett_mc.compiled_runner(cfg)
-    before = batched.lower(keys, sigma).compile(compiler_options=KERNEL_COMPILER_OPTIONS)
-    now, _ = padgett_mc.chunk_program(dataclasses.replace(cfg, chunk_runs=chunk), chunk)
-    idx = np.minimum(np.arange(-(-cfg.runs // chunk) * chunk), cfg.runs - 1).reshape(-1, chunk)
+    chunk = padgett_mc.auto_chunk(dataclasses.replace(cfg, chunk_runs=None))
+    now = dataclasses.replace(cfg, chunk_runs=chunk)
 
-    def chunked():
-        parts = [jax.device_get(now(keys[row], sigma)) for row in idx]
-        out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
-        return jax.tree_util.tree_map(lambda x: x[:cfg.runs], out)
+    def before():
+        saved = padgett_mc.CHUNK_COMPILER_OPTIONS
+        padgett_mc.CHUNK_COMPILER_OPTIONS = dict(KERNEL_COMPILER_OPTIONS)
+        try:
+            return padgett_mc.run_level(cfg, 0, sigma)  # cfg: every run in one call
+        finally:
+            padgett_mc.CHUNK_COMPILER_OPTIONS = saved
 
-    calls = {"one_call_ynn": lambda: jax.device_get(before(keys, sigma)), "chunked": chunked}
+    calls = {"one_call_ynn": before, "chunked": lambda: padgett_mc.run_level(now, 0, sigma)}
     times = {k: [] for k in calls}
     res = {}
     for _ in range(repeat + 1):  # the first pass warms up, interleaved
@@ -199,7 +199,7 @@ def main(argv=None) -> int:
             "num_leaves": len(leaves_c),
         }
     )
-    out["layout"] = lay = _layout(cfg, keys, sigma, args.repeat)
+    out["layout"] = lay = _layout(cfg, args.sigma, args.repeat)
     path = write_result(out, args.out)
     print(
         f"reference {ref['per_run_ms']:.2f} ms/run ({ref['per_run_cpu_ms']:.2f} CPU), "
